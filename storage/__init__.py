@@ -1,0 +1,1 @@
+"""Where Ringside keeps things: the DuckDB file, the artifact store, stage keys."""

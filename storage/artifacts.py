@@ -1,0 +1,53 @@
+"""Content-addressed artifact store: large binaries live in files named by their SHA-256.
+
+DuckDB rows refer to an artifact by its name, ``<sha256><suffix>``; the same bytes are stored once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+
+def artifact_name(data: bytes, suffix: str = "") -> str:
+    if suffix and not suffix.startswith("."):
+        raise ValueError(f"suffix must start with '.', got {suffix!r}")
+    return hashlib.sha256(data).hexdigest() + suffix
+
+
+def artifact_path(root: Path, name: str) -> Path:
+    """Where the artifact ``name`` lives: ``root/ab/abcdef….suffix``."""
+    if len(name) < 64:
+        raise ValueError(f"not an artifact name: {name!r}")
+    return root / name[:2] / name
+
+
+def put_bytes(root: Path, data: bytes, suffix: str = "") -> str:
+    """Store ``data`` and return its artifact name; storing the same bytes again is a no-op."""
+    name = artifact_name(data, suffix)
+    target = artifact_path(root, name)
+    if target.exists():
+        return name
+    target.parent.mkdir(parents=True, exist_ok=True)
+    # Written beside the target and renamed, so a killed process never leaves a partial artifact.
+    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as out:
+            out.write(data)
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return name
+
+
+def read_bytes(root: Path, name: str) -> bytes:
+    path = artifact_path(root, name)
+    if not path.exists():
+        raise FileNotFoundError(f"artifact {name} is missing from {root}")
+    data = path.read_bytes()
+    if hashlib.sha256(data).hexdigest() != name[:64]:
+        raise ValueError(f"artifact {path} is corrupt: its bytes do not match its name")
+    return data

@@ -1,0 +1,210 @@
+"""Third-party weights and sample data, fetched by package name from the package index.
+
+Nothing here imports mediapipe or pose2sim: their wheels are downloaded with ``pip download
+--no-deps`` at a pinned version, the files we need are read out of the archive, checked against
+their SHA-256 and written under ``<data>/assets`` with the licence they come under.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Asset:
+    """One file inside a pinned wheel: where it is, where it goes, what its bytes hash to."""
+
+    member: str
+    target: str
+    sha256: str
+
+
+@dataclass(frozen=True)
+class Wheel:
+    requirement: str
+    licence: str
+    licence_member: str
+    assets: tuple[Asset, ...]
+
+
+_MP = "Pose2Sim/Demo_MultiPerson"
+_SP = "Pose2Sim/Demo_SinglePerson"
+
+WHEELS: tuple[Wheel, ...] = (
+    Wheel(
+        requirement="mediapipe==0.10.21",
+        licence="Apache-2.0",
+        licence_member="mediapipe-0.10.21.dist-info/LICENSE",
+        assets=(
+            Asset(
+                "mediapipe/modules/pose_detection/pose_detection.tflite",
+                "pose_detection.tflite",
+                "9ba9dd3d42efaaba86b4ff0122b06f29c4122e756b329d89dca1e297fd8f866c",
+            ),
+            Asset(
+                "mediapipe/modules/pose_landmark/pose_landmark_full.tflite",
+                "pose_landmark_full.tflite",
+                "e9a5c5cb17f736fafd4c2ec1da3b3d331d6edbe8a0d32395855aeb2cdfd64b9f",
+            ),
+        ),
+    ),
+    Wheel(
+        requirement="pose2sim==0.10.49",
+        licence="BSD-3-Clause",
+        licence_member="pose2sim-0.10.49.dist-info/licenses/LICENSE",
+        assets=(
+            Asset(
+                f"{_MP}/videos/cam01.mp4",
+                "samples/multi_person/cam01.mp4",
+                "543cee6a4c2c2b52dc9eac9137ee63d14f1f84e706a9a7264769edcb11e5ea53",
+            ),
+            Asset(
+                f"{_MP}/videos/cam02.mp4",
+                "samples/multi_person/cam02.mp4",
+                "8895092a7cf26359205a427b7ac2f4a935c2e0bd36d9b7a5140cb33faa468a6b",
+            ),
+            Asset(
+                f"{_MP}/videos/cam03.mp4",
+                "samples/multi_person/cam03.mp4",
+                "d3daf48cdf9f5603868ddb99166ddaf9b12279e7ce968922926560d5fd3f0c99",
+            ),
+            Asset(
+                f"{_MP}/videos/cam04.mp4",
+                "samples/multi_person/cam04.mp4",
+                "1490149dc40e7301fa5ceae23862b044ba5c398a8b2a40df21ed894702728c09",
+            ),
+            Asset(
+                f"{_MP}/calibration/Calib.qca.txt",
+                "samples/multi_person/Calib.qca.txt",
+                "fd90e4bbae3278ef1dc0cdd42a34ee06bf88286f628a02c00a29407aa39e34c5",
+            ),
+            Asset(
+                f"{_SP}/videos/cam01.mp4",
+                "samples/single_person/cam01.mp4",
+                "cf4f2816c86bea4bfbea255333d8626ff32a3ecabdab8b0fb147cea9167fde3a",
+            ),
+            Asset(
+                f"{_SP}/videos/cam02.mp4",
+                "samples/single_person/cam02.mp4",
+                "94ff87cf978b8406e8aa36ab3c5362e72848994e87652f0dc7a33c315e8e0442",
+            ),
+            Asset(
+                f"{_SP}/videos/cam03.mp4",
+                "samples/single_person/cam03.mp4",
+                "b8b329f832f178f27ecb78d024d5026b96c6adb36c387bfe2c0af85eab8a11ca",
+            ),
+            Asset(
+                f"{_SP}/videos/cam04.mp4",
+                "samples/single_person/cam04.mp4",
+                "b5c0e7863fd70d008e7178d3c556b045b0ea5f78fcd61ca548a0b2e807e641f7",
+            ),
+            Asset(
+                f"{_SP}/calibration/Calib.qca.txt",
+                "samples/single_person/Calib.qca.txt",
+                "fd90e4bbae3278ef1dc0cdd42a34ee06bf88286f628a02c00a29407aa39e34c5",
+            ),
+        ),
+    ),
+)
+
+# The two-fighter clip the demo and the end-to-end tests run on.
+SAMPLE_VIDEO = "samples/multi_person/cam01.mp4"
+
+# One platform for every machine, so every machine downloads the same archive.
+_PIP_TARGET = [
+    "--only-binary=:all:",
+    "--python-version",
+    "3.11",
+    "--platform",
+    "manylinux_2_28_x86_64",
+]
+
+
+class AssetError(RuntimeError):
+    """An asset could not be fetched or did not match its pinned hash."""
+
+
+def sha256_of(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        while block := f.read(1 << 20):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _present(root: Path, asset: Asset) -> bool:
+    path = root / asset.target
+    return path.is_file() and sha256_of(path) == asset.sha256
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as out:
+            out.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _download(requirement: str, folder: Path) -> Path:
+    command = [
+        sys.executable,
+        "-m",
+        "pip",
+        "download",
+        "--no-deps",
+        "--disable-pip-version-check",
+        "--timeout",
+        "30",
+        "--retries",
+        "2",
+        *_PIP_TARGET,
+        "-d",
+        str(folder),
+        requirement,
+    ]
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["pip gave no reason"])[-1]
+        raise AssetError(f"could not download {requirement} from the package index: {last}")
+    wheels = list(folder.glob("*.whl"))
+    if len(wheels) != 1:
+        raise AssetError(f"pip download {requirement} gave {len(wheels)} wheels, expected 1")
+    return wheels[0]
+
+
+def pull(root: Path, *, log=print) -> list[Path]:
+    """Make every asset present under ``root`` with the right bytes; return their paths.
+
+    Idempotent: files already there with the pinned hash are kept and nothing is downloaded.
+    """
+    for wheel in WHEELS:
+        missing = [a for a in wheel.assets if not _present(root, a)]
+        licence = root / "licenses" / f"{wheel.requirement.split('==')[0]}-{wheel.licence}.txt"
+        if not missing and licence.is_file():
+            continue
+        log(f"fetching {wheel.requirement} from the package index for {len(missing)} files")
+        with tempfile.TemporaryDirectory(prefix="ringside-assets-") as tmp:
+            archive = _download(wheel.requirement, Path(tmp))
+            with zipfile.ZipFile(archive) as zf:
+                for asset in missing:
+                    data = zf.read(asset.member)
+                    got = hashlib.sha256(data).hexdigest()
+                    if got != asset.sha256:
+                        raise AssetError(
+                            f"{asset.member} in {wheel.requirement} has SHA-256 {got}, "
+                            f"expected {asset.sha256}; refusing to use it"
+                        )
+                    _write_atomic(root / asset.target, data)
+                _write_atomic(licence, zf.read(wheel.licence_member))
+    return [root / a.target for w in WHEELS for a in w.assets]

@@ -1,0 +1,119 @@
+"""The one DuckDB file: connections, migrations and transactions.
+
+DuckDB allows one writing process at a time, so writers hold a connection only while they write and
+wait for the file's lock when another process holds it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from datetime import UTC, datetime
+from importlib import resources
+from pathlib import Path
+
+import duckdb
+
+LOCK_WAIT_S = 120.0
+
+# DuckDB refuses a read-only and a writable connection to one file inside one process, and
+# connections here are short, so a process takes turns with the database.
+_PROCESS_LOCK = threading.RLock()
+
+
+class DatabaseBusy(RuntimeError):
+    """Another process held the database's lock for longer than we were willing to wait."""
+
+
+def _is_lock_error(error: duckdb.Error) -> bool:
+    return "lock" in str(error).lower()
+
+
+def _open(path: Path, *, read_only: bool, wait_s: float) -> duckdb.DuckDBPyConnection:
+    deadline = time.monotonic() + wait_s
+    delay = 0.05
+    while True:
+        try:
+            return duckdb.connect(str(path), read_only=read_only)
+        except duckdb.IOException as error:
+            if not _is_lock_error(error) or time.monotonic() > deadline:
+                if _is_lock_error(error):
+                    raise DatabaseBusy(
+                        f"{path}: another process has held the database for over {wait_s:.0f} s"
+                    ) from error
+                raise
+            time.sleep(delay)
+            delay = min(delay * 2, 1.0)
+
+
+def migrations() -> list[tuple[int, str, str]]:
+    """The schema migrations shipped with the package, as (version, name, sql), in order."""
+    folder = resources.files("storage") / "migrations"
+    found = []
+    for entry in folder.iterdir():
+        if entry.name.endswith(".sql"):
+            number, _, rest = entry.name.partition("_")
+            found.append((int(number), rest.removesuffix(".sql"), entry.read_text()))
+    return sorted(found)
+
+
+def migrate(con: duckdb.DuckDBPyConnection) -> list[int]:
+    """Apply the migrations this database has not seen yet, each in its own transaction."""
+    con.execute(
+        "CREATE TABLE IF NOT EXISTS schema_migrations "
+        "(version INTEGER PRIMARY KEY, name VARCHAR NOT NULL, applied_at TIMESTAMP NOT NULL)"
+    )
+    applied = {row[0] for row in con.execute("SELECT version FROM schema_migrations").fetchall()}
+    done = []
+    for version, name, sql in migrations():
+        if version in applied:
+            continue
+        con.begin()
+        try:
+            con.execute(sql)
+            con.execute("INSERT INTO schema_migrations VALUES (?, ?, ?)", [version, name, utcnow()])
+            con.commit()
+        except BaseException:
+            con.rollback()
+            raise
+        done.append(version)
+    return done
+
+
+@contextmanager
+def connect(
+    path: Path, *, read_only: bool = False, wait_s: float = LOCK_WAIT_S
+) -> Iterator[duckdb.DuckDBPyConnection]:
+    """A connection to the database at ``path``, migrated when writable, closed on exit.
+
+    A read-only connection to a file that does not exist yet raises ``FileNotFoundError``.
+    """
+    if read_only and not path.exists():
+        raise FileNotFoundError(f"{path}: no database yet (process a video first)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with _PROCESS_LOCK:
+        con = _open(path, read_only=read_only, wait_s=wait_s)
+        try:
+            if not read_only:
+                migrate(con)
+            yield con
+        finally:
+            con.close()
+
+
+@contextmanager
+def transaction(con: duckdb.DuckDBPyConnection) -> Iterator[duckdb.DuckDBPyConnection]:
+    """Everything inside commits together or not at all."""
+    con.begin()
+    try:
+        yield con
+    except BaseException:
+        con.rollback()
+        raise
+    con.commit()
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC).replace(tzinfo=None)

@@ -1,0 +1,167 @@
+"""Rows every stage shares: videos, committed stage outputs, run events and stage metrics."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import duckdb
+
+from storage.db import transaction, utcnow
+from storage.keys import stable_json
+
+RUN_STATES = ("done", "cached", "failed")
+
+
+@dataclass(frozen=True)
+class OutputRecord:
+    """What identifies one committed stage output and how it was made."""
+
+    stage: str
+    video_id: str
+    key: str
+    config: Any
+    code_version: str
+    upstream: Mapping[str, Any]
+    run_id: str
+    seconds: float
+
+
+def register_video(con: duckdb.DuckDBPyConnection, video_id: str, size_bytes: int, path: str):
+    """Record a video and the path it came from; registering it again changes nothing."""
+    now = utcnow()
+    con.execute(
+        "INSERT INTO videos VALUES (?, ?, ?) ON CONFLICT DO NOTHING", [video_id, size_bytes, now]
+    )
+    con.execute(
+        "INSERT INTO video_files VALUES (?, ?, ?) ON CONFLICT DO NOTHING", [video_id, path, now]
+    )
+
+
+def has_output(con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key: str) -> bool:
+    row = con.execute(
+        "SELECT 1 FROM stage_outputs WHERE stage = ? AND video_id = ? AND key = ?",
+        [stage, video_id, key],
+    ).fetchone()
+    return row is not None
+
+
+def write_output(
+    con: duckdb.DuckDBPyConnection,
+    record: OutputRecord,
+    rows: Mapping[str, Sequence[tuple]],
+    metrics: Mapping[str, float],
+) -> None:
+    """Replace the output ``record`` names, its table rows and its metrics, in one transaction.
+
+    ``rows`` maps a stage table to its rows, each a tuple in the table's column order starting with
+    ``key, video_id``. A crash leaves either the old output or the new one, never a mix.
+    """
+    bad = {name: value for name, value in metrics.items() if not math.isfinite(value)}
+    if bad:
+        raise ValueError(f"{record.stage}: metrics must be finite numbers, got {bad}")
+    now = utcnow()
+    where = [record.key, record.video_id]
+    with transaction(con):
+        for table, table_rows in rows.items():
+            con.execute(f"DELETE FROM {table} WHERE key = ? AND video_id = ?", where)
+            if table_rows:
+                marks = ", ".join("?" * len(table_rows[0]))
+                con.executemany(f"INSERT INTO {table} VALUES ({marks})", list(table_rows))
+        con.execute(
+            "DELETE FROM stage_outputs WHERE stage = ? AND video_id = ? AND key = ?",
+            [record.stage, record.video_id, record.key],
+        )
+        con.execute(
+            "INSERT INTO stage_outputs VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            [
+                record.stage,
+                record.video_id,
+                record.key,
+                stable_json(record.config),
+                record.code_version,
+                stable_json(record.upstream),
+                record.run_id,
+                record.seconds,
+                now,
+            ],
+        )
+        con.execute(
+            "DELETE FROM stage_metrics WHERE stage = ? AND video_id = ? AND key = ?",
+            [record.stage, record.video_id, record.key],
+        )
+        con.executemany(
+            "INSERT INTO stage_metrics VALUES (?, ?, ?, ?, ?, ?, ?)",
+            [
+                [record.run_id, record.video_id, record.stage, record.key, name, float(v), now]
+                for name, v in metrics.items()
+            ],
+        )
+        record_run(con, record.run_id, record.video_id, record.stage, record.key, "done")
+
+
+def record_run(
+    con: duckdb.DuckDBPyConnection,
+    run_id: str,
+    video_id: str,
+    stage: str,
+    key: str,
+    state: str,
+    error: str | None = None,
+) -> None:
+    if state not in RUN_STATES:
+        raise ValueError(f"state must be one of {RUN_STATES}, got {state!r}")
+    con.execute(
+        "INSERT INTO stage_runs VALUES (?, ?, ?, ?, ?, ?, ?)",
+        [run_id, video_id, stage, key, state, error, utcnow()],
+    )
+
+
+def latest_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
+    """Per video and stage, the newest run event whose output still exists (or that failed)."""
+    rows = con.execute(
+        """
+        SELECT r.video_id, r.stage, r.key, r.state, r.error, r.created_at
+        FROM stage_runs r
+        LEFT JOIN stage_outputs o USING (stage, video_id, key)
+        WHERE r.state = 'failed' OR o.key IS NOT NULL
+        QUALIFY row_number() OVER (
+            PARTITION BY r.video_id, r.stage ORDER BY r.created_at DESC, r.state = 'failed'
+        ) = 1
+        ORDER BY r.video_id, r.created_at
+        """
+    ).fetchall()
+    names = ("video_id", "stage", "key", "state", "error", "created_at")
+    return [dict(zip(names, row, strict=True)) for row in rows]
+
+
+def latest_metrics(con: duckdb.DuckDBPyConnection, stage: str | None = None) -> list[dict]:
+    """Metrics of the newest committed output per video and stage."""
+    rows = con.execute(
+        """
+        WITH newest AS (
+            SELECT stage, video_id, key FROM stage_outputs
+            QUALIFY row_number() OVER (PARTITION BY stage, video_id ORDER BY created_at DESC) = 1
+        )
+        SELECT m.video_id, m.stage, m.key, m.name, m.value
+        FROM stage_metrics m JOIN newest USING (stage, video_id, key)
+        WHERE ? IS NULL OR m.stage = ?
+        ORDER BY m.video_id, m.stage, m.name
+        """,
+        [stage, stage],
+    ).fetchall()
+    names = ("video_id", "stage", "key", "name", "value")
+    return [dict(zip(names, row, strict=True)) for row in rows]
+
+
+def output_config(con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key: str) -> dict:
+    row = con.execute(
+        "SELECT config FROM stage_outputs WHERE stage = ? AND video_id = ? AND key = ?",
+        [stage, video_id, key],
+    ).fetchone()
+    if row is None:
+        raise KeyError(f"no {stage} output {key} for video {video_id}")
+    return json.loads(row[0])
