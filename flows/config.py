@@ -1,0 +1,46 @@
+"""The pipeline's config: one typed section per stage, read from ``ringside.toml``."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tasks.config import apply_overrides, build, read_toml
+from tasks.ingest.config import IngestConfig
+
+# Stage name -> its config class, in pipeline order. A stage joins here when it exists.
+SECTIONS: dict[str, type] = {"ingest": IngestConfig}
+STAGES: tuple[str, ...] = tuple(SECTIONS)
+DEFAULT_CONFIG_FILE = Path("ringside.toml")
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    ingest: IngestConfig = field(default_factory=IngestConfig)
+
+    def as_dict(self) -> dict[str, dict[str, Any]]:
+        return {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}
+
+
+def from_tables(tables: dict[str, Any]) -> PipelineConfig:
+    """A checked config from TOML tables (or a flow parameter); missing sections take defaults."""
+    unknown = sorted(set(tables) - set(SECTIONS))
+    if unknown:
+        raise ValueError(f"config has unknown sections {unknown}; known: {list(SECTIONS)}")
+    return PipelineConfig(
+        **{name: build(cls, tables.get(name, {}), section=name) for name, cls in SECTIONS.items()}
+    )
+
+
+def load_config(path: Path | None = None, overrides: list[str] | None = None) -> PipelineConfig:
+    """Defaults, then ``path`` (or ``./ringside.toml`` when present), then ``overrides``.
+
+    An explicitly given ``path`` must exist; the default file is optional.
+    """
+    if path is None:
+        tables = read_toml(DEFAULT_CONFIG_FILE) if DEFAULT_CONFIG_FILE.exists() else {}
+    else:
+        tables = read_toml(path)
+    return from_tables(apply_overrides(tables, overrides or []))

@@ -1,0 +1,71 @@
+"""``video_to_opponent``: every stage that exists, in order, for each video."""
+
+from __future__ import annotations
+
+from prefect import flow
+
+from flows.config import STAGES
+from flows.ingest import StageSummary, ingest_flow
+from tasks.errors import BadInput
+
+
+class PipelineFailed(RuntimeError):
+    """Some videos could not be processed; the others were. Carries both."""
+
+    def __init__(self, failures: list[str], summaries: list[StageSummary]):
+        super().__init__(failures, summaries)
+        self.failures = failures
+        self.summaries = summaries
+
+    def __str__(self) -> str:
+        return "; ".join(self.failures)
+
+
+def stages_until(until: str | None) -> tuple[str, ...]:
+    if until is None:
+        return STAGES
+    if until not in STAGES:
+        raise ValueError(f"--until must be one of {', '.join(STAGES)}, got {until!r}")
+    return STAGES[: STAGES.index(until) + 1]
+
+
+@flow(name="video_to_opponent")
+def video_to_opponent(
+    data_root: str,
+    videos: list[str],
+    adversary: str,
+    adversary_colour: str | None = None,
+    notes: str | None = None,
+    config: dict | None = None,
+    until: str | None = None,
+    rerun: list[str] | None = None,
+) -> list[StageSummary]:
+    """Run the stages up to ``until`` on each video; stages named in ``rerun`` ignore the cache.
+
+    A video that fails does not stop the others; the flow fails at the end, naming each failure.
+    """
+    stages_until(until)  # checks the name; later stages will run up to it
+    forced = set(rerun or [])
+    unknown = forced - set(STAGES)
+    if unknown:
+        raise ValueError(f"cannot rerun unknown stages {sorted(unknown)}; known: {list(STAGES)}")
+    summaries: list[StageSummary] = []
+    failures: list[str] = []
+    for video in videos:
+        try:
+            ingested = ingest_flow(
+                data_root,
+                video,
+                adversary,
+                adversary_colour,
+                notes,
+                config,
+                force="ingest" in forced,
+            )
+        except BadInput as error:
+            failures.append(str(error))
+            continue
+        summaries.append(ingested)
+    if failures:
+        raise PipelineFailed(failures, summaries)
+    return summaries

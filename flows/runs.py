@@ -1,0 +1,37 @@
+"""What every stage flow does after its task returns: note the run, publish the metrics."""
+
+from __future__ import annotations
+
+from prefect.artifacts import create_table_artifact
+from prefect.runtime import flow_run
+
+from storage.db import connect
+from storage.paths import data_paths
+from storage.records import record_run
+from tasks.runner import StageResult, committed
+
+
+def current_run_id() -> str:
+    return str(flow_run.id)
+
+
+def settle(data_root: str, result: StageResult) -> str:
+    """Record whether ``result`` was computed by this run (``done``) or reused (``cached``), and
+    publish its metrics as a Prefect table artifact. Returns the state."""
+    run_id = current_run_id()
+    state = "done" if result.run_id == run_id else "cached"
+    if state == "cached":
+        with connect(data_paths(data_root).db) as con:
+            record_run(con, run_id, result.video_id, result.stage, result.key, "cached")
+    create_table_artifact(
+        key=f"{result.stage}-{result.video_id[:12]}",
+        table=[{"name": k, "value": v} for k, v in sorted(result.metrics.items())],
+        description=f"{result.stage} metrics of video {result.video_id[:12]} (key {result.key})",
+    )
+    return state
+
+
+def still_committed(data_root: str, result: StageResult) -> bool:
+    """False when Prefect's cache remembers an output the database no longer has."""
+    found = committed(data_paths(data_root).db, result.stage, result.video_id, result.key)
+    return found is not None

@@ -1,0 +1,1 @@
+"""The work of each stage, as plain functions, with Prefect tasks at the edge."""

@@ -1,0 +1,103 @@
+"""The ingest stage's config and the analyst's declaration of who the adversary is."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from tasks.config import setting
+from tasks.errors import BadInput
+
+# Trunk and glove colours analysts name, as RGB; anything else is given as #rrggbb.
+NAMED_COLOURS: dict[str, tuple[int, int, int]] = {
+    "black": (0, 0, 0),
+    "white": (255, 255, 255),
+    "grey": (128, 128, 128),
+    "red": (200, 30, 30),
+    "blue": (30, 60, 200),
+    "navy": (20, 30, 100),
+    "green": (30, 150, 60),
+    "yellow": (240, 210, 40),
+    "gold": (210, 170, 50),
+    "orange": (240, 130, 30),
+    "purple": (120, 40, 150),
+    "pink": (240, 120, 170),
+    "brown": (110, 70, 40),
+}
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    """How videos are probed, cut into shots and planned into chunks."""
+
+    cut_threshold: float = setting(
+        0.45,
+        "Bhattacharyya distance (0-1) between the hue-saturation histograms of consecutive "
+        "frames above which a shot cut is declared.",
+    )
+    min_shot_frames: int = setting(
+        12, "A cut closer than this many frames to the previous one is ignored (flashes, strobes)."
+    )
+    histogram_width: int = setting(
+        160, "Frames are shrunk to this width (pixels) before their histograms are taken."
+    )
+    chunk_frames: int = setting(
+        300, "Frames per chunk that later stages process as one task; chunks never cross a cut."
+    )
+    truncation_tolerance: float = setting(
+        0.02,
+        "Share of the frames the container declares that may fail to decode before the file is "
+        "called truncated.",
+    )
+    thumbnail_width: int = setting(320, "Width (pixels) of the still stored for each shot.")
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.cut_threshold <= 1.0:
+            raise ValueError(f"ingest.cut_threshold must be in (0, 1], got {self.cut_threshold}")
+        for name in ("min_shot_frames", "histogram_width", "chunk_frames", "thumbnail_width"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"ingest.{name} must be at least 1, got {getattr(self, name)}")
+        if not 0.0 <= self.truncation_tolerance < 1.0:
+            raise ValueError(
+                f"ingest.truncation_tolerance must be in [0, 1), got {self.truncation_tolerance}"
+            )
+
+
+@dataclass(frozen=True)
+class AdversaryDeclaration:
+    """Who the adversary is in a video, as the analyst says it.
+
+    ``colour`` is the adversary's trunk or glove colour, normalised to ``#rrggbb``; ``None`` leaves
+    the choice of track to the analyst's pick later.
+    """
+
+    name: str
+    colour: str | None = None
+    notes: str | None = None
+
+
+def parse_colour(text: str) -> str:
+    """``text`` (a colour name from NAMED_COLOURS or ``#rrggbb``) as ``#rrggbb``."""
+    value = text.strip().lower()
+    if value == "gray":
+        value = "grey"
+    if value in NAMED_COLOURS:
+        r, g, b = NAMED_COLOURS[value]
+        return f"#{r:02x}{g:02x}{b:02x}"
+    if re.fullmatch(r"#[0-9a-f]{6}", value):
+        return value
+    raise BadInput(
+        "--adversary-colour",
+        f"unknown colour {text!r}; use #rrggbb or one of {', '.join(sorted(NAMED_COLOURS))}",
+    )
+
+
+def declare(name: str, colour: str | None = None, notes: str | None = None) -> AdversaryDeclaration:
+    """A checked declaration: the name is required, the colour is normalised."""
+    if not name or not name.strip():
+        raise BadInput("--adversary", "the adversary needs a name")
+    return AdversaryDeclaration(
+        name=name.strip(),
+        colour=parse_colour(colour) if colour else None,
+        notes=notes.strip() if notes else None,
+    )

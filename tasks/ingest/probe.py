@@ -1,0 +1,256 @@
+"""Probing a video file: identity, what OpenCV can decode, shot cuts and the chunk plan."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from tasks.errors import BadInput
+from tasks.ingest.config import IngestConfig
+
+HASH_BLOCK = 4 << 20
+HUE_BINS, SAT_BINS = 30, 32
+
+
+@dataclass(frozen=True)
+class VideoFile:
+    """A video file on disk and its identity, the SHA-256 of its bytes."""
+
+    path: str
+    video_id: str
+    size_bytes: int
+
+
+@dataclass(frozen=True)
+class Probe:
+    """What decoding the whole file found."""
+
+    fps: float
+    frames: int
+    frames_declared: int
+    width: int
+    height: int
+    codec: str
+    duration_s: float
+
+
+@dataclass(frozen=True)
+class Shot:
+    """Frames ``[start, end)`` between two cuts; ``cut_distance`` is the histogram distance at the
+    cut that opened it (``None`` for the first shot); ``thumbnail`` is a PNG of its first frame."""
+
+    index: int
+    start: int
+    end: int
+    cut_distance: float | None
+    thumbnail: bytes
+
+
+@dataclass(frozen=True)
+class Chunk:
+    index: int
+    shot: int
+    start: int
+    end: int
+
+
+@dataclass(frozen=True)
+class Scan:
+    probe: Probe
+    distances: np.ndarray
+    shots: list[Shot]
+
+
+def check_file(path: Path) -> None:
+    """Raise :class:`BadInput` unless ``path`` is a non-empty readable regular file."""
+    if not path.exists():
+        raise BadInput(str(path), "no such file")
+    if path.is_dir():
+        raise BadInput(str(path), "is a directory, not a video file")
+    if not path.is_file():
+        raise BadInput(str(path), "is not a regular file")
+    if path.stat().st_size == 0:
+        raise BadInput(str(path), "is empty (0 bytes)")
+    if not os.access(path, os.R_OK):
+        raise BadInput(str(path), "is not readable (permission denied)")
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    size = path.stat().st_size
+    with (
+        path.open("rb") as f,
+        tqdm(total=size, unit="B", unit_scale=True, desc=f"hash {path.name}", disable=None) as bar,
+    ):
+        while block := f.read(HASH_BLOCK):
+            h.update(block)
+            bar.update(len(block))
+    return h.hexdigest()
+
+
+def identify(path: Path) -> VideoFile:
+    """The checked file and its SHA-256 identity."""
+    check_file(path)
+    resolved = path.resolve()
+    return VideoFile(str(resolved), sha256_file(resolved), resolved.stat().st_size)
+
+
+def hs_histogram(frame_bgr: np.ndarray, width: int) -> np.ndarray:
+    """Hue-saturation histogram (HUE_BINS, SAT_BINS) of a frame shrunk to ``width``, summing to 1.
+
+    Brightness is left out so a fighter stepping into a shadow is not a cut.
+    """
+    h, w = frame_bgr.shape[:2]
+    if w > width:
+        frame_bgr = cv2.resize(frame_bgr, (width, max(1, round(h * width / w))), cv2.INTER_AREA)
+    hsv = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2HSV)
+    hist = cv2.calcHist([hsv], [0, 1], None, [HUE_BINS, SAT_BINS], [0, 180, 0, 256])
+    return hist / max(float(hist.sum()), 1.0)
+
+
+def histogram_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Bhattacharyya distance between two normalised histograms: 0 identical, 1 disjoint."""
+    return float(cv2.compareHist(a, b, cv2.HISTCMP_BHATTACHARYYA))
+
+
+class CutDetector:
+    """Declares a cut at frame ``i`` when the distance to frame ``i - 1`` exceeds ``threshold``
+    and the previous cut is at least ``min_shot_frames`` back."""
+
+    def __init__(self, threshold: float, min_shot_frames: int):
+        self.threshold = threshold
+        self.min_shot_frames = min_shot_frames
+        self.last_cut = 0
+
+    def update(self, frame: int, distance: float) -> bool:
+        if distance > self.threshold and frame - self.last_cut >= self.min_shot_frames:
+            self.last_cut = frame
+            return True
+        return False
+
+
+def find_cuts(distances: np.ndarray, threshold: float, min_shot_frames: int) -> list[int]:
+    """Frames that open a new shot, given ``distances[i]`` between frames ``i - 1`` and ``i``."""
+    detector = CutDetector(threshold, min_shot_frames)
+    return [i for i in range(1, len(distances)) if detector.update(i, float(distances[i]))]
+
+
+def plan_chunks(shots: list[Shot], chunk_frames: int) -> list[Chunk]:
+    """Split every shot into chunks of at most ``chunk_frames`` frames, in frame order."""
+    chunks: list[Chunk] = []
+    for shot in shots:
+        for start in range(shot.start, shot.end, chunk_frames):
+            chunks.append(
+                Chunk(len(chunks), shot.index, start, min(start + chunk_frames, shot.end))
+            )
+    return chunks
+
+
+def unopenable_reason(path: Path) -> str:
+    """Why a file OpenCV cannot open is unusable, told apart by its first bytes."""
+    with path.open("rb") as f:
+        head = f.read(12)
+    if head[4:8] == b"ftyp":
+        return (
+            "is an MP4/MOV file that cannot be opened: it is probably truncated or damaged "
+            "(its index is missing)"
+        )
+    return "is not a video file OpenCV can read"
+
+
+def fourcc_text(code: float) -> str:
+    value = int(code)
+    text = "".join(chr((value >> (8 * i)) & 0xFF) for i in range(4))
+    return text.strip("\0 ").lower() if text.isprintable() and value else "unknown"
+
+
+def _frames(capture: cv2.VideoCapture) -> Iterator[np.ndarray]:
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            return
+        yield frame
+
+
+def _thumbnail(frame: np.ndarray, width: int) -> bytes:
+    h, w = frame.shape[:2]
+    small = cv2.resize(frame, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
+    ok, png = cv2.imencode(".png", small)
+    if not ok:
+        raise RuntimeError("OpenCV could not encode a PNG thumbnail")
+    return png.tobytes()
+
+
+def scan_video(path: Path, config: IngestConfig) -> Scan:
+    """Decode every frame of ``path`` once: count them, find shot cuts, keep one still per shot.
+
+    Memory stays bounded by one frame and one histogram, whatever the length of the video.
+    Raises :class:`BadInput` naming the file when it is not a complete, decodable video.
+    """
+    capture = cv2.VideoCapture(str(path))
+    try:
+        if not capture.isOpened():
+            raise BadInput(str(path), unopenable_reason(path))
+        fps = float(capture.get(cv2.CAP_PROP_FPS))
+        declared = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        codec = fourcc_text(capture.get(cv2.CAP_PROP_FOURCC))
+        detector = CutDetector(config.cut_threshold, config.min_shot_frames)
+        distances: list[float] = []
+        cuts: list[tuple[int, float, bytes]] = []
+        previous = None
+        size = (0, 0)
+        frames = tqdm(
+            _frames(capture),
+            total=max(declared, 0) or None,
+            unit="frame",
+            desc=f"ingest {path.name}",
+            disable=None,
+        )
+        for index, frame in enumerate(frames):
+            hist = hs_histogram(frame, config.histogram_width)
+            distance = 0.0 if previous is None else histogram_distance(previous, hist)
+            distances.append(distance)
+            if index == 0:
+                size = (frame.shape[1], frame.shape[0])
+                cuts.append((0, math.nan, _thumbnail(frame, config.thumbnail_width)))
+            elif detector.update(index, distance):
+                cuts.append((index, distance, _thumbnail(frame, config.thumbnail_width)))
+            previous = hist
+    finally:
+        capture.release()
+
+    decoded = len(distances)
+    if decoded == 0:
+        raise BadInput(str(path), "has no decodable video frames")
+    if declared > 0 and decoded < declared * (1.0 - config.truncation_tolerance) - 1:
+        raise BadInput(
+            str(path),
+            f"is truncated or damaged: the container declares {declared} frames "
+            f"but only {decoded} decode",
+        )
+    if not math.isfinite(fps) or fps <= 0:
+        raise BadInput(str(path), f"declares no usable frame rate (fps={fps})")
+
+    ends = [start for start, _, _ in cuts[1:]] + [decoded]
+    shots = [
+        Shot(i, start, end, None if i == 0 else distance, png)
+        for i, ((start, distance, png), end) in enumerate(zip(cuts, ends, strict=True))
+    ]
+    probe = Probe(
+        fps=fps,
+        frames=decoded,
+        frames_declared=declared,
+        width=size[0],
+        height=size[1],
+        codec=codec,
+        duration_s=decoded / fps,
+    )
+    return Scan(probe, np.asarray(distances, dtype=np.float64), shots)

@@ -1,0 +1,92 @@
+"""The ingest stage: a video file becomes a registered video with its probe, shots and chunks."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from storage.artifacts import put_bytes
+from storage.keys import code_version, stage_key
+from tasks.ingest.config import AdversaryDeclaration, IngestConfig
+from tasks.ingest.probe import VideoFile, plan_chunks, scan_video
+from tasks.runner import StageOutput
+
+STAGE = "ingest"
+
+
+def ingest_code() -> str:
+    return code_version("tasks.ingest")
+
+
+def ingest_key(config: IngestConfig, video_id: str, declaration: AdversaryDeclaration) -> str:
+    return stage_key(STAGE, config, ingest_code(), ingest_upstream(video_id, declaration))
+
+
+def ingest_upstream(video_id: str, declaration: AdversaryDeclaration) -> dict:
+    return {"video": video_id, "adversary": declaration}
+
+
+def ingest_video(
+    video: VideoFile,
+    declaration: AdversaryDeclaration,
+    config: IngestConfig,
+    *,
+    key: str,
+    artifacts: Path,
+) -> StageOutput:
+    """Scan ``video`` and return the rows and metrics of its ingest output under ``key``.
+
+    Thumbnails go to the artifact store first; they are content-addressed, so an output that is
+    never committed leaves only unreferenced files, never a wrong row.
+    """
+    start = time.perf_counter()
+    scan = scan_video(Path(video.path), config)
+    seconds = time.perf_counter() - start
+    p, vid = scan.probe, video.video_id
+    shots = [
+        (
+            key,
+            vid,
+            s.index,
+            s.start,
+            s.end,
+            s.cut_distance,
+            put_bytes(artifacts, s.thumbnail, ".png"),
+        )
+        for s in scan.shots
+    ]
+    chunks = [
+        (key, vid, c.index, c.shot, c.start, c.end)
+        for c in plan_chunks(scan.shots, config.chunk_frames)
+    ]
+    rows = {
+        "ingest_probes": [
+            (
+                key,
+                vid,
+                video.path,
+                p.fps,
+                p.frames,
+                p.frames_declared,
+                p.width,
+                p.height,
+                p.codec,
+                p.duration_s,
+            )
+        ],
+        "ingest_adversaries": [(key, vid, declaration.name, declaration.colour, declaration.notes)],
+        "ingest_shots": shots,
+        "ingest_chunks": chunks,
+    }
+    metrics = {
+        "frames": float(p.frames),
+        "fps": p.fps,
+        "duration_s": p.duration_s,
+        "width": float(p.width),
+        "height": float(p.height),
+        "shot_cuts": float(len(scan.shots) - 1),
+        "chunks": float(len(chunks)),
+        "size_mb": video.size_bytes / 1e6,
+        "decode_fps": p.frames / max(seconds, 1e-9),
+    }
+    return StageOutput(rows, metrics)

@@ -1,0 +1,84 @@
+"""Running one stage for one video: reuse a committed output, or compute and commit a new one."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from storage.db import connect
+from storage.records import OutputRecord, write_output
+
+
+@dataclass(frozen=True)
+class StageOutput:
+    """What a stage computed: rows per table (tuples starting with key, video_id), metrics."""
+
+    rows: Mapping[str, Sequence[tuple]]
+    metrics: Mapping[str, float]
+
+
+@dataclass(frozen=True)
+class StageResult:
+    """The small record a stage task returns and Prefect persists: keys, never arrays.
+
+    ``run_id`` is the flow run that computed the output; when it differs from the current run's
+    id, the output came from the cache.
+    """
+
+    stage: str
+    video_id: str
+    key: str
+    run_id: str
+    seconds: float
+    metrics: dict[str, float] = field(default_factory=dict)
+
+
+def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | None:
+    """The committed output of ``stage`` for ``video_id`` under ``key``, if there is one."""
+    if not db.exists():
+        return None
+    with connect(db, read_only=True) as con:
+        row = con.execute(
+            "SELECT run_id, seconds FROM stage_outputs "
+            "WHERE stage = ? AND video_id = ? AND key = ?",
+            [stage, video_id, key],
+        ).fetchone()
+        if row is None:
+            return None
+        metrics = con.execute(
+            "SELECT name, value FROM stage_metrics WHERE stage = ? AND video_id = ? AND key = ?",
+            [stage, video_id, key],
+        ).fetchall()
+    return StageResult(stage, video_id, key, row[0], row[1], dict(metrics))
+
+
+def run_stage(
+    *,
+    db: Path,
+    stage: str,
+    video_id: str,
+    key: str,
+    config: Any,
+    code: str,
+    upstream: Mapping[str, Any],
+    run_id: str,
+    compute: Callable[[], StageOutput],
+    force: bool = False,
+) -> StageResult:
+    """The output of ``stage`` under ``key``: the committed one unless ``force``, else computed.
+
+    The database is opened only to look and to write, never while ``compute`` runs, so other
+    processes can use it meanwhile.
+    """
+    if not force and (found := committed(db, stage, video_id, key)) is not None:
+        return found
+    start = time.perf_counter()
+    output = compute()
+    seconds = time.perf_counter() - start
+    record = OutputRecord(stage, video_id, key, config, code, upstream, run_id, seconds)
+    with connect(db) as con:
+        write_output(con, record, output.rows, output.metrics)
+    return StageResult(stage, video_id, key, run_id, seconds, dict(output.metrics))
