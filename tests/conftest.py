@@ -1,0 +1,65 @@
+"""Shared fixtures. Prefect's settings are fixed here, before anything imports Prefect."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+_PREFECT_HOME = tempfile.mkdtemp(prefix="ringside-test-prefect-")
+os.environ["PREFECT_HOME"] = _PREFECT_HOME
+os.environ["PREFECT_SERVER_ANALYTICS_ENABLED"] = "false"
+os.environ["PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL"] = "CRITICAL"
+os.environ["PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS"] = "120"
+os.environ["OPENCV_FFMPEG_LOGLEVEL"] = "-8"
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
+from storage.paths import data_paths  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session")
+def assets() -> Path:
+    """The pulled assets (weights, sample videos), fetched once if missing."""
+    root = data_paths(os.environ.get("RINGSIDE_DATA", REPO / "data")).assets
+    pull(root, log=lambda _line: None)
+    return root
+
+
+@pytest.fixture(scope="session")
+def sample_video(assets: Path) -> Path:
+    return assets / SAMPLE_VIDEO
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> Path:
+    """Write BGR frames as an MPEG-4 Part 2 file (the codec OpenCV's wheel can write)."""
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+    assert writer.isOpened(), f"OpenCV cannot write {path}"
+    for frame in frames:
+        writer.write(frame)
+    writer.release()
+    return path
+
+
+def moving_box_frames(n: int, background: tuple[int, int, int], start: int = 0) -> list:
+    """A grey box sliding across a plain background: motion, but no cut."""
+    frames = []
+    for i in range(start, start + n):
+        frame = np.full((96, 128, 3), background, np.uint8)
+        x = 8 + (i * 3) % 90
+        cv2.rectangle(frame, (x, 30), (x + 24, 70), (128, 128, 128), -1)
+        frames.append(frame)
+    return frames
+
+
+@pytest.fixture
+def two_shot_video(tmp_path: Path) -> Path:
+    """30 frames of a blue scene, then 30 of a red one: one cut, at frame 30."""
+    frames = moving_box_frames(30, (200, 60, 20)) + moving_box_frames(30, (20, 40, 210), 30)
+    return write_video(tmp_path / "two_shots.mp4", frames)

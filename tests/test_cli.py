@@ -1,0 +1,263 @@
+"""The CLI and the Prefect pipeline end to end on real videos, DuckDB files and Prefect runs."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio_ffmpeg
+import pytest
+from conftest import moving_box_frames, write_video
+
+import tasks.ingest.stage
+from flows.cli import main
+from storage.db import connect
+
+
+def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def count(db: Path, sql: str) -> int:
+    with connect(db, read_only=True) as con:
+        return con.execute(sql).fetchone()[0]
+
+
+@pytest.fixture
+def scans(monkeypatch) -> list[str]:
+    """Every video the ingest stage actually decodes, in order: the stage's executed work."""
+    seen: list[str] = []
+    real = tasks.ingest.stage.scan_video
+
+    def counting(path, config):
+        seen.append(str(path))
+        return real(path, config)
+
+    monkeypatch.setattr(tasks.ingest.stage, "scan_video", counting)
+    return seen
+
+
+def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_video, scans):
+    data = str(tmp_path / "data")
+    code, out, _ = run_cli(
+        capsys, "--data", data, "process", str(sample_video), "--adversary", "A", "--json"
+    )
+    assert code == 0
+    first = json.loads(out)
+    assert [(s["stage"], s["state"]) for s in first] == [("ingest", "done")]
+    assert len(scans) == 1
+
+    code, out, _ = run_cli(
+        capsys, "--data", data, "process", str(sample_video), "--adversary", "A", "--json"
+    )
+    assert code == 0 and json.loads(out)[0]["state"] == "cached"
+    assert len(scans) == 1, "a rerun with nothing changed decoded the video again"
+
+    video_id = first[0]["video_id"]
+    code, out, _ = run_cli(
+        capsys, "--data", data, "rerun", "ingest", "--video", video_id[:10], "--json"
+    )
+    assert code == 0 and json.loads(out)[0]["state"] == "done"
+    assert len(scans) == 2
+    db = Path(data) / "ringside.duckdb"
+    assert count(db, "SELECT count(*) FROM stage_runs WHERE state = 'done'") == 2
+    assert count(db, "SELECT count(*) FROM stage_runs WHERE state = 'cached'") == 1
+    assert count(db, "SELECT count(*) FROM ingest_probes") == 1
+
+    code, out, _ = run_cli(capsys, "--data", data, "status", "--json")
+    assert json.loads(out) == [
+        {
+            "video_id": video_id,
+            "stage": "ingest",
+            "key": first[0]["key"],
+            "state": "done",
+            "error": None,
+        }
+    ]
+    code, out, _ = run_cli(capsys, "--data", data, "metrics", "--stage", "ingest", "--json")
+    metrics = {m["name"]: m["value"] for m in json.loads(out)}
+    assert metrics["frames"] == 100 and metrics["fps"] == 60 and metrics["shot_cuts"] == 0
+    assert set(json.loads(out)[0]) == {"video_id", "stage", "key", "name", "value"}
+
+
+def test_changed_config_reruns_the_stage(tmp_path, capsys, two_shot_video, scans):
+    data = str(tmp_path / "data")
+    base = ["--data", data, "process", str(two_shot_video), "--adversary", "A", "--json"]
+    code, out, _ = run_cli(capsys, *base)
+    key = json.loads(out)[0]["key"]
+    code, out, _ = run_cli(capsys, *base, "--ingest-chunk-frames", "7")
+    assert code == 0 and json.loads(out)[0]["state"] == "done"
+    assert json.loads(out)[0]["key"] != key
+    assert len(scans) == 2
+    db = Path(data) / "ringside.duckdb"
+    assert (
+        count(db, f"SELECT count(*) FROM ingest_chunks WHERE key = '{json.loads(out)[0]['key']}'")
+        == 10
+    )  # 2 shots of 30 frames, 5 chunks each
+    # The other adversary declaration is another input, so another key.
+    code, out, _ = run_cli(capsys, *base[:-1], "--adversary-colour", "red", "--json")
+    assert json.loads(out)[0]["key"] != key and len(scans) == 3
+
+
+def test_same_bytes_under_two_names_is_one_video(tmp_path, capsys, two_shot_video):
+    data = str(tmp_path / "data")
+    copy = tmp_path / "copy.mp4"
+    shutil.copy(two_shot_video, copy)
+    code, out, _ = run_cli(
+        capsys,
+        "--data",
+        data,
+        "process",
+        str(two_shot_video),
+        str(copy),
+        "--adversary",
+        "A",
+        "--json",
+    )
+    assert code == 0
+    db = Path(data) / "ringside.duckdb"
+    assert count(db, "SELECT count(*) FROM videos") == 1
+    assert count(db, "SELECT count(*) FROM video_files") == 2
+
+
+def _zeroed_frames(path: Path) -> Path:
+    """A valid MP4 whose frame data is all zeros: it opens, but no frame decodes."""
+    data = bytearray(path.read_bytes())
+    at = 0
+    while at < len(data):
+        size = int.from_bytes(data[at : at + 4], "big")
+        if data[at + 4 : at + 8] == b"mdat":
+            data[at + 8 : at + size] = bytes(size - 8)
+        at += size
+    out = path.with_name("zeroed.mp4")
+    out.write_bytes(bytes(data))
+    return out
+
+
+def _faststart_third(sample: Path, folder: Path) -> Path:
+    """The sample with its index first, cut to a third: it opens, then stops decoding."""
+    fast = folder / "fast.mp4"
+    subprocess.run(
+        [
+            imageio_ffmpeg.get_ffmpeg_exe(),
+            "-y",
+            "-loglevel",
+            "error",
+            "-i",
+            str(sample),
+            "-c",
+            "copy",
+            "-movflags",
+            "+faststart",
+            str(fast),
+        ],
+        check=True,
+    )
+    cut = folder / "fast_third.mp4"
+    cut.write_bytes(fast.read_bytes()[: fast.stat().st_size // 3])
+    return cut
+
+
+def bad_input(kind: str, folder: Path, sample: Path) -> tuple[Path, str]:
+    if kind == "missing":
+        return folder / "missing.mp4", "no such file"
+    if kind == "directory":
+        (folder / "clips.mp4").mkdir()
+        return folder / "clips.mp4", "is a directory"
+    if kind == "empty":
+        (folder / "empty.mp4").touch()
+        return folder / "empty.mp4", "is empty"
+    if kind == "text":
+        (folder / "notes.mp4").write_text("round 1: jab, jab, cross\n")
+        return folder / "notes.mp4", "is not a video file"
+    if kind == "third":
+        (folder / "third.mp4").write_bytes(sample.read_bytes()[: sample.stat().st_size // 3])
+        return folder / "third.mp4", "probably truncated or damaged"
+    if kind == "faststart_third":
+        return _faststart_third(sample, folder), "declares 100 frames but only"
+    if kind == "no_frames":
+        written = write_video(folder / "written.mp4", moving_box_frames(20, (200, 60, 20)))
+        return _zeroed_frames(written), "has no decodable video frames"
+    raise AssertionError(kind)
+
+
+def db_snapshot(db: Path) -> tuple[str, dict[str, int]]:
+    digest = hashlib.sha256(db.read_bytes()).hexdigest()
+    with connect(db, read_only=True) as con:
+        tables = [r[0] for r in con.execute("SELECT table_name FROM duckdb_tables()").fetchall()]
+        counts = {t: con.execute(f"SELECT count(*) FROM {t}").fetchone()[0] for t in tables}
+    return digest, counts
+
+
+@pytest.fixture(scope="module")
+def populated(tmp_path_factory, sample_video) -> Path:
+    """A data directory that already holds one processed video."""
+    data = tmp_path_factory.mktemp("populated") / "data"
+    assert main(["--data", str(data), "process", str(sample_video), "--adversary", "A"]) == 0
+    return data
+
+
+@pytest.mark.parametrize(
+    "kind", ["missing", "directory", "empty", "text", "third", "faststart_third", "no_frames"]
+)
+def test_bad_input_is_one_clear_line_and_changes_nothing(
+    kind, tmp_path, capsys, populated, sample_video
+):
+    path, problem = bad_input(kind, tmp_path, sample_video)
+    db = populated / "ringside.duckdb"
+    before = db_snapshot(db)
+    code, out, err = run_cli(
+        capsys, "--data", str(populated), "process", str(path), "--adversary", "A"
+    )
+    assert code != 0
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert str(path) in lines[0] and problem in lines[0]
+    assert db_snapshot(db) == before
+
+
+def test_two_processes_at_once_register_one_video(tmp_path, two_shot_video):
+    env = {
+        **os.environ,
+        "RINGSIDE_DATA": str(tmp_path / "data"),
+        "PREFECT_HOME": str(tmp_path / "prefect"),
+    }
+    command = [
+        sys.executable,
+        "-m",
+        "flows.cli",
+        "process",
+        str(two_shot_video),
+        "--adversary",
+        "A",
+    ]
+    procs = [
+        subprocess.Popen(
+            command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        for _ in range(2)
+    ]
+    for p in procs:
+        out, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err
+    db = tmp_path / "data" / "ringside.duckdb"
+    assert count(db, "SELECT count(*) FROM videos") == 1
+    assert count(db, "SELECT count(*) FROM ingest_probes") == 1
+    assert count(db, "SELECT count(*) FROM stage_outputs") == 1
+
+
+def test_rerun_of_an_unknown_video_is_clear(tmp_path, capsys, populated):
+    code, _, err = run_cli(capsys, "--data", str(populated), "rerun", "ingest", "--video", "ffff")
+    assert code == 2 and "--video ffff: matches no ingested video" in err
+
+
+def test_status_and_metrics_on_an_empty_data_dir(tmp_path, capsys):
+    assert run_cli(capsys, "--data", str(tmp_path), "status", "--json")[1].strip() == "[]"
+    assert run_cli(capsys, "--data", str(tmp_path), "metrics", "--json")[1].strip() == "[]"

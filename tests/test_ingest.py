@@ -1,0 +1,133 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from conftest import moving_box_frames, write_video
+
+from storage.artifacts import read_bytes
+from tasks.errors import BadInput
+from tasks.ingest.config import IngestConfig, declare, parse_colour
+from tasks.ingest.probe import (
+    Shot,
+    check_file,
+    find_cuts,
+    histogram_distance,
+    hs_histogram,
+    identify,
+    plan_chunks,
+    scan_video,
+)
+from tasks.ingest.stage import ingest_video
+
+
+def test_find_cuts_threshold_and_minimum_shot():
+    d = np.zeros(40)
+    d[[5, 7, 20, 39]] = [0.9, 0.8, 0.6, 0.3]
+    # 7 is too close to the cut at 5; 39 is below the threshold.
+    assert find_cuts(d, threshold=0.5, min_shot_frames=4) == [5, 20]
+    assert find_cuts(d, threshold=0.5, min_shot_frames=1) == [5, 7, 20]
+    assert find_cuts(d, threshold=0.95, min_shot_frames=1) == []
+
+
+def test_plan_chunks_never_cross_a_cut():
+    shots = [Shot(0, 0, 250, None, b""), Shot(1, 250, 260, 0.9, b""), Shot(2, 260, 700, 0.8, b"")]
+    chunks = plan_chunks(shots, chunk_frames=200)
+    assert [(c.shot, c.start, c.end) for c in chunks] == [
+        (0, 0, 200),
+        (0, 200, 250),
+        (1, 250, 260),
+        (2, 260, 460),
+        (2, 460, 660),
+        (2, 660, 700),
+    ]
+    assert [c.index for c in chunks] == list(range(6))
+
+
+def test_histogram_distance_bounds():
+    blue = np.full((40, 60, 3), (200, 60, 20), np.uint8)
+    red = np.full((40, 60, 3), (20, 40, 210), np.uint8)
+    hb, hr = hs_histogram(blue, 32), hs_histogram(red, 32)
+    assert hb.sum() == pytest.approx(1.0)
+    assert histogram_distance(hb, hb) == pytest.approx(0.0, abs=1e-6)
+    assert histogram_distance(hb, hr) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_scan_finds_the_one_cut(two_shot_video: Path):
+    scan = scan_video(two_shot_video, IngestConfig())
+    assert scan.probe.frames == 60 == scan.probe.frames_declared
+    assert scan.probe.fps == pytest.approx(30.0)
+    assert (scan.probe.width, scan.probe.height) == (128, 96)
+    assert [(s.start, s.end) for s in scan.shots] == [(0, 30), (30, 60)]
+    assert scan.shots[1].cut_distance > IngestConfig().cut_threshold
+    still = cv2.imdecode(np.frombuffer(scan.shots[1].thumbnail, np.uint8), cv2.IMREAD_COLOR)
+    assert still.shape[1] == IngestConfig().thumbnail_width
+    assert still[5, 5, 2] > 150 > still[5, 5, 0]  # the second shot's still is the red scene
+
+
+def test_motion_alone_is_not_a_cut(tmp_path: Path):
+    video = write_video(tmp_path / "one.mp4", moving_box_frames(60, (200, 60, 20)))
+    scan = scan_video(video, IngestConfig())
+    assert len(scan.shots) == 1
+    assert scan.distances.max() < IngestConfig().cut_threshold
+
+
+def test_sample_video_probe(sample_video: Path):
+    scan = scan_video(sample_video, IngestConfig())
+    assert (scan.probe.frames, scan.probe.fps, scan.probe.codec) == (100, 60.0, "h264")
+    assert (scan.probe.width, scan.probe.height) == (1088, 1920)
+    assert len(scan.shots) == 1
+
+
+def test_ingest_output_rows(two_shot_video: Path, tmp_path: Path):
+    video = identify(two_shot_video)
+    config = IngestConfig(chunk_frames=20)
+    out = ingest_video(video, declare("Smith", "red"), config, key="k", artifacts=tmp_path / "a")
+    assert [r[2:6] for r in out.rows["ingest_chunks"]] == [
+        (0, 0, 0, 20),
+        (1, 0, 20, 30),
+        (2, 1, 30, 50),
+        (3, 1, 50, 60),
+    ]
+    assert out.rows["ingest_adversaries"] == [("k", video.video_id, "Smith", "#c81e1e", None)]
+    assert out.metrics["shot_cuts"] == 1 and out.metrics["chunks"] == 4
+    for shot in out.rows["ingest_shots"]:
+        assert read_bytes(tmp_path / "a", shot[-1])[:4] == b"\x89PNG"
+
+
+def test_identity_is_the_bytes(two_shot_video: Path, tmp_path: Path):
+    copy = tmp_path / "renamed.mp4"
+    copy.write_bytes(two_shot_video.read_bytes())
+    assert identify(copy).video_id == identify(two_shot_video).video_id
+
+
+def test_check_file_names_the_problem(tmp_path: Path):
+    (tmp_path / "empty.mp4").touch()
+    cases = {
+        tmp_path / "nope.mp4": "no such file",
+        tmp_path: "is a directory",
+        tmp_path / "empty.mp4": "is empty",
+    }
+    for path, problem in cases.items():
+        with pytest.raises(BadInput, match=problem) as error:
+            check_file(path)
+        assert str(error.value).startswith(str(path))
+
+
+def test_colours_and_declarations():
+    assert parse_colour("Red") == "#c81e1e"
+    assert parse_colour("#00FF00") == "#00ff00"
+    with pytest.raises(BadInput, match="unknown colour 'redd'"):
+        parse_colour("redd")
+    with pytest.raises(BadInput, match="needs a name"):
+        declare("  ")
+
+
+@pytest.mark.parametrize(
+    "field, value", [("cut_threshold", 0.0), ("chunk_frames", 0), ("truncation_tolerance", 1.0)]
+)
+def test_config_rejects_nonsense(field: str, value):
+    with pytest.raises(ValueError, match=f"ingest.{field}"):
+        IngestConfig(**{field: value})

@@ -1,0 +1,135 @@
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import duckdb
+import pytest
+
+from storage.artifacts import artifact_path, put_bytes, read_bytes
+from storage.db import DatabaseBusy, connect, migrations
+from storage.keys import code_version, stable_json, stage_key
+from storage.records import OutputRecord, latest_metrics, latest_runs, register_video, write_output
+
+
+def record(key: str = "k1", run_id: str = "run-1") -> OutputRecord:
+    return OutputRecord("ingest", "vid", key, {"a": 1}, "code", {"video": "vid"}, run_id, 0.5)
+
+
+def chunk_rows(key: str, n: int) -> list[tuple]:
+    return [(key, "vid", i, 0, i * 10, i * 10 + 10) for i in range(n)]
+
+
+def test_migrations_apply_once(tmp_path: Path):
+    db = tmp_path / "r.duckdb"
+    with connect(db) as con:
+        versions = [r[0] for r in con.execute("SELECT version FROM schema_migrations").fetchall()]
+    assert versions == [v for v, _, _ in migrations()]
+    with connect(db) as con:
+        again = con.execute("SELECT count(*) FROM schema_migrations").fetchone()[0]
+    assert again == len(versions)
+
+
+def test_rewrite_replaces_rows_and_metrics(tmp_path: Path):
+    db = tmp_path / "r.duckdb"
+    with connect(db) as con:
+        write_output(con, record(), {"ingest_chunks": chunk_rows("k1", 3)}, {"chunks": 3.0})
+        write_output(
+            con, record(run_id="run-2"), {"ingest_chunks": chunk_rows("k1", 2)}, {"chunks": 2.0}
+        )
+        assert con.execute("SELECT count(*) FROM ingest_chunks").fetchone()[0] == 2
+        assert con.execute("SELECT count(*) FROM stage_outputs").fetchone()[0] == 1
+        assert latest_metrics(con) == [
+            {"video_id": "vid", "stage": "ingest", "key": "k1", "name": "chunks", "value": 2.0}
+        ]
+        assert [r["state"] for r in latest_runs(con)] == ["done"]
+
+
+def test_failed_write_keeps_previous_output(tmp_path: Path):
+    db = tmp_path / "r.duckdb"
+    with connect(db) as con:
+        write_output(con, record(), {"ingest_chunks": chunk_rows("k1", 3)}, {"chunks": 3.0})
+        broken = {"ingest_chunks": chunk_rows("k1", 1), "ingest_shots": [("k1", "vid", 0)]}
+        with pytest.raises(duckdb.Error):
+            write_output(con, record(run_id="run-2"), broken, {"chunks": 1.0})
+        assert con.execute("SELECT count(*) FROM ingest_chunks").fetchone()[0] == 3
+        run = con.execute("SELECT run_id FROM stage_outputs").fetchall()
+        assert run == [("run-1",)]
+
+
+def test_non_finite_metric_is_refused(tmp_path: Path):
+    with connect(tmp_path / "r.duckdb") as con, pytest.raises(ValueError, match="finite"):
+        write_output(con, record(), {}, {"fps": float("nan")})
+
+
+def test_register_video_twice_is_one_row(tmp_path: Path):
+    with connect(tmp_path / "r.duckdb") as con:
+        register_video(con, "vid", 10, "/a.mp4")
+        register_video(con, "vid", 10, "/a.mp4")
+        register_video(con, "vid", 10, "/b.mp4")
+        assert con.execute("SELECT count(*) FROM videos").fetchone()[0] == 1
+        assert con.execute("SELECT count(*) FROM video_files").fetchone()[0] == 2
+
+
+def test_busy_database_waits_then_names_the_file(tmp_path: Path):
+    db = tmp_path / "r.duckdb"
+    with connect(db):
+        pass
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            textwrap.dedent(f"""
+            import duckdb, sys, time
+            con = duckdb.connect({str(db)!r})
+            print("held", flush=True)
+            time.sleep(30)
+        """),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(DatabaseBusy, match=str(db)), connect(db, wait_s=0.5):
+            pass
+    finally:
+        holder.kill()
+        holder.wait()
+    with connect(db, wait_s=5):
+        pass
+
+
+def test_read_only_connect_needs_a_database(tmp_path: Path):
+    with (
+        pytest.raises(FileNotFoundError, match="no database yet"),
+        connect(tmp_path / "none.duckdb", read_only=True),
+    ):
+        pass
+
+
+def test_artifacts_are_content_addressed(tmp_path: Path):
+    a = put_bytes(tmp_path, b"png bytes", ".png")
+    assert put_bytes(tmp_path, b"png bytes", ".png") == a
+    assert a.endswith(".png") and len(a) == 64 + 4
+    assert read_bytes(tmp_path, a) == b"png bytes"
+    artifact_path(tmp_path, a).write_bytes(b"tampered")
+    with pytest.raises(ValueError, match="corrupt"):
+        read_bytes(tmp_path, a)
+    assert not list(tmp_path.rglob(".tmp-*"))
+
+
+def test_stage_keys_follow_config_code_and_upstream():
+    base = stage_key("ingest", {"a": 1, "b": 2}, "c1", {"video": "v"})
+    assert stage_key("ingest", {"b": 2, "a": 1}, "c1", {"video": "v"}) == base
+    assert stage_key("ingest", {"a": 1, "b": 3}, "c1", {"video": "v"}) != base
+    assert stage_key("ingest", {"a": 1, "b": 2}, "c2", {"video": "v"}) != base
+    assert stage_key("ingest", {"a": 1, "b": 2}, "c1", {"video": "w"}) != base
+    assert stable_json({"b": [1, (2, 3)], "a": None}) == '{"a":null,"b":[1,[2,3]]}'
+
+
+def test_code_version_hashes_the_stage_sources():
+    assert code_version("tasks.ingest") == code_version("tasks.ingest")
+    assert code_version("tasks.ingest") != code_version("storage")
