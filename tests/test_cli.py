@@ -261,3 +261,66 @@ def test_rerun_of_an_unknown_video_is_clear(tmp_path, capsys, populated):
 def test_status_and_metrics_on_an_empty_data_dir(tmp_path, capsys):
     assert run_cli(capsys, "--data", str(tmp_path), "status", "--json")[1].strip() == "[]"
     assert run_cli(capsys, "--data", str(tmp_path), "metrics", "--json")[1].strip() == "[]"
+
+
+KILLED_MID_STAGE = """
+import sys, time
+import tasks.ingest.stage as stage
+from flows.cli import main
+
+def stalled(path, config):
+    print("mid-stage", flush=True)
+    time.sleep(600)
+
+stage.scan_video = stalled
+main(sys.argv[1:])
+"""
+
+
+def test_killed_mid_stage_loses_nothing_and_rerun_finishes(
+    tmp_path, capsys, sample_video, two_shot_video
+):
+    data = tmp_path / "data"
+    assert main(["--data", str(data), "process", str(sample_video), "--adversary", "A"]) == 0
+    capsys.readouterr()
+    db = data / "ringside.duckdb"
+    before = db_snapshot(db)
+    env = {**os.environ, "PREFECT_HOME": str(tmp_path / "prefect")}
+    victim = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            KILLED_MID_STAGE,
+            "--data",
+            str(data),
+            "process",
+            str(two_shot_video),
+            "--adversary",
+            "A",
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert victim.stdout.readline().strip() == "mid-stage"
+    finally:
+        victim.kill()
+        victim.wait()
+    assert db_snapshot(db)[1] == before[1], "a killed run changed committed rows"
+
+    code, out, _ = run_cli(
+        capsys,
+        "--data",
+        str(data),
+        "process",
+        str(sample_video),
+        str(two_shot_video),
+        "--adversary",
+        "A",
+        "--json",
+    )
+    assert code == 0
+    assert [s["state"] for s in json.loads(out)] == ["cached", "done"]
+    assert count(db, "SELECT count(*) FROM videos") == 2

@@ -133,3 +133,35 @@ def test_stage_keys_follow_config_code_and_upstream():
 def test_code_version_hashes_the_stage_sources():
     assert code_version("tasks.ingest") == code_version("tasks.ingest")
     assert code_version("tasks.ingest") != code_version("storage")
+
+
+def test_process_killed_inside_a_transaction_leaves_the_old_output(tmp_path: Path):
+    db = tmp_path / "r.duckdb"
+    with connect(db) as con:
+        write_output(con, record(), {"ingest_chunks": chunk_rows("k1", 3)}, {"chunks": 3.0})
+    writer = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            textwrap.dedent(f"""
+            import time, duckdb
+            con = duckdb.connect({str(db)!r})
+            con.begin()
+            con.execute("DELETE FROM ingest_chunks")
+            con.execute("INSERT INTO ingest_chunks VALUES ('k2', 'vid', 0, 0, 0, 5)")
+            print("written", flush=True)
+            time.sleep(60)
+        """),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert writer.stdout.readline().strip() == "written"
+    finally:
+        writer.kill()
+        writer.wait()
+    with connect(db, read_only=True) as con:
+        keys = con.execute("SELECT DISTINCT key FROM ingest_chunks").fetchall()
+        assert keys == [("k1",)]
+        assert con.execute("SELECT count(*) FROM ingest_chunks").fetchone()[0] == 3
