@@ -6,9 +6,9 @@ DuckDB rows refer to an artifact by its name, ``<sha256><suffix>``; the same byt
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
 from pathlib import Path
+
+from storage.files import write_atomic
 
 
 def artifact_name(data: bytes, suffix: str = "") -> str:
@@ -30,16 +30,7 @@ def put_bytes(root: Path, data: bytes, suffix: str = "") -> str:
     target = artifact_path(root, name)
     if target.exists():
         return name
-    target.parent.mkdir(parents=True, exist_ok=True)
-    # Written beside the target and renamed, so a killed process never leaves a partial artifact.
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".tmp-")
-    try:
-        with os.fdopen(fd, "wb") as out:
-            out.write(data)
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(target, data)
     return name
 
 

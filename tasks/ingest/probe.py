@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 from collections.abc import Iterator
@@ -13,10 +12,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from storage.files import sha256_file
 from tasks.errors import BadInput
 from tasks.ingest.config import IngestConfig
 
-HASH_BLOCK = 4 << 20
 HUE_BINS, SAT_BINS = 30, 32
 
 
@@ -83,24 +82,15 @@ def check_file(path: Path) -> None:
         raise BadInput(str(path), "is not readable (permission denied)")
 
 
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    size = path.stat().st_size
-    with (
-        path.open("rb") as f,
-        tqdm(total=size, unit="B", unit_scale=True, desc=f"hash {path.name}", disable=None) as bar,
-    ):
-        while block := f.read(HASH_BLOCK):
-            h.update(block)
-            bar.update(len(block))
-    return h.hexdigest()
-
-
 def identify(path: Path) -> VideoFile:
     """The checked file and its SHA-256 identity."""
     check_file(path)
     resolved = path.resolve()
-    return VideoFile(str(resolved), sha256_file(resolved), resolved.stat().st_size)
+    return VideoFile(
+        str(resolved),
+        sha256_file(resolved, progress=f"hash {path.name}"),
+        resolved.stat().st_size,
+    )
 
 
 def hs_histogram(frame_bgr: np.ndarray, width: int) -> np.ndarray:

@@ -1,0 +1,46 @@
+"""File helpers shared by the artifact store, the assets and ingest."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+from tqdm import tqdm
+
+HASH_BLOCK = 4 << 20
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` beside ``path`` and rename it into place: a killed process leaves either
+    the old file or the new one, never a partial file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
+    try:
+        with os.fdopen(fd, "wb") as out:
+            out.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def sha256_file(path: Path, *, progress: str | None = None) -> str:
+    """SHA-256 of the file's bytes, read in blocks; ``progress`` labels a progress bar (shown on
+    an interactive terminal only)."""
+    h = hashlib.sha256()
+    with (
+        path.open("rb") as f,
+        tqdm(
+            total=path.stat().st_size,
+            unit="B",
+            unit_scale=True,
+            desc=progress,
+            disable=None if progress else True,
+        ) as bar,
+    ):
+        while block := f.read(HASH_BLOCK):
+            h.update(block)
+            bar.update(len(block))
+    return h.hexdigest()
