@@ -32,14 +32,15 @@ def digest(value: Any) -> str:
     return hashlib.sha256(stable_json(value).encode()).hexdigest()
 
 
-def code_version(package: str) -> str:
-    """Hash of every Python source file of ``package``: editing a stage's code changes its keys."""
-    folder = Path(import_module(package).__file__).parent
+def code_version(*packages: str) -> str:
+    """Hash of every Python source file of ``packages``: editing a stage's code changes its keys."""
     h = hashlib.sha256()
-    for path in sorted(folder.rglob("*.py")):
-        h.update(path.relative_to(folder).as_posix().encode())
-        h.update(b"\0")
-        h.update(path.read_bytes())
+    for package in packages:
+        folder = Path(import_module(package).__file__).parent
+        for path in sorted(folder.rglob("*.py")):
+            h.update(f"{package}/{path.relative_to(folder).as_posix()}".encode())
+            h.update(b"\0")
+            h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 

@@ -9,9 +9,10 @@ from pathlib import Path
 
 @dataclass(frozen=True)
 class DataPaths:
-    """Every place Ringside writes, under one root."""
+    """Every place Ringside writes, under one root; assets may live elsewhere (shared)."""
 
     root: Path
+    assets: Path
 
     @property
     def db(self) -> Path:
@@ -22,15 +23,19 @@ class DataPaths:
         return self.root / "artifacts"
 
     @property
-    def assets(self) -> Path:
-        return self.root / "assets"
-
-    @property
     def prefect_home(self) -> Path:
         return self.root / "prefect"
 
 
 def data_paths(root: str | Path | None = None) -> DataPaths:
-    """The data directory: ``root`` if given, else ``$RINGSIDE_DATA``, else ``./data``."""
-    chosen = root if root is not None else os.environ.get("RINGSIDE_DATA", "data")
-    return DataPaths(Path(chosen).expanduser().resolve())
+    """The data directory: ``root`` if given, else ``$RINGSIDE_DATA``, else ``./data``.
+
+    Assets (weights, sample videos) are under it too, unless ``$RINGSIDE_ASSETS`` names another
+    folder, so several data directories can share one copy.
+    """
+    chosen = Path(root if root is not None else os.environ.get("RINGSIDE_DATA", "data"))
+    root_path = chosen.expanduser().resolve()
+    assets = os.environ.get("RINGSIDE_ASSETS")
+    return DataPaths(
+        root_path, Path(assets).expanduser().resolve() if assets else root_path / "assets"
+    )

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import duckdb
+import numpy as np
 
 from storage.db import transaction, utcnow
 from storage.keys import stable_json
@@ -49,16 +50,48 @@ def has_output(con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key: s
     return row is not None
 
 
+Columns = Mapping[str, np.ndarray]
+
+
+def insert_columns(
+    con: duckdb.DuckDBPyConnection, table: str, key: str, video_id: str, columns: Columns
+) -> None:
+    """Insert one row per element of the equally long ``columns`` (arrays of shape (N,) or, for
+    fixed-size array columns, (N, D)), with ``key`` and ``video_id`` filled in.
+
+    One statement for all rows: row-by-row inserts run at a few thousand rows per second.
+    """
+    lengths = {name: len(values) for name, values in columns.items()}
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f"{table}: columns differ in length {lengths}")
+    types = dict(
+        con.execute(
+            "SELECT column_name, data_type FROM duckdb_columns() WHERE table_name = ?", [table]
+        ).fetchall()
+    )
+    unknown = sorted(set(columns) - set(types))
+    if unknown:
+        raise ValueError(f"{table} has no columns {unknown}")
+    names = list(columns)
+    selects = ", ".join(f"unnest(${i + 3}::{types[n]}[])" for i, n in enumerate(names))
+    con.execute(
+        f"INSERT INTO {table} (key, video_id, {', '.join(names)}) SELECT $1, $2, {selects}",
+        [key, video_id, *(np.asarray(columns[n]) for n in names)],
+    )
+
+
 def write_output(
     con: duckdb.DuckDBPyConnection,
     record: OutputRecord,
-    rows: Mapping[str, Sequence[tuple]],
+    rows: Mapping[str, Sequence[tuple] | Columns],
     metrics: Mapping[str, float],
+    notes: Sequence[str] = (),
 ) -> None:
     """Replace the output ``record`` names, its table rows and its metrics, in one transaction.
 
-    ``rows`` maps a stage table to its rows, each a tuple in the table's column order starting with
-    ``key, video_id``. A crash leaves either the old output or the new one, never a mix.
+    ``rows`` maps a stage table to its rows: either tuples in the table's column order starting
+    with ``key, video_id``, or :data:`Columns` (see :func:`insert_columns`). A crash leaves either
+    the old output or the new one, never a mix.
     """
     bad = {name: value for name, value in metrics.items() if not math.isfinite(value)}
     if bad:
@@ -68,7 +101,9 @@ def write_output(
     with transaction(con):
         for table, table_rows in rows.items():
             con.execute(f"DELETE FROM {table} WHERE key = ? AND video_id = ?", where)
-            if table_rows:
+            if isinstance(table_rows, Mapping):
+                insert_columns(con, table, record.key, record.video_id, table_rows)
+            elif table_rows:
                 marks = ", ".join("?" * len(table_rows[0]))
                 con.executemany(f"INSERT INTO {table} VALUES ({marks})", list(table_rows))
         con.execute(
@@ -76,7 +111,7 @@ def write_output(
             [record.stage, record.video_id, record.key],
         )
         con.execute(
-            "INSERT INTO stage_outputs VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            "INSERT INTO stage_outputs VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             [
                 record.stage,
                 record.video_id,
@@ -87,19 +122,21 @@ def write_output(
                 record.run_id,
                 record.seconds,
                 now,
+                list(notes),
             ],
         )
         con.execute(
             "DELETE FROM stage_metrics WHERE stage = ? AND video_id = ? AND key = ?",
             [record.stage, record.video_id, record.key],
         )
-        con.executemany(
-            "INSERT INTO stage_metrics VALUES (?, ?, ?, ?, ?, ?, ?)",
-            [
-                [record.run_id, record.video_id, record.stage, record.key, name, float(v), now]
-                for name, v in metrics.items()
-            ],
-        )
+        if metrics:
+            con.executemany(
+                "INSERT INTO stage_metrics VALUES (?, ?, ?, ?, ?, ?, ?)",
+                [
+                    [record.run_id, record.video_id, record.stage, record.key, name, float(v), now]
+                    for name, v in metrics.items()
+                ],
+            )
         record_run(con, record.run_id, record.video_id, record.stage, record.key, "done")
 
 
