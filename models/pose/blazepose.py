@@ -52,6 +52,11 @@ LANDMARKER_INPUT_SIZE = 256
 LANDMARKER_NUM_OUTPUT_LANDMARKS = 39  # 33 body points + 6 auxiliary
 NUM_BODY_LANDMARKS = 33
 
+# Auxiliary landmarks the model predicts for following a person to the next
+# frame: the hip centre and the full-body scale point, as the detector gives.
+AUX_HIP_CENTER = 33
+AUX_SCALE_POINT = 34
+
 # The landmark model expects crops 1.25x the alignment circle's square (the
 # scale of the graphs it ships with).
 ROI_SCALE = 1.25
@@ -459,7 +464,7 @@ def decode_landmarks(
 # --------------------------------------------------------------------------
 
 
-def _check_image(image_bgr: np.ndarray) -> None:
+def check_image(image_bgr: np.ndarray) -> None:
     if not isinstance(image_bgr, np.ndarray) or image_bgr.ndim != 3 or image_bgr.shape[2] != 3:
         shape = getattr(image_bgr, "shape", type(image_bgr).__name__)
         raise ValueError(f"image_bgr must be an (H, W, 3) BGR array, got {shape}")
@@ -546,7 +551,7 @@ class BlazePoseDetector:
 
     def preprocess(self, image_bgr: np.ndarray) -> tuple[np.ndarray, Letterbox]:
         """(H, W, 3) uint8 BGR -> (1, 224, 224, 3) float32 RGB in [-1, 1], and the letterbox."""
-        _check_image(image_bgr)
+        check_image(image_bgr)
         square, transform = letterbox(image_bgr, DETECTOR_INPUT_SIZE)
         rgb = cv2.cvtColor(square, cv2.COLOR_BGR2RGB)
         return (rgb.astype(np.float32) / 127.5 - 1.0)[None], transform
@@ -610,8 +615,13 @@ class BlazePoseLandmarker:
         self._world_index = _output_index(self._interpreter, (1, num * 3), self.model_path)
 
     @staticmethod
-    def roi_for(box: Detection | np.ndarray) -> Roi:
-        """The crop for a Detection (turned by its alignment keypoints) or a box (upright)."""
+    def roi_for(box: Detection | Pose | np.ndarray) -> Roi:
+        """The crop for a Detection or a previous Pose (turned by their alignment points) or a
+        plain box (upright)."""
+        if isinstance(box, Pose):
+            if box.alignment is not None:
+                return roi_from_alignment(box.alignment[0], box.alignment[1])
+            return roi_from_box(box.bbox())
         if isinstance(box, Detection):
             if box.keypoints is not None and len(box.keypoints) >= 2:
                 return roi_from_alignment(
@@ -622,7 +632,7 @@ class BlazePoseLandmarker:
 
     def preprocess(self, image_bgr: np.ndarray, roi: Roi) -> np.ndarray:
         """(H, W, 3) uint8 BGR and an ROI -> (1, 256, 256, 3) float32 RGB crop in [0, 1]."""
-        _check_image(image_bgr)
+        check_image(image_bgr)
         crop = warp_crop(image_bgr, roi, LANDMARKER_INPUT_SIZE)
         rgb = cv2.cvtColor(crop, cv2.COLOR_BGR2RGB)
         return (rgb.astype(np.float32) / 255.0)[None]
@@ -643,14 +653,20 @@ class BlazePoseLandmarker:
     ) -> Pose:
         """Raw outputs -> a Pose with 33 landmarks in image pixels (see `decode_landmarks`)."""
         keypoints, visibility, presence, world = decode_landmarks(raw_landmarks, raw_world, roi)
+        aux = np.asarray(raw_landmarks, dtype=np.float64)[[AUX_HIP_CENTER, AUX_SCALE_POINT], :2]
         return Pose(
-            keypoints=keypoints, confidence=visibility, world=world, presence=presence, score=flag
+            keypoints=keypoints,
+            confidence=visibility,
+            world=world,
+            presence=presence,
+            score=flag,
+            alignment=crop_to_image(aux, roi, LANDMARKER_INPUT_SIZE),
         )
 
     def estimate(self, image_bgr: np.ndarray, roi: Roi) -> Pose:
         """Pose of the person in `roi` of an (H, W, 3) uint8 BGR frame."""
         return self.postprocess(*self.infer(self.preprocess(image_bgr, roi)), roi)
 
-    def __call__(self, image_bgr: np.ndarray, box: Detection | np.ndarray) -> Pose:
-        """Pose of the person given by a Detection or a (4,) x0, y0, x1, y1 box."""
+    def __call__(self, image_bgr: np.ndarray, box: Detection | Pose | np.ndarray) -> Pose:
+        """Pose of the person given by a Detection, their previous Pose, or a (4,) box."""
         return self.estimate(image_bgr, self.roi_for(box))

@@ -123,6 +123,9 @@ class Pose:
             nearer the camera (BlazePose world landmarks).
         presence: optional (J,) chance each joint lies inside the image.
         score: chance the crop holds a person at all (BlazePose's pose flag).
+        alignment: optional (2, 2) hip centre and full-body scale point in
+            pixels (BlazePose's auxiliary landmarks): where to crop this person
+            in the next frame.
     """
 
     keypoints: np.ndarray
@@ -130,6 +133,7 @@ class Pose:
     world: np.ndarray | None = None
     presence: np.ndarray | None = None
     score: float = 1.0
+    alignment: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         keypoints = np.asarray(self.keypoints)
@@ -140,6 +144,8 @@ class Pose:
             _check_array("Pose.world", np.asarray(self.world), (num_joints, 3))
         if self.presence is not None:
             _check_array("Pose.presence", np.asarray(self.presence), (num_joints,))
+        if self.alignment is not None:
+            _check_array("Pose.alignment", np.asarray(self.alignment), (2, 2))
 
     def coco17(self) -> tuple[np.ndarray, np.ndarray]:
         """The COCO-17 subset: (17, 2) keypoints in pixels and (17,) confidences.
@@ -178,7 +184,8 @@ class Detector(Protocol):
 class PoseEstimator(Protocol):
     """Estimates one person's pose from a frame and where that person is."""
 
-    def __call__(self, image_bgr: np.ndarray, box: Detection | np.ndarray) -> Pose:
-        """image_bgr: (H, W, 3) uint8 BGR frame; box: the person's Detection, or a
-        (4,) x0, y0, x1, y1 person box in pixels (e.g. a tracker's prediction)."""
+    def __call__(self, image_bgr: np.ndarray, box: Detection | Pose | np.ndarray) -> Pose:
+        """image_bgr: (H, W, 3) uint8 BGR frame; box: the person's Detection, their
+        Pose in the previous frame (to follow them), or a (4,) x0, y0, x1, y1
+        person box in pixels (e.g. a tracker's prediction)."""
         ...
