@@ -1,0 +1,199 @@
+"""Tests for tasks.pose.fighters: picking the two fighters, joining fragments, and finding the
+adversary by the declared colour, on tracks with known truth (built directly, or tracked from
+frames drawn with OpenCV)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from tasks.pose.fighters import (
+    FighterConfig,
+    adversary_by_colour,
+    colour_template,
+    link_fragments,
+    pick_fighters,
+)
+from tasks.pose.tracking import (
+    DESCRIPTOR_SIZE,
+    Observation,
+    Tracker,
+    TrackerConfig,
+    TrackSummary,
+    appearance,
+)
+
+WIDTH, HEIGHT = 640, 360
+SKIN = (120, 160, 215)  # BGR
+RED, BLUE = (40, 40, 200), (200, 80, 30)
+BLACK, WHITE = (15, 15, 15), (245, 245, 245)
+
+
+def person_box(x: float, foot: float, height: float) -> np.ndarray:
+    return np.array([x - 0.2 * height, foot - height, x + 0.2 * height, foot])
+
+
+def draw(people) -> np.ndarray:
+    """A grey frame with (box, torso BGR, trunks BGR) people drawn in order."""
+    image = np.full((HEIGHT, WIDTH, 3), (150, 160, 165), dtype=np.uint8)
+    for box, torso, trunks in people:
+        x0, y0, x1, y1 = box
+        h = y1 - y0
+        for top, bottom, colour in [(0, 0.15, SKIN), (0.15, 0.5, torso), (0.5, 0.75, trunks)]:
+            p0 = (int(x0), int(y0 + top * h))
+            cv2.rectangle(image, p0, (int(x1) - 1, int(y0 + bottom * h) - 1), colour, -1)
+        cv2.rectangle(image, (int(x0), int(y0 + 0.75 * h)), (int(x1) - 1, int(y1) - 1), SKIN, -1)
+    return image
+
+
+def descriptor(torso, trunks) -> np.ndarray:
+    box = person_box(320, 300, 200)
+    return appearance(draw([(box, torso, trunks)]), box)
+
+
+def make_track(track_id, first, xs, foot, height, colour=None, seen=None) -> TrackSummary:
+    """A track observed from ``first`` with centres ``xs`` (NaN = unseen) at the given foot y."""
+    xs = np.asarray(xs, dtype=np.float64)
+    boxes = np.array([person_box(x, foot, height) for x in xs])
+    if seen is not None:
+        boxes[~np.asarray(seen)] = np.nan
+    scores = np.where(np.isnan(boxes[:, 0]), np.nan, 0.9)
+    ok = ~np.isnan(scores)
+    centres = (boxes[ok, :2] + boxes[ok, 2:]) / 2
+    return TrackSummary(
+        track_id=track_id,
+        first_frame=first,
+        last_frame=first + len(xs) - 1,
+        frames_observed=int(ok.sum()),
+        mean_size=(boxes[ok, 2:] - boxes[ok, :2]).mean(axis=0),
+        mean_centre=centres.mean(axis=0),
+        colour=colour if colour is not None else descriptor(SKIN, RED),
+        boxes=boxes,
+        scores=scores,
+    )
+
+
+def test_picks_the_two_big_central_long_lived_people():
+    n = 100
+    t = np.arange(n)
+    tracks = [
+        make_track(0, 0, np.full(n, 40.0), 150, 90),  # spectator at the edge, all the time
+        make_track(1, 0, 270 + 20 * np.sin(t / 9), 320, 200),  # fighter
+        make_track(2, 30, np.full(12, 330.0), 320, 210),  # big, central, brief (a cameraman?)
+        make_track(3, 0, 380 - 20 * np.sin(t / 7), 318, 195),  # fighter
+        make_track(4, 0, np.full(n, 600.0), 330, 180, seen=t % 3 == 0),  # referee, at the rope
+    ]
+    assert pick_fighters(tracks, (WIDTH, HEIGHT)) == [1, 3]
+    assert pick_fighters(tracks[::-1], (WIDTH, HEIGHT), num_frames=n) == [1, 3]
+
+
+def test_one_person_gives_one_id_and_none_gives_none():
+    assert pick_fighters([], (WIDTH, HEIGHT)) == []
+    lone = make_track(7, 0, np.full(20, 300.0), 320, 200)
+    assert pick_fighters([lone], (WIDTH, HEIGHT)) == [7]
+    # Two tracks never seen in the same frame are not two fighters.
+    later = make_track(8, 40, np.full(20, 300.0), 320, 200)
+    assert pick_fighters([lone, later], (WIDTH, HEIGHT)) in ([7], [8])
+
+
+def test_pick_fighters_checks_its_arguments():
+    lone = make_track(0, 0, np.full(5, 300.0), 320, 200)
+    with pytest.raises(ValueError, match="frame_size"):
+        pick_fighters([lone], (640,))
+    with pytest.raises(ValueError, match="num_frames"):
+        pick_fighters([lone], (WIDTH, HEIGHT), num_frames=0)
+    with pytest.raises(ValueError, match="fighters.near_scale"):
+        FighterConfig(near_scale=0)
+
+
+def test_tracked_scene_end_to_end():
+    """Tracker then pick_fighters on drawn frames: two fighters, a small spectator at the edge
+    for the whole shot, and a big person crossing in front briefly."""
+    rng = np.random.default_rng(0)
+    tracker = Tracker(TrackerConfig(), 30.0)
+    truth_of: dict[int, str] = {}
+    for f in range(60):
+        people = [
+            ("spectator", person_box(30, 140, 90), (60, 170, 60), BLACK),
+            ("red", person_box(260 + 25 * np.sin(f / 8), 320, 200), SKIN, RED),
+            ("blue", person_box(390 - 25 * np.sin(f / 6), 322, 204), SKIN, BLUE),
+        ]
+        if 20 <= f < 30:  # a cameraman walks past in front
+            people.append(("walker", person_box(100 + 30 * (f - 20), 350, 230), WHITE, BLACK))
+        image = draw([(box, torso, trunks) for _, box, torso, trunks in people])
+        obs = []
+        for _, box, _, _ in people:
+            noisy = box + rng.normal(0, 2, 4)
+            obs.append(Observation(noisy, 0.9, appearance(image, noisy)))
+        for (name, *_), track_id in zip(people, tracker.update(obs), strict=True):
+            if track_id is not None:
+                truth_of[track_id] = name
+    fighters = pick_fighters(tracker.tracks(), (WIDTH, HEIGHT))
+    assert sorted(truth_of[i] for i in fighters) == ["blue", "red"]
+    assert adversary_by_colour(tracker.tracks(), fighters, "#c82828") == next(
+        i for i in fighters if truth_of[i] == "red"
+    )
+
+
+def test_adversary_by_colour_finds_red_trunks():
+    tracks = [
+        make_track(0, 0, np.full(10, 250.0), 320, 200, colour=descriptor(SKIN, BLUE)),
+        make_track(1, 0, np.full(10, 380.0), 320, 200, colour=descriptor(SKIN, RED)),
+    ]
+    assert adversary_by_colour(tracks, [0, 1], "#c81e1e") == 1  # "red" as ingest names it
+    assert adversary_by_colour(tracks, [0, 1], "#1e3cc8") == 0  # "blue"
+    assert adversary_by_colour(tracks, [1, 0], "#00ff00") == 1  # no one in green: first on a tie
+
+
+def test_adversary_by_colour_tells_black_from_white_and_finds_a_shirt():
+    tracks = [
+        make_track(0, 0, np.full(10, 250.0), 320, 200, colour=descriptor(SKIN, BLACK)),
+        make_track(1, 0, np.full(10, 380.0), 320, 200, colour=descriptor(SKIN, WHITE)),
+        make_track(2, 0, np.full(10, 380.0), 320, 200, colour=descriptor((40, 200, 230), BLACK)),
+    ]
+    assert adversary_by_colour(tracks, [0, 1], "#000000") == 0
+    assert adversary_by_colour(tracks, [0, 1], "#ffffff") == 1
+    assert adversary_by_colour(tracks, [1, 0], "#101010") == 0
+    assert adversary_by_colour(tracks, [0, 2], "#f0d228") == 2  # a yellow shirt
+
+
+def test_adversary_by_colour_checks_its_arguments():
+    tracks = [make_track(0, 0, np.full(3, 300.0), 320, 200)]
+    with pytest.raises(ValueError, match="colour_hex"):
+        adversary_by_colour(tracks, [0], "red")
+    with pytest.raises(ValueError, match="fighter_ids"):
+        adversary_by_colour(tracks, [], "#ff0000")
+    with pytest.raises(ValueError, match="fighter_ids"):
+        adversary_by_colour(tracks, [0, 5], "#ff0000")
+
+
+def test_colour_template_shapes_and_greys():
+    red = colour_template("#ff0000")
+    assert red.shape == (DESCRIPTOR_SIZE // 2,) and red.max() == 1.0
+    black, white = colour_template("#000000"), colour_template("#ffffff")
+    assert np.dot(black, white) == 0  # no shared bin
+    assert np.dot(red, black) == 0
+
+
+def test_link_fragments_joins_one_person_and_keeps_others_apart():
+    red, blue = descriptor(SKIN, RED), descriptor(SKIN, BLUE)
+    # Red walks right at 4 px/frame, lost for 40 frames in the middle.
+    a = make_track(0, 0, 200 + 4 * np.arange(30), 320, 200, colour=red)
+    b = make_track(3, 70, 200 + 4 * np.arange(70, 100), 320, 200, colour=red)
+    # Blue is another person, seen throughout; a blue newcomer starts where red was going.
+    c = make_track(1, 0, np.full(100, 500.0), 320, 200, colour=blue)
+    d = make_track(2, 35, 200 + 4 * np.arange(35, 45), 320, 200, colour=blue)
+    joined, mapping = link_fragments([a, b, c, d], max_gap_frames=60)
+    assert mapping == {0: 0, 3: 0, 1: 1, 2: 2}
+    assert [t.track_id for t in joined] == [0, 1, 2]
+    red_joined = joined[0]
+    assert (red_joined.first_frame, red_joined.last_frame) == (0, 99)
+    assert red_joined.frames_observed == 60
+    assert red_joined.observed.sum() == 60 and not red_joined.observed[30:70].any()
+    np.testing.assert_allclose(red_joined.boxes[75], b.boxes[5])
+    # Too long a gap, no join.
+    _, mapping = link_fragments([a, b], max_gap_frames=20)
+    assert mapping == {0: 0, 3: 3}
+    with pytest.raises(ValueError, match="max_gap_frames"):
+        link_fragments([a], max_gap_frames=0)
