@@ -27,6 +27,8 @@ def prepare_environment(data_root: Path, *, verbose: bool) -> None:
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
     # FFmpeg's own complaints ("moov atom not found") would bury our one-line errors.
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    # LiteRT announces its CPU delegate on stderr at every model load.
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
     if not verbose:
         # Flow and task logs still reach the Prefect API and UI; the terminal shows our summary.
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "CRITICAL")
@@ -34,24 +36,23 @@ def prepare_environment(data_root: Path, *, verbose: bool) -> None:
 
 def _config_flags(parser: argparse.ArgumentParser) -> None:
     from flows.config import SECTIONS
-    from tasks.config import field_types
+    from tasks.config import leaf_fields
 
     parser.add_argument("--config", type=Path, help="TOML config (default: ./ringside.toml)")
     for section, cls in SECTIONS.items():
         group = parser.add_argument_group(f"{section} settings (override {section} in the config)")
-        types = field_types(cls)
-        for f in dataclasses.fields(cls):
+        for path, f in leaf_fields(cls, (section,)):
             group.add_argument(
-                f"--{section}-{f.name.replace('_', '-')}",
-                dest=f"cfg__{section}__{f.name}",
-                metavar=types[f.name].__name__.upper(),
+                "--" + "-".join(path).replace("_", "-"),
+                dest="cfg__" + "__".join(path),
+                metavar="VALUE",
                 help=f"{f.metadata['help']} (default {f.default})",
             )
 
 
 def _overrides(args: argparse.Namespace) -> list[str]:
     return [
-        f"{name.split('__')[1]}.{name.split('__')[2]}={value}"
+        f"{'.'.join(name.split('__')[1:])}={value}"
         for name, value in vars(args).items()
         if name.startswith("cfg__") and value is not None
     ]
@@ -88,6 +89,20 @@ def build_parser() -> argparse.ArgumentParser:
     rerun.add_argument("--json", action="store_true")
     _config_flags(rerun)
 
+    pick = commands.add_parser(
+        "pick", help="say which track is the adversary in a video, then rerun what depends on it"
+    )
+    pick.add_argument("--video", required=True, metavar="ID", help="video id (a prefix will do)")
+    pick.add_argument(
+        "--track",
+        required=True,
+        type=int,
+        metavar="N",
+        help="track id, as `ringside status` and the pose overlay show it",
+    )
+    pick.add_argument("--json", action="store_true")
+    _config_flags(pick)
+
     metrics = commands.add_parser("metrics", help="each stage's metrics per video")
     metrics.add_argument("--stage", choices=STAGES)
     metrics.add_argument("--json", action="store_true")
@@ -95,6 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
     assets = commands.add_parser("assets", help="third-party weights and sample videos")
     assets_commands = assets.add_subparsers(dest="assets_command", required=True, metavar="ACTION")
     assets_commands.add_parser("pull", help="fetch them from the package index (idempotent)")
+
+    commands.add_parser("config", help="print every setting at its default, documented (TOML)")
 
     demo = commands.add_parser("demo", help="pull the assets and process the bundled sample")
     demo.add_argument("--json", action="store_true")
@@ -129,6 +146,9 @@ def _print_summary(summaries: list, data_root: Path, as_json: bool) -> None:
         for r in rows
     ]
     _print_table(shown, ["video_id", "stage", "state", "key", "seconds", "path"])
+    for row in rows:
+        for note in row["notes"]:
+            print(f"note: {row['stage']} {row['video_id'][:12]}: {note}")
     paths = data_paths(data_root)
     print(f"\nresults: {paths.db}\nartifacts: {paths.artifacts}")
     print("see them with: ringside status | ringside metrics")
@@ -211,7 +231,8 @@ def _status(args, data_root: Path) -> int:
     return 0
 
 
-def _rerun(args, data_root: Path) -> int:
+def _ingested(data_root: Path, video: str) -> tuple[str, str, str, str | None, str | None]:
+    """(video_id, path, adversary, colour, notes) of the one ingested video ``video`` starts."""
     from storage.db import connect
     from storage.paths import data_paths
     from tasks.errors import BadInput
@@ -228,13 +249,40 @@ def _rerun(args, data_root: Path) -> int:
             WHERE p.video_id LIKE ? || '%'
             QUALIFY row_number() OVER (PARTITION BY p.video_id ORDER BY o.created_at DESC) = 1
             """,
-            [args.video],
+            [video],
         ).fetchall()
     if len(found) != 1:
         problem = "matches no ingested video" if not found else "matches several videos"
-        raise BadInput(f"--video {args.video}", f"{problem}; see `ringside status`")
-    _, path, name, colour, notes = found[0]
+        raise BadInput(f"--video {video}", f"{problem}; see `ringside status`")
+    return found[0]
+
+
+def _rerun(args, data_root: Path) -> int:
+    _, path, name, colour, notes = _ingested(data_root, args.video)
     return _process(args, data_root, [path], name, colour, notes, rerun=[args.stage])
+
+
+def _pick(args, data_root: Path) -> int:
+    from storage.db import connect, utcnow
+    from storage.paths import data_paths
+    from tasks.errors import BadInput
+
+    video_id, path, name, colour, notes = _ingested(data_root, args.video)
+    with connect(data_paths(data_root).db) as con:
+        tracks = sorted(
+            row[0]
+            for row in con.execute(
+                "SELECT DISTINCT track FROM pose_tracks WHERE video_id = ?", [video_id]
+            ).fetchall()
+        )
+        if args.track not in tracks:
+            raise BadInput(
+                f"--track {args.track}",
+                f"video {video_id[:12]} has no such track; tracks: {tracks}",
+            )
+        con.execute("INSERT INTO pose_picks VALUES (?, ?, ?)", [video_id, args.track, utcnow()])
+    args.until = None
+    return _process(args, data_root, [path], name, colour, notes)
 
 
 def _metrics(args, data_root: Path) -> int:
@@ -318,10 +366,17 @@ def main(argv: list[str] | None = None) -> int:
             return _status(args, data_root)
         if args.command == "rerun":
             return _rerun(args, data_root)
+        if args.command == "pick":
+            return _pick(args, data_root)
         if args.command == "metrics":
             return _metrics(args, data_root)
         if args.command == "assets":
             _pull(data_root)
+            return 0
+        if args.command == "config":
+            from flows.config import defaults_text
+
+            print(defaults_text(), end="")
             return 0
         if args.command == "demo":
             return _demo(args, data_root)

@@ -7,18 +7,30 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tasks.config import apply_overrides, build, read_toml
+from tasks.config import apply_overrides, build, defaults_toml, read_toml
 from tasks.ingest.config import IngestConfig
+from tasks.pose.config import PoseConfig
 
 # Stage name -> its config class, in pipeline order. A stage joins here when it exists.
-SECTIONS: dict[str, type] = {"ingest": IngestConfig}
+SECTIONS: dict[str, type] = {"ingest": IngestConfig, "pose": PoseConfig}
 STAGES: tuple[str, ...] = tuple(SECTIONS)
 DEFAULT_CONFIG_FILE = Path("ringside.toml")
+HEADER = """Ringside settings. Every value here is the built-in default; change what you need.
+Any setting can also be given on the command line as --SECTION-NAME VALUE, e.g.
+`ringside process fight.mp4 --adversary X --ingest-cut-threshold 0.5 --pose-tracker-alpha 0.6`.
+Changing a stage's settings reruns that stage and the stages after it, nothing else.
+This file is written by `ringside config`."""
+
+
+def defaults_text() -> str:
+    """The documented defaults of every stage, as the TOML text ``ringside.toml`` ships with."""
+    return defaults_toml(SECTIONS, HEADER)
 
 
 @dataclass(frozen=True)
 class PipelineConfig:
     ingest: IngestConfig = field(default_factory=IngestConfig)
+    pose: PoseConfig = field(default_factory=PoseConfig)
 
     def as_dict(self) -> dict[str, dict[str, Any]]:
         return {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}

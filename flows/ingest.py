@@ -2,29 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 from prefect import flow
 from prefect.runtime import flow_run
 
 from flows.config import from_tables
-from flows.runs import settle, still_committed
+from flows.runs import StageSummary, settle, still_committed
 from tasks.ingest.config import declare
 from tasks.ingest.stage import ingest_key
 from tasks.ingest.task import identify_task, ingest_task
-
-
-@dataclass(frozen=True)
-class StageSummary:
-    """One line of a run's summary."""
-
-    video_id: str
-    path: str
-    stage: str
-    key: str
-    state: str
-    seconds: float
 
 
 def _run_name() -> str:
@@ -53,4 +40,6 @@ def ingest_flow(
             data_root, file, declaration, settings, key, force=True
         )
     state = settle(data_root, result)
-    return StageSummary(file.video_id, file.path, "ingest", key, state, result.seconds)
+    return StageSummary(
+        file.video_id, file.path, "ingest", key, state, result.seconds, result.notes
+    )

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from prefect import flow
+from prefect.task_runners import ThreadPoolTaskRunner
 
-from flows.config import STAGES
-from flows.ingest import StageSummary, ingest_flow
+from flows.config import STAGES, from_tables
+from flows.ingest import ingest_flow
+from flows.pose import pose_flow
+from flows.runs import StageSummary
 from tasks.errors import BadInput
 
 
@@ -44,7 +47,9 @@ def video_to_opponent(
 
     A video that fails does not stop the others; the flow fails at the end, naming each failure.
     """
-    stages_until(until)  # checks the name; later stages will run up to it
+    stages = stages_until(until)
+    workers = from_tables(config or {}).pose.workers
+    pose = pose_flow.with_options(task_runner=ThreadPoolTaskRunner(max_workers=workers))
     forced = set(rerun or [])
     unknown = forced - set(STAGES)
     if unknown:
@@ -66,6 +71,14 @@ def video_to_opponent(
             failures.append(str(error))
             continue
         summaries.append(ingested)
+        if "pose" not in stages:
+            continue
+        try:
+            summaries.append(
+                pose(data_root, ingested.video_id, ingested.key, config, force="pose" in forced)
+            )
+        except BadInput as error:
+            failures.append(str(error))
     if failures:
         raise PipelineFailed(failures, summaries)
     return summaries

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from prefect.artifacts import create_table_artifact
 from prefect.runtime import flow_run
 
@@ -9,6 +11,19 @@ from storage.db import connect
 from storage.paths import data_paths
 from storage.records import record_run
 from tasks.runner import StageResult, committed
+
+
+@dataclass(frozen=True)
+class StageSummary:
+    """One line of a run's summary."""
+
+    video_id: str
+    path: str
+    stage: str
+    key: str
+    state: str
+    seconds: float
+    notes: tuple[str, ...] = ()
 
 
 def current_run_id() -> str:
@@ -35,3 +50,9 @@ def still_committed(data_root: str, result: StageResult) -> bool:
     """False when Prefect's cache remembers an output the database no longer has."""
     found = committed(data_paths(data_root).db, result.stage, result.video_id, result.key)
     return found is not None
+
+
+def record_failure(data_root: str, video_id: str, stage: str, key: str, error: BaseException):
+    """Note that ``stage`` failed for a registered video, so `ringside status` can say why."""
+    with connect(data_paths(data_root).db) as con:
+        record_run(con, current_run_id(), video_id, stage, key, "failed", str(error))

@@ -9,15 +9,16 @@ from pathlib import Path
 from typing import Any
 
 from storage.db import connect
-from storage.records import OutputRecord, write_output
+from storage.records import Columns, OutputRecord, write_output
 
 
 @dataclass(frozen=True)
 class StageOutput:
     """What a stage computed: rows per table (tuples starting with key, video_id), metrics."""
 
-    rows: Mapping[str, Sequence[tuple]]
+    rows: Mapping[str, Sequence[tuple] | Columns]
     metrics: Mapping[str, float]
+    notes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -34,6 +35,7 @@ class StageResult:
     run_id: str
     seconds: float
     metrics: dict[str, float] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
 
 def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | None:
@@ -42,7 +44,7 @@ def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | No
         return None
     with connect(db, read_only=True) as con:
         row = con.execute(
-            "SELECT run_id, seconds FROM stage_outputs "
+            "SELECT run_id, seconds, notes FROM stage_outputs "
             "WHERE stage = ? AND video_id = ? AND key = ?",
             [stage, video_id, key],
         ).fetchone()
@@ -52,7 +54,7 @@ def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | No
             "SELECT name, value FROM stage_metrics WHERE stage = ? AND video_id = ? AND key = ?",
             [stage, video_id, key],
         ).fetchall()
-    return StageResult(stage, video_id, key, row[0], row[1], dict(metrics))
+    return StageResult(stage, video_id, key, row[0], row[1], dict(metrics), tuple(row[2]))
 
 
 def run_stage(
@@ -80,5 +82,7 @@ def run_stage(
     seconds = time.perf_counter() - start
     record = OutputRecord(stage, video_id, key, config, code, upstream, run_id, seconds)
     with connect(db) as con:
-        write_output(con, record, output.rows, output.metrics)
-    return StageResult(stage, video_id, key, run_id, seconds, dict(output.metrics))
+        write_output(con, record, output.rows, output.metrics, output.notes)
+    return StageResult(
+        stage, video_id, key, run_id, seconds, dict(output.metrics), tuple(output.notes)
+    )

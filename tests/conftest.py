@@ -12,6 +12,12 @@ os.environ["PREFECT_SERVER_ANALYTICS_ENABLED"] = "false"
 os.environ["PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL"] = "CRITICAL"
 os.environ["PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS"] = "120"
 os.environ["OPENCV_FFMPEG_LOGLEVEL"] = "-8"
+os.environ["TF_CPP_MIN_LOG_LEVEL"] = "2"
+# Every test's data directory shares the one pulled copy of the assets.
+REPO = Path(__file__).resolve().parent.parent
+os.environ.setdefault(
+    "RINGSIDE_ASSETS", str(Path(os.environ.get("RINGSIDE_DATA", REPO / "data")) / "assets")
+)
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -20,13 +26,11 @@ import pytest  # noqa: E402
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 
-REPO = Path(__file__).resolve().parent.parent
-
 
 @pytest.fixture(scope="session")
 def assets() -> Path:
     """The pulled assets (weights, sample videos), fetched once if missing."""
-    root = data_paths(os.environ.get("RINGSIDE_DATA", REPO / "data")).assets
+    root = data_paths().assets
     pull(root, log=lambda _line: None)
     return root
 

@@ -46,29 +46,33 @@ def scans(monkeypatch) -> list[str]:
 
 def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_video, scans):
     data = str(tmp_path / "data")
-    code, out, _ = run_cli(
-        capsys, "--data", data, "process", str(sample_video), "--adversary", "A", "--json"
-    )
+    process = ["--data", data, "process", str(sample_video), "--adversary", "A", "--json"]
+    code, out, _ = run_cli(capsys, *process)
     assert code == 0
     first = json.loads(out)
-    assert [(s["stage"], s["state"]) for s in first] == [("ingest", "done")]
+    assert [(s["stage"], s["state"]) for s in first] == [("ingest", "done"), ("pose", "done")]
     assert len(scans) == 1
 
-    code, out, _ = run_cli(
-        capsys, "--data", data, "process", str(sample_video), "--adversary", "A", "--json"
-    )
-    assert code == 0 and json.loads(out)[0]["state"] == "cached"
+    code, out, _ = run_cli(capsys, *process)
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached", "cached"]
     assert len(scans) == 1, "a rerun with nothing changed decoded the video again"
 
     video_id = first[0]["video_id"]
     code, out, _ = run_cli(
         capsys, "--data", data, "rerun", "ingest", "--video", video_id[:10], "--json"
     )
-    assert code == 0 and json.loads(out)[0]["state"] == "done"
+    # Ingest is recomputed; its key is unchanged, so pose is found in the cache.
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["done", "cached"]
     assert len(scans) == 2
     db = Path(data) / "ringside.duckdb"
-    assert count(db, "SELECT count(*) FROM stage_runs WHERE state = 'done'") == 2
-    assert count(db, "SELECT count(*) FROM stage_runs WHERE state = 'cached'") == 1
+    runs = "SELECT stage, state, count(*) FROM stage_runs GROUP BY ALL ORDER BY ALL"
+    with connect(db, read_only=True) as con:
+        assert con.execute(runs).fetchall() == [
+            ("ingest", "cached", 1),
+            ("ingest", "done", 2),
+            ("pose", "cached", 2),
+            ("pose", "done", 1),
+        ]
     assert count(db, "SELECT count(*) FROM ingest_probes") == 1
 
     code, out, _ = run_cli(capsys, "--data", data, "status", "--json")
@@ -79,7 +83,14 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
             "key": first[0]["key"],
             "state": "done",
             "error": None,
-        }
+        },
+        {
+            "video_id": video_id,
+            "stage": "pose",
+            "key": first[1]["key"],
+            "state": "cached",
+            "error": None,
+        },
     ]
     code, out, _ = run_cli(capsys, "--data", data, "metrics", "--stage", "ingest", "--json")
     metrics = {m["name"]: m["value"] for m in json.loads(out)}
@@ -89,7 +100,17 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
 
 def test_changed_config_reruns_the_stage(tmp_path, capsys, two_shot_video, scans):
     data = str(tmp_path / "data")
-    base = ["--data", data, "process", str(two_shot_video), "--adversary", "A", "--json"]
+    base = [
+        "--data",
+        data,
+        "process",
+        str(two_shot_video),
+        "--adversary",
+        "A",
+        "--until",
+        "ingest",
+        "--json",
+    ]
     code, out, _ = run_cli(capsys, *base)
     key = json.loads(out)[0]["key"]
     code, out, _ = run_cli(capsys, *base, "--ingest-chunk-frames", "7")
@@ -119,6 +140,8 @@ def test_same_bytes_under_two_names_is_one_video(tmp_path, capsys, two_shot_vide
         str(copy),
         "--adversary",
         "A",
+        "--until",
+        "ingest",
         "--json",
     )
     assert code == 0
@@ -200,7 +223,21 @@ def db_snapshot(db: Path) -> tuple[str, dict[str, int]]:
 def populated(tmp_path_factory, sample_video) -> Path:
     """A data directory that already holds one processed video."""
     data = tmp_path_factory.mktemp("populated") / "data"
-    assert main(["--data", str(data), "process", str(sample_video), "--adversary", "A"]) == 0
+    assert (
+        main(
+            [
+                "--data",
+                str(data),
+                "process",
+                str(sample_video),
+                "--adversary",
+                "A",
+                "--until",
+                "ingest",
+            ]
+        )
+        == 0
+    )
     return data
 
 
@@ -237,6 +274,8 @@ def test_two_processes_at_once_register_one_video(tmp_path, two_shot_video):
         str(two_shot_video),
         "--adversary",
         "A",
+        "--until",
+        "ingest",
     ]
     procs = [
         subprocess.Popen(
@@ -281,7 +320,21 @@ def test_killed_mid_stage_loses_nothing_and_rerun_finishes(
     tmp_path, capsys, sample_video, two_shot_video
 ):
     data = tmp_path / "data"
-    assert main(["--data", str(data), "process", str(sample_video), "--adversary", "A"]) == 0
+    assert (
+        main(
+            [
+                "--data",
+                str(data),
+                "process",
+                str(sample_video),
+                "--adversary",
+                "A",
+                "--until",
+                "ingest",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     db = data / "ringside.duckdb"
     before = db_snapshot(db)
@@ -297,6 +350,8 @@ def test_killed_mid_stage_loses_nothing_and_rerun_finishes(
             str(two_shot_video),
             "--adversary",
             "A",
+            "--until",
+            "ingest",
         ],
         env=env,
         stdout=subprocess.PIPE,
@@ -319,6 +374,8 @@ def test_killed_mid_stage_loses_nothing_and_rerun_finishes(
         str(two_shot_video),
         "--adversary",
         "A",
+        "--until",
+        "ingest",
         "--json",
     )
     assert code == 0

@@ -1,25 +1,26 @@
 from __future__ import annotations
 
-import dataclasses
 import tomllib
 from pathlib import Path
 
 import pytest
 
-from flows.config import SECTIONS, from_tables, load_config
+from flows.config import SECTIONS, defaults_text, from_tables, load_config
+from tasks.config import leaf_fields
 
 REPO = Path(__file__).resolve().parent.parent
 
 
 def test_ringside_toml_documents_every_default():
-    """The shipped ringside.toml holds every setting at its built-in default, no more."""
-    tables = tomllib.loads((REPO / "ringside.toml").read_text())
+    """The shipped ringside.toml is exactly `ringside config`: every setting, documented, at its
+    built-in default."""
+    assert (REPO / "ringside.toml").read_text() == defaults_text()
+    tables = tomllib.loads(defaults_text())
     assert set(tables) == set(SECTIONS)
     for section, cls in SECTIONS.items():
-        defaults = {f.name: f.default for f in dataclasses.fields(cls)}
-        assert tables[section] == defaults, section
-        for f in dataclasses.fields(cls):
-            assert f.metadata["help"], f"{section}.{f.name} has no documentation"
+        assert from_tables({section: tables[section]}) == from_tables({})
+        for path, f in leaf_fields(cls):
+            assert f.metadata["help"], f"{section}.{'.'.join(path)} has no documentation"
 
 
 def test_overrides_are_typed(tmp_path: Path):

@@ -6,6 +6,7 @@ import textwrap
 from pathlib import Path
 
 import duckdb
+import numpy as np
 import pytest
 
 from storage.artifacts import artifact_path, put_bytes, read_bytes
@@ -165,3 +166,18 @@ def test_process_killed_inside_a_transaction_leaves_the_old_output(tmp_path: Pat
         keys = con.execute("SELECT DISTINCT key FROM ingest_chunks").fetchall()
         assert keys == [("k1",)]
         assert con.execute("SELECT count(*) FROM ingest_chunks").fetchone()[0] == 3
+
+
+def test_columns_insert_in_one_statement(tmp_path: Path):
+    frames = np.arange(5, dtype=np.int64)
+    with connect(tmp_path / "r.duckdb") as con:
+        con.execute("CREATE TABLE t (key VARCHAR, video_id VARCHAR, frame INTEGER, x FLOAT[3])")
+        x = np.arange(15, dtype=np.float32).reshape(5, 3)
+        write_output(con, record(), {"t": {"frame": frames, "x": x}}, {})
+        got = con.execute("SELECT key, video_id, frame, x FROM t ORDER BY frame").fetchall()
+        assert got[4] == ("k1", "vid", 4, (12.0, 13.0, 14.0))
+        with pytest.raises(ValueError, match="differ in length"):
+            write_output(con, record(), {"t": {"frame": frames, "x": x[:2]}}, {})
+        with pytest.raises(ValueError, match="no columns"):
+            write_output(con, record(), {"t": {"nope": frames}}, {})
+        assert con.execute("SELECT count(*) FROM t").fetchone()[0] == 5

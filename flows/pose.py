@@ -1,0 +1,83 @@
+"""The pose stage as a flow: chunks tracked concurrently, then assembled for the video."""
+
+from __future__ import annotations
+
+from prefect import flow
+from prefect.runtime import flow_run
+from prefect.task_runners import ThreadPoolTaskRunner
+
+from flows.config import from_tables
+from flows.runs import StageSummary, record_failure, settle, still_committed
+from storage.db import connect
+from storage.files import sha256_file
+from storage.paths import data_paths
+from tasks.errors import BadInput
+from tasks.ingest.outputs import IngestOutput, load_ingest
+from tasks.pose.config import PoseConfig
+from tasks.pose.stage import STAGE, chunk_key, model_files, plan_spans, pose_key
+from tasks.pose.task import latest_pick, pose_chunk_task, pose_task
+from tasks.runner import StageResult, committed
+
+
+def _run_name() -> str:
+    return f"pose-{flow_run.parameters['video_id'][:12]}"
+
+
+@flow(name="pose", flow_run_name=_run_name, task_runner=ThreadPoolTaskRunner(max_workers=1))
+def pose_flow(
+    data_root: str,
+    video_id: str,
+    ingest_key: str,
+    config: dict | None = None,
+    force: bool = False,
+) -> StageSummary:
+    """Both fighters' tracks and refined keypoints for an ingested video."""
+    settings = from_tables(config or {}).pose
+    paths = data_paths(data_root)
+    with connect(paths.db, read_only=True) as con:
+        ingest = load_ingest(con, video_id, ingest_key)
+    pick = latest_pick(paths.db, video_id)
+    key = pose_key(settings, ingest_key, pick)
+    result = None if force else committed(paths.db, STAGE, video_id, key)
+    if result is None:
+        try:
+            result = _compute(data_root, ingest, settings, key, pick, force)
+        except BadInput as error:
+            record_failure(data_root, video_id, STAGE, key, error)
+            raise
+    state = settle(data_root, result)
+    return StageSummary(video_id, ingest.path, STAGE, key, state, result.seconds, result.notes)
+
+
+def _compute(
+    data_root: str,
+    ingest: IngestOutput,
+    settings: PoseConfig,
+    key: str,
+    pick: int | None,
+    force: bool,
+) -> StageResult:
+    """Track every chunk (each cached on its own), then assemble and commit the output."""
+    models = model_files(settings, data_paths(data_root).assets)
+    hashes = (sha256_file(models[0]), sha256_file(models[1]))
+    spans = plan_spans(list(ingest.chunks), settings.overlap_frames)
+    futures = [
+        pose_chunk_task.submit(
+            data_root,
+            ingest.path,
+            span,
+            ingest.fps,
+            settings,
+            (str(models[0]), str(models[1])),
+            chunk_key(settings, ingest.video_id, span, hashes),
+        )
+        for span in spans
+    ]
+    names = [future.result() for future in futures]
+    task = pose_task.with_options(refresh_cache=True) if force else pose_task
+    result = task(data_root, ingest, spans, names, settings, key, pick, force=force)
+    if not still_committed(data_root, result):
+        result = pose_task.with_options(refresh_cache=True)(
+            data_root, ingest, spans, names, settings, key, pick, force=True
+        )
+    return result

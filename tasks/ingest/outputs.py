@@ -1,0 +1,51 @@
+"""Reading a committed ingest output back, for the stages that start from it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import duckdb
+
+
+@dataclass(frozen=True)
+class IngestOutput:
+    """What later stages need to know about an ingested video."""
+
+    video_id: str
+    key: str
+    path: str
+    fps: float
+    frames: int
+    width: int
+    height: int
+    adversary: str
+    colour: str | None
+    chunks: tuple[tuple[int, int, int, int], ...]  # (chunk, shot, start, end)
+    shot_frames: dict[int, int]  # shot -> frames in it
+
+
+def load_ingest(con: duckdb.DuckDBPyConnection, video_id: str, key: str) -> IngestOutput:
+    """The ingest output ``key`` of ``video_id``; KeyError if it was never committed."""
+    probe = con.execute(
+        """
+        SELECT p.path, p.fps, p.frames, p.width, p.height, a.name, a.colour
+        FROM ingest_probes p JOIN ingest_adversaries a USING (key, video_id)
+        WHERE p.key = ? AND p.video_id = ?
+        """,
+        [key, video_id],
+    ).fetchone()
+    if probe is None:
+        raise KeyError(f"no ingest output {key} for video {video_id}")
+    chunks = con.execute(
+        "SELECT chunk, shot, start_frame, end_frame FROM ingest_chunks "
+        "WHERE key = ? AND video_id = ? ORDER BY chunk",
+        [key, video_id],
+    ).fetchall()
+    shots = con.execute(
+        "SELECT shot, end_frame - start_frame FROM ingest_shots WHERE key = ? AND video_id = ?",
+        [key, video_id],
+    ).fetchall()
+    path, fps, frames, width, height, name, colour = probe
+    return IngestOutput(
+        video_id, key, path, fps, frames, width, height, name, colour, tuple(chunks), dict(shots)
+    )

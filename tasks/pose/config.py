@@ -1,0 +1,85 @@
+"""The pose stage's config."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from tasks.config import setting
+from tasks.pose.fighters import FighterConfig
+from tasks.pose.refine import RefineConfig
+from tasks.pose.tracking import TrackerConfig
+
+BACKENDS = ("blazepose", "onnx")
+
+
+@dataclass(frozen=True)
+class PoseConfig:
+    """How people are found, followed and estimated, and how the fighters are chosen."""
+
+    backend: str = setting(
+        "blazepose",
+        "Pose backend: 'blazepose' (BlazePose weights from `ringside assets pull`, on LiteRT) "
+        "or 'onnx' (your own RTMDet/YOLOX detector and RTMPose model files).",
+    )
+    detector_model: str = setting(
+        "", "Detector model file; empty takes the backend's default (BlazePose: the pulled asset)."
+    )
+    pose_model: str = setting(
+        "", "Pose model file; empty takes the backend's default (BlazePose: the pulled asset)."
+    )
+    detect_every: int = setting(
+        2,
+        "Run the person detector every N frames; in between, people are followed from their last "
+        "pose. Frames with nobody followed are always searched.",
+    )
+    detector_tiles: int = setting(
+        2,
+        "Square tiles (the frame's short side) the detector runs on, spread along the long side; "
+        "1 runs it once on the whole frame. Small people are found far more often on tiles.",
+    )
+    detection_score: float = setting(0.5, "Detections scoring below this (0-1) are dropped.")
+    pose_score: float = setting(
+        0.5, "A pose whose person-present score is below this (0-1) counts as not seen."
+    )
+    redetect_iou: float = setting(
+        0.3,
+        "A detection overlapping someone already followed by more than this IoU is the same "
+        "person and is not estimated again.",
+    )
+    num_threads: int = setting(2, "CPU threads per model.")
+    workers: int = setting(1, "Chunks processed at the same time (threads).")
+    overlap_frames: int = setting(
+        8, "Frames a chunk re-reads before its start, to join its tracks to the previous chunk's."
+    )
+    min_fighter_share: float = setting(
+        0.2, "A track seen in less than this share of its shot's frames is never a fighter."
+    )
+    overlay_seconds: float = setting(
+        20.0, "Seconds of the review overlay video to render from the start (0: the whole video)."
+    )
+    overlay_max_side: int = setting(960, "Long side (pixels) of the review overlay video.")
+    stills: int = setting(4, "PNG stills of the overlay, spread over the video.")
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    fighters: FighterConfig = field(default_factory=FighterConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
+
+    def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ValueError(f"pose.backend must be one of {BACKENDS}, got {self.backend!r}")
+        for name in (
+            "detect_every",
+            "detector_tiles",
+            "num_threads",
+            "workers",
+            "overlay_max_side",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"pose.{name} must be at least 1, got {getattr(self, name)}")
+        for name in ("overlap_frames", "stills"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"pose.{name} must be at least 0, got {getattr(self, name)}")
+        for name in ("detection_score", "pose_score", "redetect_iou", "min_fighter_share"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"pose.{name} must be in [0, 1], got {getattr(self, name)}")
+        if self.backend == "onnx" and not (self.detector_model and self.pose_model):
+            raise ValueError("pose.backend 'onnx' needs pose.detector_model and pose.pose_model")

@@ -1,0 +1,489 @@
+"""The pose stage: a registered video becomes both fighters' tracks and refined 2D keypoints.
+
+Chunks of frames are detected, tracked and estimated on their own (:func:`process_chunk`, the
+costly part, cached per chunk); :func:`assemble` joins them, picks the two fighters and their
+roles, refines each fighter's keypoints over time and measures the result.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from models.pose.tiling import TiledDetector
+from models.pose.types import BLAZEPOSE_33, BLAZEPOSE_TO_COCO17, COCO_17, Detector, PoseEstimator
+from storage.artifacts import put_bytes
+from storage.keys import code_version, digest, stage_key
+from tasks.errors import BadInput
+from tasks.pose.chunk import ChunkTracks, track_chunk
+from tasks.pose.config import PoseConfig
+from tasks.pose.fighters import FighterConfig, adversary_by_colour, pick_fighters
+from tasks.pose.frames import read_frames
+from tasks.pose.merge import ChunkSpan, VideoTracks, merge_chunks, summaries
+from tasks.pose.overlay import H264Writer, draw_people, overlay_size
+from tasks.pose.refine import flip_groups, flip_permutation, refine
+from tasks.pose.tracking import colour_distance
+from tasks.runner import StageOutput
+
+STAGE = "pose"
+JOINTS = len(BLAZEPOSE_33)
+ROLES = ("adversary", "opponent")
+# Settings that change what happens after the chunks, not inside them.
+NOT_IN_CHUNKS = (
+    "refine",
+    "fighters",
+    "min_fighter_share",
+    "overlay_seconds",
+    "overlay_max_side",
+    "stills",
+    "workers",
+)
+
+
+def pose_code() -> str:
+    return code_version("tasks.pose", "models.pose")
+
+
+def pose_upstream(ingest_key: str, pick: int | None) -> dict:
+    return {"ingest": ingest_key, "pick": pick}
+
+
+def pose_key(config: PoseConfig, ingest_key: str, pick: int | None) -> str:
+    return stage_key(STAGE, config, pose_code(), pose_upstream(ingest_key, pick))
+
+
+def chunk_key(config: PoseConfig, video_id: str, span: ChunkSpan, models: tuple[str, str]) -> str:
+    """Key of one chunk's tracks: its frames, the settings that act inside chunks and the
+    SHA-256 of the two model files (new weights at the same path are new work)."""
+    settings = {k: v for k, v in dataclasses.asdict(config).items() if k not in NOT_IN_CHUNKS}
+    return digest(
+        {"video": video_id, "span": span, "config": settings, "models": models, "code": pose_code()}
+    )[:24]
+
+
+def plan_spans(chunks: list[tuple[int, int, int, int]], overlap: int) -> list[ChunkSpan]:
+    """Spans for ingest's chunks ``(index, shot, start, end)``: a chunk continuing its shot
+    re-reads ``overlap`` frames before its start."""
+    spans, previous_shot = [], None
+    for index, shot, start, end in sorted(chunks):
+        read_start = max(0, start - overlap) if shot == previous_shot else start
+        spans.append(ChunkSpan(index, shot, start, end, read_start))
+        previous_shot = shot
+    return spans
+
+
+@dataclass(frozen=True)
+class Backend:
+    """A pose backend: its default model files (under the assets folder; empty for none) and
+    how to build its detector and estimator from two model files."""
+
+    default_detector: str
+    default_pose: str
+    build: Callable[[Path, Path, PoseConfig], tuple[Detector, PoseEstimator]]
+
+
+def _blazepose(detector: Path, pose: Path, config: PoseConfig) -> tuple[Detector, PoseEstimator]:
+    from models.pose.blazepose import BlazePoseDetector, BlazePoseLandmarker
+
+    return (
+        BlazePoseDetector(
+            detector, score_threshold=config.detection_score, num_threads=config.num_threads
+        ),
+        BlazePoseLandmarker(pose, num_threads=config.num_threads),
+    )
+
+
+def _onnx(detector: Path, pose: Path, config: PoseConfig) -> tuple[Detector, PoseEstimator]:
+    from models.pose.onnx_backend import OnnxDetector, OnnxPoseEstimator
+
+    return (
+        OnnxDetector(
+            detector, score_threshold=config.detection_score, num_threads=config.num_threads
+        ),
+        OnnxPoseEstimator(pose, num_threads=config.num_threads),
+    )
+
+
+BACKENDS: Mapping[str, Backend] = {
+    "blazepose": Backend("pose_detection.tflite", "pose_landmark_full.tflite", _blazepose),
+    "onnx": Backend("", "", _onnx),
+}
+
+
+def model_files(config: PoseConfig, assets: Path) -> tuple[Path, Path]:
+    """The detector and pose model files the config names, checked to exist."""
+    backend = BACKENDS[config.backend]
+    found = []
+    for setting, configured, default in (
+        ("pose.detector_model", config.detector_model, backend.default_detector),
+        ("pose.pose_model", config.pose_model, backend.default_pose),
+    ):
+        path = Path(configured) if configured else assets / default
+        if not path.is_file():
+            hint = "check the path" if configured else "run `ringside assets pull`"
+            raise BadInput(setting, f"model file {path} not found ({hint})")
+        found.append(path)
+    return found[0], found[1]
+
+
+def process_chunk(
+    video: Path, span: ChunkSpan, fps: float, config: PoseConfig, models: tuple[Path, Path]
+) -> ChunkTracks:
+    """Detect, follow, track and estimate everyone in one chunk of ``video``."""
+    detector, estimator = BACKENDS[config.backend].build(*models, config)
+    detector = TiledDetector(detector, config.detector_tiles)
+    return track_chunk(
+        read_frames(video, span.read_start, span.end),
+        start=span.read_start,
+        end=span.end,
+        fps=fps,
+        detector=detector,
+        estimator=estimator,
+        config=config,
+    )
+
+
+@dataclass(frozen=True)
+class Roles:
+    """Each track's role and how the adversary was told apart."""
+
+    by_track: dict[int, str]
+    source: str  # 'pick', 'colour', 'appearance' or 'guess'
+
+
+def assign_roles(
+    tracks: VideoTracks,
+    *,
+    shot_frames: Mapping[int, int],
+    frame_size: tuple[int, int],
+    colour: str | None,
+    pick: int | None,
+    min_share: float,
+    config: FighterConfig,
+) -> Roles:
+    """Choose the two fighters in every shot and say which one is the adversary.
+
+    The analyst's pick wins; else the declared colour; else, in later shots, whoever looks most
+    like the adversary of the first shot; else (no pick, no colour) the first fighter found is
+    taken as the adversary and the source says it is a guess.
+    """
+    all_tracks = {s.track_id: s for s in summaries(tracks)}
+    if pick is not None and pick not in all_tracks:
+        raise BadInput("pick", f"track {pick} does not exist; tracks are {sorted(all_tracks)}")
+    roles = {t: "other" for t in all_tracks}
+    reference: dict[str, np.ndarray] = {}
+    source = "pick" if pick is not None else "colour" if colour else "guess"
+    shots = sorted(set(tracks.track_shot[list(all_tracks)].tolist())) if all_tracks else []
+    # The picked track's shot goes first, so its fighters are the appearance reference.
+    if pick is not None:
+        shots.sort(key=lambda s: s != tracks.track_shot[pick])
+    for shot in shots:
+        candidates = [
+            s
+            for t, s in all_tracks.items()
+            if tracks.track_shot[t] == shot
+            and s.frames_observed >= min_share * shot_frames.get(shot, 1)
+        ]
+        fighters = pick_fighters(
+            candidates, frame_size, num_frames=shot_frames.get(shot), config=config
+        )
+        if not fighters:
+            continue
+        if pick is not None and tracks.track_shot[pick] == shot:
+            if pick not in fighters:
+                fighters = [pick, *[f for f in fighters if f != pick]][:2]
+            adversary = pick
+        elif colour:
+            adversary = adversary_by_colour(candidates, fighters, colour)
+        elif reference:
+            adversary = min(
+                fighters,
+                key=lambda f: colour_distance(all_tracks[f].colour, reference["adversary"]),
+            )
+            source = "appearance" if source == "guess" else source
+        else:
+            adversary = fighters[0]
+        roles[adversary] = "adversary"
+        for other in fighters:
+            if other != adversary:
+                roles[other] = "opponent"
+        if not reference:
+            reference = {role: all_tracks[t].colour for t, role in roles.items() if role in ROLES}
+    return Roles(roles, source)
+
+
+@dataclass(frozen=True, eq=False)
+class Fighter:
+    """One fighter over the whole video. Shape letters: F frames of the video, J joints."""
+
+    role: str
+    track: np.ndarray  # (F,) track id per frame, -1 where not observed
+    raw_keypoints: np.ndarray  # (F, J, 2), NaN where not observed
+    raw_confidence: np.ndarray  # (F, J)
+    world: np.ndarray  # (F, J, 3)
+    box: np.ndarray  # (F, 4)
+    keypoints: np.ndarray  # (F, J, 2) refined
+    confidence: np.ndarray  # (F, J) refined
+    flips_fixed: int
+    filled: int
+    jitter_before: float
+    jitter_after: float
+
+
+def gather_fighter(
+    tracks: VideoTracks,
+    track_ids: list[int],
+    role: str,
+    frames: int,
+    fps: float,
+    config: PoseConfig,
+) -> Fighter:
+    """Dense per-frame arrays for the fighter made of ``track_ids``, refined over time."""
+    mine = np.isin(tracks.obs_track, track_ids)
+    at = tracks.obs_frame[mine]
+    track = np.full(frames, -1, np.int64)
+    raw = np.full((frames, JOINTS, 2), np.nan)
+    conf = np.zeros((frames, JOINTS))
+    world = np.full((frames, JOINTS, 3), np.nan)
+    box = np.full((frames, 4), np.nan)
+    track[at] = tracks.obs_track[mine]
+    raw[at] = tracks.keypoints[mine]
+    conf[at] = tracks.confidence[mine]
+    world[at] = tracks.world[mine]
+    box[at] = tracks.obs_box[mine]
+    refined = refine(
+        raw,
+        conf,
+        fps,
+        config.refine,
+        flip_permutation(BLAZEPOSE_33),
+        groups=flip_groups(BLAZEPOSE_33),
+    )
+    return Fighter(
+        role,
+        track,
+        raw,
+        conf,
+        world,
+        box,
+        refined.keypoints,
+        refined.confidence,
+        refined.flips_fixed,
+        refined.filled,
+        refined.jitter_before,
+        refined.jitter_after,
+    )
+
+
+def appearance_swaps(tracks: VideoTracks, fighters: dict[str, Fighter]) -> int:
+    """Frames where the two fighters look more like each other than like themselves: each
+    fighter's observed clothing colour is nearer the other's mean colour. Counted as the number
+    of times such a run starts; the stage reports it as ``identity_switches`` (there is no
+    ground truth on real video, and a swap of identities shows exactly this way)."""
+    if len(fighters) < 2:
+        return 0
+    a, b = fighters["adversary"], fighters["opponent"]
+    colour_at = {}
+    means = {}
+    for role, fighter in (("adversary", a), ("opponent", b)):
+        mine = np.isin(tracks.obs_track, np.unique(fighter.track[fighter.track >= 0]))
+        colour_at[role] = dict(
+            zip(tracks.obs_frame[mine].tolist(), tracks.colour[mine], strict=True)
+        )
+        means[role] = tracks.colour[mine].mean(axis=0)
+    swapped = []
+    for frame in sorted(set(colour_at["adversary"]) & set(colour_at["opponent"])):
+        ca, cb = colour_at["adversary"][frame], colour_at["opponent"][frame]
+        own = colour_distance(ca, means["adversary"]) + colour_distance(cb, means["opponent"])
+        crossed = colour_distance(ca, means["opponent"]) + colour_distance(cb, means["adversary"])
+        swapped.append(crossed < own)
+    return int(sum(1 for i, s in enumerate(swapped) if s and (i == 0 or not swapped[i - 1])))
+
+
+def _people_at(frame: int, fighters: dict[str, Fighter]):
+    for role, f in fighters.items():
+        if np.isfinite(f.keypoints[frame]).any() and np.isfinite(f.box[frame]).all():
+            yield int(f.track[frame]), role, f.box[frame], f.keypoints[frame], f.confidence[frame]
+
+
+def render_overlay(
+    video: Path,
+    fighters: dict[str, Fighter],
+    *,
+    fps: float,
+    frames: int,
+    size: tuple[int, int],
+    config: PoseConfig,
+    artifacts: Path,
+) -> list[tuple]:
+    """The overlay MP4 of the first ``overlay_seconds`` and the PNG stills, stored as artifacts.
+
+    Returns ``pose_media`` rows without their key and video id: (kind, frame, artifact).
+    """
+    import cv2
+
+    media = []
+    count = (
+        frames if config.overlay_seconds <= 0 else min(frames, round(config.overlay_seconds * fps))
+    )
+    out_size = overlay_size(*size, config.overlay_max_side)
+    with tempfile.TemporaryDirectory(prefix="ringside-overlay-") as tmp:
+        path = Path(tmp) / "overlay.mp4"
+        with H264Writer(path, out_size, fps) as writer:
+            for index, frame in read_frames(video, 0, count):
+                writer.write(draw_people(frame, _people_at(index, fighters)))
+        media.append(("overlay", 0, put_bytes(artifacts, path.read_bytes(), ".mp4")))
+    both = np.flatnonzero(
+        np.all([np.isfinite(f.keypoints).any(axis=(1, 2)) for f in fighters.values()], axis=0)
+    )
+    pool = both if len(both) else np.arange(frames)
+    for index in (
+        sorted(set(pool[np.linspace(0, len(pool) - 1, config.stills).round().astype(int)].tolist()))
+        if config.stills and len(pool)
+        else []
+    ):
+        _, frame = next(read_frames(video, index, index + 1))
+        drawn = draw_people(frame, _people_at(index, fighters))
+        small = cv2.resize(
+            drawn, overlay_size(*size, config.overlay_max_side), interpolation=cv2.INTER_AREA
+        )
+        ok, png = cv2.imencode(".png", small)
+        media.append(("still", index, put_bytes(artifacts, png.tobytes(), ".png")))
+    return media
+
+
+def _flat(values: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(values, dtype=np.float32).reshape(len(values), -1)
+
+
+def assemble(
+    video: Path,
+    spans: list[ChunkSpan],
+    chunks: list[ChunkTracks],
+    *,
+    key: str,
+    video_id: str,
+    frames: int,
+    fps: float,
+    size: tuple[int, int],
+    shots: Mapping[int, int],
+    colour: str | None,
+    pick: int | None,
+    config: PoseConfig,
+    artifacts: Path,
+) -> StageOutput:
+    """Join the chunks, choose and refine the fighters, render the overlay; rows and metrics.
+
+    Raises :class:`BadInput` when nobody in the video qualifies as a fighter.
+    """
+    start = time.perf_counter()
+    tracks = merge_chunks(spans, chunks)
+    roles = assign_roles(
+        tracks,
+        shot_frames=shots,
+        frame_size=size,
+        colour=colour,
+        pick=pick,
+        min_share=config.min_fighter_share,
+        config=config.fighters,
+    )
+    fighters = {
+        role: gather_fighter(tracks, ids, role, frames, fps, config)
+        for role in ROLES
+        if (ids := [t for t, r in roles.by_track.items() if r == role])
+    }
+    if not fighters:
+        raise BadInput(STAGE, f"no fighters found in {video}")
+    notes = []
+    if len(fighters) == 1:
+        notes.append(f"only one fighter found in {video}; the pose stage keeps that one")
+    if roles.source == "guess" and len(fighters) == 2:
+        notes.append(
+            "no colour or pick given: the adversary is a guess; set it with `ringside pick`"
+        )
+    media = render_overlay(
+        video, fighters, fps=fps, frames=frames, size=size, config=config, artifacts=artifacts
+    )
+    seconds = sum(c.seconds for c in chunks) + time.perf_counter() - start
+
+    observed = {r: f.track >= 0 for r, f in fighters.items()}
+    both = (
+        np.logical_and.reduce(list(observed.values()))
+        if len(fighters) == 2
+        else np.zeros(frames, bool)
+    )
+    conf_raw = np.concatenate([f.raw_confidence[observed[r]] for r, f in fighters.items()])
+    metrics = {
+        "frames": float(frames),
+        "fighters": float(len(fighters)),
+        "both_fighters_share": float(both.mean()),
+        "tracks": float(len(tracks.track_shot)),
+        "identity_switches": float(appearance_swaps(tracks, fighters)),
+        "jitter_px": float(np.nanmean([f.jitter_after for f in fighters.values()])),
+        "jitter_px_raw": float(np.nanmean([f.jitter_before for f in fighters.values()])),
+        "flips_fixed": float(sum(f.flips_fixed for f in fighters.values())),
+        "joints_filled": float(sum(f.filled for f in fighters.values())),
+        "detections_per_frame": len(tracks.det_frame) / frames,
+        "adversary_guessed": float(roles.source == "guess"),
+        "fps": frames / max(seconds, 1e-9),
+    }
+    for role, fighter in fighters.items():
+        metrics[f"{role}_share"] = float(observed[role].mean())
+        metrics[f"{role}_tracks"] = float(len(np.unique(fighter.track[fighter.track >= 0])))
+    for name, index in zip(COCO_17, BLAZEPOSE_TO_COCO17, strict=True):
+        metrics[f"confidence_{name}"] = float(conf_raw[:, index].mean()) if len(conf_raw) else 0.0
+    metrics = {k: v for k, v in metrics.items() if np.isfinite(v)}
+
+    track_rows = [
+        (
+            key,
+            video_id,
+            s.track_id,
+            int(tracks.track_shot[s.track_id]),
+            roles.by_track[s.track_id],
+            s.first_frame,
+            s.last_frame,
+            s.frames_observed,
+        )
+        for s in summaries(tracks)
+    ]
+    keypoint_columns: dict[str, list[np.ndarray]] = {}
+    for role, f in fighters.items():
+        rows = np.flatnonzero(np.isfinite(f.keypoints).any(axis=(1, 2)) | observed[role])
+        parts = {
+            "frame": rows.astype(np.int64),
+            "role": np.array([role] * len(rows)),
+            "track": np.where(f.track[rows] >= 0, f.track[rows], -1),
+            "x": _flat(f.keypoints[rows, :, 0]),
+            "y": _flat(f.keypoints[rows, :, 1]),
+            "confidence": _flat(f.confidence[rows]),
+            "raw_x": _flat(f.raw_keypoints[rows, :, 0]),
+            "raw_y": _flat(f.raw_keypoints[rows, :, 1]),
+            "raw_confidence": _flat(f.raw_confidence[rows]),
+            "world": _flat(f.world[rows]),
+        }
+        for name, values in parts.items():
+            keypoint_columns.setdefault(name, []).append(values)
+    rows = {
+        "pose_detections": {
+            "frame": tracks.det_frame,
+            "score": tracks.det_score,
+            "box": _flat(tracks.det_box),
+        },
+        "pose_tracks": track_rows,
+        "pose_observations": {
+            "frame": tracks.obs_frame,
+            "track": tracks.obs_track,
+            "score": tracks.obs_score,
+            "box": _flat(tracks.obs_box),
+        },
+        "pose_keypoints": {k: np.concatenate(v) for k, v in keypoint_columns.items()},
+        "pose_media": [(key, video_id, kind, frame, name) for kind, frame, name in media],
+    }
+    return StageOutput(rows, metrics, tuple(notes))

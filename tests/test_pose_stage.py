@@ -1,0 +1,210 @@
+"""The pose stage end to end on the real two-person sample, through the CLI and Prefect."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from conftest import moving_box_frames, write_video
+
+import tasks.pose.task
+from flows.cli import main
+from storage.artifacts import artifact_path
+from storage.db import connect
+
+
+def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def query(data: Path, sql: str, params: list | None = None) -> list[tuple]:
+    with connect(data / "ringside.duckdb", read_only=True) as con:
+        return con.execute(sql, params or []).fetchall()
+
+
+def metrics(data: Path, stage: str = "pose") -> dict[str, float]:
+    rows = query(
+        data,
+        "SELECT m.name, m.value FROM stage_metrics m "
+        "JOIN stage_outputs o USING (stage, video_id, key) WHERE m.stage = ? "
+        "QUALIFY row_number() OVER (PARTITION BY m.name ORDER BY o.created_at DESC) = 1",
+        [stage],
+    )
+    return dict(rows)
+
+
+@pytest.fixture
+def chunk_calls(monkeypatch) -> list[int]:
+    """Chunks the pose stage actually tracked, by chunk index: its executed work."""
+    calls: list[int] = []
+    real = tasks.pose.task.process_chunk
+
+    def counting(video, span, fps, config, models):
+        calls.append(span.index)
+        return real(video, span, fps, config, models)
+
+    monkeypatch.setattr(tasks.pose.task, "process_chunk", counting)
+    return calls
+
+
+@pytest.fixture(scope="module")
+def processed(tmp_path_factory, sample_video) -> Path:
+    """The sample processed through pose in 4 chunks (so chunk borders are crossed)."""
+    data = tmp_path_factory.mktemp("pose") / "data"
+    argv = [
+        "--data",
+        str(data),
+        "process",
+        str(sample_video),
+        "--adversary",
+        "A",
+        "--ingest-chunk-frames",
+        "30",
+    ]
+    assert main(argv) == 0
+    return data
+
+
+def test_both_fighters_tracked_through_every_frame(processed: Path):
+    m = metrics(processed)
+    assert m["fighters"] == 2
+    assert m["both_fighters_share"] >= 0.95
+    assert m["adversary_tracks"] == 1 and m["opponent_tracks"] == 1
+    assert m["identity_switches"] == 0
+    roles = query(processed, "SELECT role, frames_observed FROM pose_tracks ORDER BY track")
+    fighters = [frames for role, frames in roles if role != "other"]
+    assert len(fighters) == 2 and min(fighters) >= 95
+    # The woman standing at the back is not a fighter.
+    assert all(frames < 95 for role, frames in roles if role == "other")
+
+
+def test_keypoints_stored_per_fighter_and_frame(processed: Path):
+    rows = query(
+        processed,
+        "SELECT role, count(*), count(DISTINCT frame) FROM pose_keypoints "
+        "GROUP BY role ORDER BY role",
+    )
+    assert [(r, n) for r, n, _ in rows] == [("adversary", 100), ("opponent", 100)]
+    x, raw_x, world, conf = query(
+        processed,
+        "SELECT x, raw_x, world, confidence FROM pose_keypoints "
+        "WHERE role = 'adversary' AND frame = 50",
+    )[0]
+    assert len(x) == 33 and len(world) == 99
+    assert np.isfinite(raw_x).all() and np.isfinite(world).all()
+    assert min(conf) >= 0 and max(conf) <= 1
+    # BlazePose world points are metric: a person is well under 2.5 m across in any axis.
+    assert np.ptp(np.reshape(world, (33, 3)), axis=0).max() < 2.5
+
+
+def test_refinement_lowers_jitter_on_the_sample(processed: Path):
+    m = metrics(processed)
+    assert m["jitter_px"] < 0.7 * m["jitter_px_raw"]
+
+
+def test_overlay_is_browser_video_and_stills_are_pngs(processed: Path):
+    media = query(processed, "SELECT kind, frame, artifact FROM pose_media ORDER BY kind, frame")
+    artifacts = processed / "artifacts"
+    overlay = [a for kind, _, a in media if kind == "overlay"]
+    assert len(overlay) == 1
+    capture = cv2.VideoCapture(str(artifact_path(artifacts, overlay[0])))
+    fourcc = int(capture.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
+    frames = 0
+    while capture.read()[0]:
+        frames += 1
+    capture.release()
+    assert fourcc in ("avc1", "h264") and frames == 100
+    stills = [a for kind, _, a in media if kind == "still"]
+    assert len(stills) == 4
+    for name in stills:
+        image = cv2.imread(str(artifact_path(artifacts, name)))
+        assert image is not None and max(image.shape[:2]) == 960
+
+
+def test_rerun_is_cached_and_pick_reuses_the_chunks(
+    processed: Path, capsys, sample_video, chunk_calls
+):
+    base = ["--data", str(processed)]
+    code, out, _ = run_cli(
+        capsys,
+        *base,
+        "process",
+        str(sample_video),
+        "--adversary",
+        "A",
+        "--ingest-chunk-frames",
+        "30",
+        "--json",
+    )
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached", "cached"]
+    assert chunk_calls == []
+
+    adversary = query(processed, "SELECT track FROM pose_tracks WHERE role = 'adversary'")[0][0]
+    opponent = query(processed, "SELECT track FROM pose_tracks WHERE role = 'opponent'")[0][0]
+    video_id = json.loads(out)[0]["video_id"]
+    code, out, _ = run_cli(
+        capsys,
+        *base,
+        "pick",
+        "--video",
+        video_id[:8],
+        "--track",
+        str(opponent),
+        "--ingest-chunk-frames",
+        "30",
+        "--json",
+    )
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached", "done"]
+    assert chunk_calls == [], "a new pick recomputed chunks"
+    roles = dict(
+        query(
+            processed,
+            "SELECT t.track, t.role FROM pose_tracks t JOIN stage_outputs o "
+            "USING (key, video_id) WHERE o.stage = 'pose' "
+            "QUALIFY rank() OVER (ORDER BY o.created_at DESC) = 1",
+        )
+    )
+    assert roles[opponent] == "adversary" and roles[adversary] == "opponent"
+    assert metrics(processed)["adversary_guessed"] == 0
+
+    code, _, err = run_cli(capsys, *base, "pick", "--video", video_id[:8], "--track", "99")
+    assert code == 2 and "--track 99: video" in err and "has no such track" in err
+
+
+def test_refine_setting_reruns_pose_not_chunks(tmp_path, capsys, sample_video, chunk_calls):
+    data = tmp_path / "data"
+    base = ["--data", str(data), "process", str(sample_video), "--adversary", "A", "--json"]
+    assert run_cli(capsys, *base)[0] == 0
+    assert chunk_calls == [0]
+    code, out, _ = run_cli(capsys, *base, "--pose-refine-smoother", "one_euro")
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached", "done"]
+    assert chunk_calls == [0]
+
+
+def test_nobody_in_the_video_is_a_clear_failure(tmp_path, capsys):
+    video = write_video(tmp_path / "empty_ring.mp4", moving_box_frames(30, (200, 60, 20)))
+    data = tmp_path / "data"
+    code, _, err = run_cli(capsys, "--data", str(data), "process", str(video), "--adversary", "A")
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and lines == [f"ringside: error: pose: no fighters found in {video}"]
+    assert query(data, "SELECT count(*) FROM pose_keypoints")[0][0] == 0
+    assert query(data, "SELECT count(*) FROM stage_outputs WHERE stage = 'pose'")[0][0] == 0
+    code, out, _ = run_cli(capsys, "--data", str(data), "status", "--json")
+    pose = [s for s in json.loads(out) if s["stage"] == "pose"]
+    assert pose[0]["state"] == "failed" and "no fighters found" in pose[0]["error"]
+
+
+def test_one_person_is_one_fighter_and_says_so(tmp_path, capsys, assets):
+    video = assets / "samples" / "single_person" / "cam01.mp4"
+    data = tmp_path / "data"
+    code, out, _ = run_cli(capsys, "--data", str(data), "process", str(video), "--adversary", "A")
+    assert code == 0
+    assert "only one fighter found" in out
+    m = metrics(data)
+    assert m["fighters"] == 1 and m["both_fighters_share"] == 0
+    assert query(data, "SELECT DISTINCT role FROM pose_keypoints") == [("adversary",)]
