@@ -28,7 +28,7 @@ class PoseConfig:
         "", "Pose model file; empty takes the backend's default (BlazePose: the pulled asset)."
     )
     detect_every: int = setting(
-        2,
+        3,
         "Run the person detector every N frames; in between, people are followed from their last "
         "pose. Frames with nobody followed are always searched.",
     )

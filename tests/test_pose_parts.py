@@ -1,0 +1,170 @@
+"""The pose stage's own parts: chunk plans, joining chunks, tiled detection, fighter roles."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from models.pose.blazepose import BlazePoseDetector
+from models.pose.tiling import TiledDetector, tile_origins
+from tasks.errors import BadInput
+from tasks.pose.chunk import ChunkTracks
+from tasks.pose.fighters import FighterConfig
+from tasks.pose.merge import ChunkSpan, merge_chunks, summaries
+from tasks.pose.stage import assign_roles, plan_spans
+from tasks.pose.tracking import DESCRIPTOR_SIZE, appearance
+
+J = 33
+
+
+def chunk(
+    start: int,
+    end: int,
+    people: dict[int, tuple[float, int, int]],
+    colours: dict[int, np.ndarray] | None = None,
+) -> ChunkTracks:
+    """A chunk where local track t is a 100x200 box at x = people[t][0] + 2 * frame, seen in
+    frames [people[t][1], people[t][2])."""
+    rows = [(f, t) for t, (_, a, b) in people.items() for f in range(max(a, start), min(b, end))]
+    rows.sort()
+    n = len(rows)
+    boxes = np.array(
+        [[people[t][0] + 2 * f, 100, people[t][0] + 2 * f + 100, 300] for f, t in rows], float
+    ).reshape(n, 4)
+    colour = np.zeros((n, DESCRIPTOR_SIZE), np.float32)
+    for i, (_, t) in enumerate(rows):
+        colour[i] = (colours or {}).get(t, np.full(DESCRIPTOR_SIZE, 1 / DESCRIPTOR_SIZE))
+    return ChunkTracks(
+        start=start,
+        end=end,
+        seconds=0.0,
+        det_frame=np.array([f for f, _ in rows], np.int64),
+        det_box=boxes,
+        det_score=np.ones(n),
+        obs_frame=np.array([f for f, _ in rows], np.int64),
+        obs_track=np.array([t for _, t in rows], np.int64),
+        obs_box=boxes,
+        obs_score=np.ones(n),
+        keypoints=np.zeros((n, J, 2), np.float32),
+        confidence=np.ones((n, J), np.float32),
+        world=np.zeros((n, J, 3), np.float32),
+        colour=colour,
+    )
+
+
+def test_plan_spans_overlap_only_within_a_shot():
+    spans = plan_spans([(0, 0, 0, 30), (1, 0, 30, 60), (2, 1, 60, 90), (3, 1, 90, 95)], 8)
+    assert [(s.start, s.read_start) for s in spans] == [(0, 0), (30, 22), (60, 60), (90, 82)]
+
+
+def test_chunks_join_by_overlap_and_never_across_a_cut():
+    spans = [ChunkSpan(0, 0, 0, 30, 0), ChunkSpan(1, 0, 30, 60, 22), ChunkSpan(2, 1, 60, 90, 60)]
+    # In chunk 1 the tracker numbered the same two people the other way round.
+    chunks = [
+        chunk(0, 30, {0: (0.0, 0, 30), 1: (400.0, 0, 30)}),
+        chunk(22, 60, {0: (400.0, 22, 60), 1: (0.0, 22, 60), 2: (800.0, 40, 60)}),
+        chunk(60, 90, {0: (0.0, 60, 90)}),
+    ]
+    merged = merge_chunks(spans, chunks)
+    by_track = {
+        s.track_id: (s.first_frame, s.last_frame, s.frames_observed) for s in summaries(merged)
+    }
+    assert by_track == {0: (0, 59, 60), 1: (0, 59, 60), 2: (40, 59, 20), 3: (60, 89, 30)}
+    assert merged.track_shot.tolist() == [0, 0, 0, 1]
+    left = merged.obs_box[merged.obs_track == 0][:, 0]
+    assert np.allclose(np.diff(left), 2), "track 0 swapped people at the chunk border"
+    assert not np.any(merged.obs_frame[merged.obs_track == 1] < 0)
+    # Each frame appears once per track: the re-read frames 22-29 are not duplicated.
+    pairs = list(zip(merged.obs_frame.tolist(), merged.obs_track.tolist(), strict=True))
+    assert len(pairs) == len(set(pairs))
+
+
+def colour_of(bgr: tuple[int, int, int]) -> np.ndarray:
+    image = np.full((200, 100, 3), bgr, np.uint8)
+    return appearance(image, np.array([0.0, 0.0, 100.0, 200.0]))
+
+
+def two_shot_tracks():
+    """Two shots, each with a red-clad and a blue-clad fighter (swapped sides) and a bystander
+    at the edge seen briefly."""
+    red, blue, grey = colour_of((30, 30, 200)), colour_of((200, 60, 30)), colour_of((90, 90, 90))
+    spans = [ChunkSpan(0, 0, 0, 50, 0), ChunkSpan(1, 1, 50, 100, 50)]
+    chunks = [
+        chunk(
+            0,
+            50,
+            {0: (200.0, 0, 50), 1: (420.0, 0, 50), 2: (1500.0, 0, 5)},
+            {0: red, 1: blue, 2: grey},
+        ),
+        chunk(50, 100, {0: (200.0, 50, 100), 1: (420.0, 50, 100)}, {0: blue, 1: red}),
+    ]
+    return merge_chunks(spans, chunks)
+
+
+def roles_for(tracks, **kwargs):
+    options = dict(
+        shot_frames={0: 50, 1: 50},
+        frame_size=(1920, 1080),
+        colour=None,
+        pick=None,
+        min_share=0.2,
+        config=FighterConfig(),
+    )
+    return assign_roles(tracks, **{**options, **kwargs})
+
+
+def test_roles_follow_colour_pick_and_appearance():
+    tracks = two_shot_tracks()  # ids: shot 0 -> 0 red, 1 blue, 2 bystander; shot 1 -> 3 blue, 4 red
+    by_colour = roles_for(tracks, colour="#c81e1e")
+    assert by_colour.source == "colour"
+    assert by_colour.by_track == {
+        0: "adversary",
+        1: "opponent",
+        2: "other",
+        3: "opponent",
+        4: "adversary",
+    }
+    by_pick = roles_for(tracks, pick=1)
+    assert by_pick.source == "pick"
+    # The pick is blue in shot 0; in shot 1 the blue fighter is found by appearance.
+    assert by_pick.by_track == {
+        0: "opponent",
+        1: "adversary",
+        2: "other",
+        3: "adversary",
+        4: "opponent",
+    }
+    guessed = roles_for(tracks)
+    assert guessed.source in ("guess", "appearance")
+    assert [guessed.by_track[t] for t in (0, 4)] == ["adversary", "adversary"]
+    with pytest.raises(BadInput, match="track 9 does not exist"):
+        roles_for(tracks, pick=9)
+
+
+def test_tile_origins_cover_the_long_side():
+    assert tile_origins(1088, 1920, 2) == [(0, 0, 1088), (0, 832, 1088)]
+    assert tile_origins(1920, 1080, 3) == [(0, 0, 1080), (420, 0, 1080), (840, 0, 1080)]
+    assert tile_origins(640, 480, 1) == [(0, 0, 480)]
+    with pytest.raises(ValueError, match="tiles must be at least 1"):
+        tile_origins(640, 480, 0)
+
+
+def test_tiles_find_people_the_whole_frame_misses(assets: Path, sample_video: Path):
+    detector = BlazePoseDetector(assets / "pose_detection.tflite", num_threads=2)
+    tiled = TiledDetector(detector, 2)
+    capture = cv2.VideoCapture(str(sample_video))
+    whole, tiles = [], []
+    for _ in range(20):
+        ok, frame = capture.read()
+        assert ok
+        whole.append(len(detector(frame)))
+        found = tiled(frame)
+        tiles.append(len(found))
+        for det in found:
+            assert 0 <= det.box[0] < det.box[2] <= 1088 and 0 <= det.box[1] < det.box[3] <= 1920
+    capture.release()
+    assert min(tiles) >= 2, tiles
+    assert sum(tiles) > sum(whole)
