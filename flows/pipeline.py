@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 from prefect import flow
 from prefect.task_runners import ThreadPoolTaskRunner
 
@@ -22,6 +24,17 @@ class PipelineFailed(RuntimeError):
 
     def __str__(self) -> str:
         return "; ".join(self.failures)
+
+
+def chunk_runner(workers: int):
+    """Where chunk tasks run: on the Dask cluster at ``$RINGSIDE_DASK_ADDRESS`` when set (its
+    workers must see the same data directory), else on ``workers`` threads here."""
+    address = os.environ.get("RINGSIDE_DASK_ADDRESS")
+    if address:
+        from prefect_dask import DaskTaskRunner
+
+        return DaskTaskRunner(address=address)
+    return ThreadPoolTaskRunner(max_workers=workers)
 
 
 def stages_until(until: str | None) -> tuple[str, ...]:
@@ -48,8 +61,7 @@ def video_to_opponent(
     A video that fails does not stop the others; the flow fails at the end, naming each failure.
     """
     stages = stages_until(until)
-    workers = from_tables(config or {}).pose.workers
-    pose = pose_flow.with_options(task_runner=ThreadPoolTaskRunner(max_workers=workers))
+    pose = pose_flow.with_options(task_runner=chunk_runner(from_tables(config or {}).pose.workers))
     forced = set(rerun or [])
     unknown = forced - set(STAGES)
     if unknown:

@@ -208,3 +208,32 @@ def test_one_person_is_one_fighter_and_says_so(tmp_path, capsys, assets):
     m = metrics(data)
     assert m["fighters"] == 1 and m["both_fighters_share"] == 0
     assert query(data, "SELECT DISTINCT role FROM pose_keypoints") == [("adversary",)]
+
+
+def test_chunks_run_on_a_dask_cluster(tmp_path, capsys, sample_video, monkeypatch, processed):
+    from distributed import LocalCluster
+
+    data = tmp_path / "data"
+    with LocalCluster(
+        n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
+    ) as cluster:
+        monkeypatch.setenv("RINGSIDE_DASK_ADDRESS", cluster.scheduler_address)
+        code, out, err = run_cli(
+            capsys,
+            "--data",
+            str(data),
+            "process",
+            str(sample_video),
+            "--adversary",
+            "A",
+            "--ingest-chunk-frames",
+            "30",
+            "--json",
+        )
+    assert code == 0, err
+    assert [s["state"] for s in json.loads(out)] == ["done", "done"]
+    # The same keypoints as the threaded run of the module's fixture (whose roles a pick may
+    # have swapped since, hence the comparison without roles).
+    sql = "SELECT DISTINCT frame, raw_x FROM pose_keypoints ORDER BY frame, raw_x"
+    assert len(query(data, sql)) == 200
+    assert query(data, sql) == query(processed, sql)
