@@ -23,6 +23,8 @@ def prepare_environment(data_root: Path, *, verbose: bool) -> None:
     server database, cached results) inside the data directory, no telemetry, a quiet console."""
     os.environ["RINGSIDE_DATA"] = str(data_root)
     os.environ.setdefault("PREFECT_HOME", str(data_root / "prefect"))
+    # Prefect creates its home with a plain mkdir and cannot start its server without it.
+    Path(os.environ["PREFECT_HOME"]).expanduser().mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
     # FFmpeg's own complaints ("moov atom not found") would bury our one-line errors.

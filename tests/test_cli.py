@@ -261,11 +261,10 @@ def test_bad_input_is_one_clear_line_and_changes_nothing(
 
 
 def test_two_processes_at_once_register_one_video(tmp_path, two_shot_video):
-    env = {
-        **os.environ,
-        "RINGSIDE_DATA": str(tmp_path / "data"),
-        "PREFECT_HOME": str(tmp_path / "prefect"),
-    }
+    # A data directory that does not exist yet, and Prefect's home left to its default in it.
+    data = tmp_path / "new" / "data"
+    env = {k: v for k, v in os.environ.items() if k != "PREFECT_HOME"}
+    env["RINGSIDE_DATA"] = str(data)
     command = [
         sys.executable,
         "-m",
@@ -286,9 +285,10 @@ def test_two_processes_at_once_register_one_video(tmp_path, two_shot_video):
     for p in procs:
         out, err = p.communicate(timeout=300)
         assert p.returncode == 0, err
-    db = tmp_path / "data" / "ringside.duckdb"
+    db = data / "ringside.duckdb"
     assert count(db, "SELECT count(*) FROM videos") == 1
     assert count(db, "SELECT count(*) FROM ingest_probes") == 1
+    assert (data / "prefect").is_dir()
     assert count(db, "SELECT count(*) FROM stage_outputs") == 1
 
 
