@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from prefect import flow
 from prefect.runtime import flow_run
 from prefect.task_runners import ThreadPoolTaskRunner
+from tqdm import tqdm
 
 from flows.config import from_tables
 from flows.runs import StageSummary, record_failure, settle, still_committed
@@ -73,7 +76,14 @@ def _compute(
         )
         for span in spans
     ]
-    names = [future.result() for future in futures]
+    # Shown on an interactive terminal only; advances as chunks finish.
+    with tqdm(
+        total=ingest.frames, unit="frame", desc=f"pose {Path(ingest.path).name}", disable=None
+    ) as bar:
+        names = []
+        for span, future in zip(spans, futures, strict=True):
+            names.append(future.result())
+            bar.update(span.end - span.start)
     task = pose_task.with_options(refresh_cache=True) if force else pose_task
     result = task(data_root, ingest, spans, names, settings, key, pick, force=force)
     if not still_committed(data_root, result):
