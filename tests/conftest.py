@@ -40,6 +40,27 @@ def sample_video(assets: Path) -> Path:
     return assets / SAMPLE_VIDEO
 
 
+def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
+    """Run the ``ringside`` command in this process: (exit code, stdout, stderr)."""
+    from flows.cli import main
+
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def query(data: Path, sql: str, params: list | None = None) -> list[tuple]:
+    """Rows of ``sql`` on the database of data directory ``data``, opened read-only."""
+    from storage.db import connect
+
+    with connect(data / "ringside.duckdb", read_only=True) as con:
+        return con.execute(sql, params or []).fetchall()
+
+
+def count(db: Path, sql: str) -> int:
+    return query(db.parent, sql)[0][0]
+
+
 def write_video(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> Path:
     """Write BGR frames as an MPEG-4 Part 2 file (the codec OpenCV's wheel can write)."""
     h, w = frames[0].shape[:2]

@@ -12,22 +12,11 @@ from pathlib import Path
 
 import imageio_ffmpeg
 import pytest
-from conftest import moving_box_frames, write_video
+from conftest import count, moving_box_frames, run_cli, write_video
 
 import tasks.ingest.stage
 from flows.cli import main
 from storage.db import connect
-
-
-def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def count(db: Path, sql: str) -> int:
-    with connect(db, read_only=True) as con:
-        return con.execute(sql).fetchone()[0]
 
 
 @pytest.fixture

@@ -8,23 +8,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import moving_box_frames, write_video
+from conftest import moving_box_frames, query, run_cli, write_video
 
 import tasks.pose.task
 from flows.cli import main
 from storage.artifacts import artifact_path
-from storage.db import connect
-
-
-def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def query(data: Path, sql: str, params: list | None = None) -> list[tuple]:
-    with connect(data / "ringside.duckdb", read_only=True) as con:
-        return con.execute(sql, params or []).fetchall()
 
 
 def metrics(data: Path, stage: str = "pose") -> dict[str, float]:
