@@ -20,7 +20,8 @@ assets: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/ringside demo
 
-test: assets lint
+test: $(STAMP) lint
+	$(BIN)/ringside assets pull --dev
 	$(BIN)/python -m pytest
 
 lint: $(STAMP)

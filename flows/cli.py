@@ -111,7 +111,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     assets = commands.add_parser("assets", help="third-party weights and sample videos")
     assets_commands = assets.add_subparsers(dest="assets_command", required=True, metavar="ACTION")
-    assets_commands.add_parser("pull", help="fetch them from the package index (idempotent)")
+    pull = assets_commands.add_parser("pull", help="fetch them from the package index (idempotent)")
+    pull.add_argument(
+        "--dev",
+        action="store_true",
+        help="also the test-only motion clips (DeepMimic, from pybullet's wheel)",
+    )
 
     commands.add_parser("config", help="print every setting at its default, documented (TOML)")
 
@@ -315,12 +320,12 @@ def _metrics(args, data_root: Path) -> int:
     return 0
 
 
-def _pull(data_root: Path) -> list[Path]:
+def _pull(data_root: Path, *, dev: bool = False) -> list[Path]:
     from storage.assets import pull
     from storage.paths import data_paths
 
     root = data_paths(data_root).assets
-    files = pull(root, log=lambda line: print(line, file=sys.stderr))
+    files = pull(root, dev=dev, log=lambda line: print(line, file=sys.stderr))
     print(f"assets ready in {root} ({len(files)} files)", file=sys.stderr)
     return files
 
@@ -373,7 +378,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "metrics":
             return _metrics(args, data_root)
         if args.command == "assets":
-            _pull(data_root)
+            _pull(data_root, dev=args.dev)
             return 0
         if args.command == "config":
             from flows.config import defaults_text

@@ -115,6 +115,39 @@ WHEELS: tuple[Wheel, ...] = (
     ),
 )
 
+# Test-only motion capture (`ringside assets pull --dev`): DeepMimic clips, synthetic ground truth
+# for the lift stage.
+_MOTIONS = "pybullet_data/data/motions"
+DEV_WHEELS: tuple[Wheel, ...] = (
+    Wheel(
+        requirement="pybullet==3.2.7",
+        licence="Zlib",
+        licence_member="pybullet-3.2.7.dist-info/LICENSE.txt",
+        assets=(
+            Asset(
+                f"{_MOTIONS}/humanoid3d_punch.txt",
+                "dev/motions/humanoid3d_punch.txt",
+                "1ab4b654cecdb4ff3b2a4bf4086e50397bef28435bb59ab3aedd6a6bdc926fde",
+            ),
+            Asset(
+                f"{_MOTIONS}/humanoid3d_kick.txt",
+                "dev/motions/humanoid3d_kick.txt",
+                "177cfb399466309ba7f4a8a987c3b6f6edde1cbe8b2d476e53dc6061ec5d4bac",
+            ),
+            Asset(
+                f"{_MOTIONS}/humanoid3d_walk.txt",
+                "dev/motions/humanoid3d_walk.txt",
+                "32d082c3599bc40aac50b1afa196ff1e2cf3842bb40f0541ab088845f6328a41",
+            ),
+            Asset(
+                f"{_MOTIONS}/humanoid3d_run.txt",
+                "dev/motions/humanoid3d_run.txt",
+                "2cbe488023b243e5769299158ce7c78875ec4b701a2ffe6c0beeaf83d16ca87b",
+            ),
+        ),
+    ),
+)
+
 # The two-fighter clip the demo and the end-to-end tests run on.
 SAMPLE_VIDEO = "samples/multi_person/cam01.mp4"
 
@@ -125,6 +158,8 @@ _PIP_TARGET = [
     "3.11",
     "--platform",
     "manylinux_2_28_x86_64",
+    "--platform",
+    "manylinux_2_17_x86_64",
 ]
 
 
@@ -164,12 +199,14 @@ def _download(requirement: str, folder: Path) -> Path:
     return wheels[0]
 
 
-def pull(root: Path, *, log=print) -> list[Path]:
+def pull(root: Path, *, dev: bool = False, log=print) -> list[Path]:
     """Make every asset present under ``root`` with the right bytes; return their paths.
 
-    Idempotent: files already there with the pinned hash are kept and nothing is downloaded.
+    ``dev`` adds the test-only assets (DEV_WHEELS). Idempotent: files already there with the
+    pinned hash are kept and nothing is downloaded.
     """
-    for wheel in WHEELS:
+    wheels = WHEELS + DEV_WHEELS if dev else WHEELS
+    for wheel in wheels:
         missing = [a for a in wheel.assets if not _present(root, a)]
         licence = root / "licenses" / f"{wheel.requirement.split('==')[0]}-{wheel.licence}.txt"
         if not missing and licence.is_file():
@@ -188,4 +225,4 @@ def pull(root: Path, *, log=print) -> list[Path]:
                         )
                     write_atomic(root / asset.target, data)
                 write_atomic(licence, zf.read(wheel.licence_member))
-    return [root / a.target for w in WHEELS for a in w.assets]
+    return [root / a.target for w in wheels for a in w.assets]

