@@ -120,6 +120,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     commands.add_parser("config", help="print every setting at its default, documented (TOML)")
 
+    calibrate = commands.add_parser(
+        "calibrate", help="camera intrinsics from photos of a chessboard, saved as JSON"
+    )
+    calibrate.add_argument("images", nargs="+", type=Path, metavar="IMAGE")
+    calibrate.add_argument(
+        "--board",
+        required=True,
+        metavar="COLSxROWS",
+        help="inner corners of the chessboard, e.g. 9x6",
+    )
+    calibrate.add_argument(
+        "--square", required=True, type=float, metavar="M", help="side of one square in metres"
+    )
+    calibrate.add_argument("-o", "--output", required=True, type=Path, metavar="FILE")
+
     demo = commands.add_parser("demo", help="pull the assets and process the bundled sample")
     demo.add_argument("--json", action="store_true")
     return parser
@@ -330,6 +345,36 @@ def _pull(data_root: Path, *, dev: bool = False) -> list[Path]:
     return files
 
 
+def _calibrate(args) -> int:
+    import cv2
+
+    from tasks.errors import BadInput
+    from tasks.lift.camera import calibrate_chessboard, write_calibration
+
+    try:
+        board = tuple(int(v) for v in args.board.lower().split("x"))
+    except ValueError:
+        board = ()
+    if len(board) != 2 or min(board) < 2:
+        raise BadInput("--board", f"must look like 9x6 (inner corners), got {args.board!r}")
+    images = []
+    for path in args.images:
+        image = cv2.imread(str(path))
+        if image is None:
+            raise BadInput(str(path), "is not an image OpenCV can read")
+        images.append(image)
+    sizes = {image.shape[1::-1] for image in images}
+    if len(sizes) != 1:
+        raise BadInput("IMAGE", f"all photos must have one size, got {sorted(sizes)}")
+    K, dist, rms = calibrate_chessboard(images, board=board, square_m=args.square)
+    write_calibration(args.output, K, dist, sizes.pop(), rms)
+    print(
+        f"fx={K[0, 0]:.1f} fy={K[1, 1]:.1f} cx={K[0, 2]:.1f} cy={K[1, 2]:.1f} "
+        f"rms={rms:.3f} px -> {args.output}"
+    )
+    return 0
+
+
 def _demo(args, data_root: Path) -> int:
     from storage.assets import SAMPLE_VIDEO
     from storage.paths import data_paths
@@ -380,6 +425,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "assets":
             _pull(data_root, dev=args.dev)
             return 0
+        if args.command == "calibrate":
+            return _calibrate(args)
         if args.command == "config":
             from flows.config import defaults_text
 

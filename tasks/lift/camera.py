@@ -1,0 +1,273 @@
+"""Cameras and the world frame: intrinsics, calibration files, the floor, triangulation.
+
+Conventions: OpenCV pinhole cameras, ``x_cam = R @ x_world + t`` with camera axes x right, y down,
+z forward; the world is z up with the floor at z = 0, in metres.
+
+Monocular footage has no calibration, so the world is found from the fighters themselves: each
+frame's metric 3D skeleton (BlazePose's world landmarks) is placed along the camera rays by the
+translation that best reprojects it onto the 2D keypoints, which puts the feet in camera
+coordinates; a plane through the lowest foot points over time is the floor, and the floor gives
+the camera's height and pitch. Both fighters then share that world, at their metric distance.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from models.pose.types import BLAZEPOSE_33
+from tasks.errors import BadInput
+
+FOOT_POINTS = np.array(
+    [
+        BLAZEPOSE_33.index(n)
+        for n in (
+            "left_ankle",
+            "right_ankle",
+            "left_heel",
+            "right_heel",
+            "left_foot_index",
+            "right_foot_index",
+        )
+    ]
+)
+ANKLES = np.array([BLAZEPOSE_33.index("left_ankle"), BLAZEPOSE_33.index("right_ankle")])
+SHOULDERS = np.array([BLAZEPOSE_33.index("left_shoulder"), BLAZEPOSE_33.index("right_shoulder")])
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A calibrated or guessed camera. K (3, 3); dist (5,) OpenCV k1 k2 p1 p2 k3; R (3, 3) and
+    t (3,) world to camera; size (width, height) in pixels."""
+
+    K: np.ndarray
+    dist: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    size: tuple[int, int]
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(3,) the camera's position in the world."""
+        return -self.R.T @ self.t
+
+
+def fov_intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
+    """(3, 3) K for a camera whose field of view across its longer side is ``fov_deg``."""
+    if not 1.0 < fov_deg < 179.0:
+        raise ValueError(f"fov_deg must be in (1, 179), got {fov_deg}")
+    f = 0.5 * max(width, height) / math.tan(math.radians(fov_deg) / 2)
+    return np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
+
+
+def project(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(..., 3) world points -> (..., 2) pixels (no distortion)."""
+    cam = np.asarray(points) @ R.T + t
+    uv = cam[..., :2] / cam[..., 2:3]
+    return uv * np.diag(K)[:2] + K[:2, 2]
+
+
+def calibrate_chessboard(
+    images: list[np.ndarray], *, board: tuple[int, int], square_m: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Intrinsics from views of a chessboard (OpenCV's method; thesis appendix 2.7.1).
+
+    ``board`` is the count of inner corners (columns, rows). Returns K (3, 3), dist (5,) and the
+    RMS reprojection error in pixels. Raises ValueError when fewer than 3 views show the board.
+    """
+    pattern = np.zeros((board[0] * board[1], 3), np.float32)
+    pattern[:, :2] = np.mgrid[: board[0], : board[1]].T.reshape(-1, 2) * square_m
+    object_points, image_points, size = [], [], None
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3)
+    for image in images:
+        grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+        size = grey.shape[::-1]
+        found, corners = cv2.findChessboardCorners(grey, board)
+        if found:
+            corners = cv2.cornerSubPix(grey, corners, (11, 11), (-1, -1), criteria)
+            object_points.append(pattern)
+            image_points.append(corners)
+    if len(object_points) < 3:
+        raise ValueError(
+            f"the chessboard ({board[0]}x{board[1]} inner corners) was found in "
+            f"{len(object_points)} of {len(images)} images; at least 3 are needed"
+        )
+    rms, K, dist, _, _ = cv2.calibrateCamera(object_points, image_points, size, None, None)
+    return K, dist.ravel()[:5], float(rms)
+
+
+def triangulate(points_2d: np.ndarray, weights: np.ndarray, cameras: list[Camera]) -> np.ndarray:
+    """Multi-view linear triangulation (DLT), weighted by confidence.
+
+    points_2d (V, ..., 2) pixels seen by V cameras (distortion removed here), weights (V, ...)
+    in [0, 1]. Returns (..., 3) world points, NaN where fewer than two views have weight.
+    """
+    views = len(cameras)
+    shape = points_2d.shape[1:-1]
+    flat = points_2d.reshape(views, -1, 2)
+    w = np.nan_to_num(weights.reshape(views, -1))
+    undistorted = np.stack(
+        [
+            cv2.undistortPoints(
+                flat[v].reshape(-1, 1, 2).astype(np.float64), cam.K, cam.dist, P=cam.K
+            ).reshape(-1, 2)
+            for v, cam in enumerate(cameras)
+        ]
+    )
+    projections = np.stack([cam.K @ np.hstack([cam.R, cam.t[:, None]]) for cam in cameras])
+    out = np.full((flat.shape[1], 3), np.nan)
+    for n in range(flat.shape[1]):
+        good = (w[:, n] > 0) & np.isfinite(undistorted[:, n]).all(axis=1)
+        if good.sum() < 2:
+            continue
+        rows = []
+        for v in np.flatnonzero(good):
+            u, vv = undistorted[v, n]
+            P = projections[v]
+            rows += [w[v, n] * (u * P[2] - P[0]), w[v, n] * (vv * P[2] - P[1])]
+        _, _, vt = np.linalg.svd(np.array(rows))
+        out[n] = vt[-1, :3] / vt[-1, 3]
+    return out.reshape(*shape, 3)
+
+
+def root_translations(
+    keypoints_2d: np.ndarray, confidence: np.ndarray, world_landmarks: np.ndarray, K: np.ndarray
+) -> np.ndarray:
+    """Per frame, the camera-frame position of a metric skeleton's hip centre.
+
+    Solves, in least squares, for the translation T with ``project(L + T) ≈ p`` for every joint:
+    ``(u - cx)(Z + Tz) = fx (X + Tx)`` and likewise for v are linear in T.
+
+    keypoints_2d (F, J, 2) pixels, confidence (F, J), world_landmarks (F, J, 3) metres in camera
+    axes about the hip centre. Returns (F, 3); NaN where fewer than 3 joints are usable.
+    """
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    out = np.full((len(keypoints_2d), 3), np.nan)
+    for f in range(len(keypoints_2d)):
+        good = (
+            (confidence[f] > 0.3)
+            & np.isfinite(keypoints_2d[f]).all(1)
+            & np.isfinite(world_landmarks[f]).all(1)
+        )
+        if good.sum() < 3:
+            continue
+        (u, v), (X, Y, Z) = keypoints_2d[f, good].T, world_landmarks[f, good].T
+        w = np.sqrt(confidence[f, good])
+        a = np.zeros((2 * len(u), 3))
+        b = np.zeros(2 * len(u))
+        a[0::2, 0], a[0::2, 2], b[0::2] = fx, -(u - cx), (u - cx) * Z - fx * X
+        a[1::2, 1], a[1::2, 2], b[1::2] = fy, -(v - cy), (v - cy) * Z - fy * Y
+        ww = np.repeat(w, 2)
+        out[f] = np.linalg.lstsq(a * ww[:, None], b * ww, rcond=None)[0]
+    return out
+
+
+def body_up(world_landmarks: np.ndarray) -> np.ndarray:
+    """(3,) unit up direction in camera axes: the mean direction from the ankles' midpoint to
+    the shoulders' midpoint over all frames (a boxer leans, but not on average).
+    world_landmarks (F, 33, 3)."""
+    ankles = world_landmarks[:, ANKLES].mean(1)
+    shoulders = world_landmarks[:, SHOULDERS].mean(1)
+    axis = shoulders - ankles
+    axis = axis[np.isfinite(axis).all(1)]
+    if not len(axis):
+        raise ValueError("no frame shows both ankles and shoulders: the floor cannot be found")
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    mean = axis.mean(0)
+    return mean / np.linalg.norm(mean)
+
+
+def fit_floor(
+    feet: np.ndarray, up: np.ndarray, *, percentile: float = 5.0
+) -> tuple[np.ndarray, float]:
+    """The floor ``n @ x + d = 0`` (camera coordinates) with normal ``up``, at a low percentile
+    of the feet's heights along it (the feet that touch the floor; a robust minimum).
+
+    Two fighters' feet lie near a line, which leaves a plane fitted to them free to turn about
+    it, hence the normal from the bodies. feet (N, 3); up (3,) unit, pointing up.
+    """
+    heights = feet[np.isfinite(feet).all(1)] @ up
+    if len(heights) < 3:
+        raise ValueError(f"need at least 3 foot points to find the floor, got {len(heights)}")
+    return up, -float(np.percentile(heights, percentile))
+
+
+def world_from_floor(normal: np.ndarray, d: float) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera R, t for a floor ``n @ x + d = 0`` in camera coordinates: world z along n,
+    origin under the camera on the floor, world x along the camera's x laid flat."""
+    z = normal / np.linalg.norm(normal)
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    cam_from_world = np.stack([x, y, z], axis=1)  # world axes as columns, in camera coordinates
+    origin = -d * z  # the camera's foot on the floor, in camera coordinates
+    return cam_from_world, origin
+
+
+def ground_fighters(
+    fighters: list[tuple[np.ndarray, np.ndarray, np.ndarray]], K: np.ndarray, size: tuple[int, int]
+) -> tuple[Camera, list[np.ndarray]]:
+    """One world for all fighters of a shot, from their own bodies.
+
+    fighters: per fighter (keypoints_2d (F, 33, 2), confidence (F, 33), world_landmarks
+    (F, 33, 3)). Returns the camera (its height and pitch come from the floor) and, per fighter,
+    its hip centre in the world per frame (F, 3), NaN where it could not be placed.
+    """
+    roots_cam = [root_translations(k, c, w, K) for k, c, w in fighters]
+    up = body_up(np.concatenate([w for _, _, w in fighters]))
+    # Per frame, each fighter's lowest foot point along `up` is the likeliest on the floor.
+    feet = []
+    for (_, _, world), roots in zip(fighters, roots_cam, strict=True):
+        points = world[:, FOOT_POINTS] + roots[:, None]
+        heights = np.where(np.isfinite(points).all(2), points @ up, np.inf)
+        lowest = np.argmin(heights, axis=1)
+        feet.append(points[np.arange(len(points)), lowest])
+    normal, d = fit_floor(np.concatenate(feet), up)
+    R, t = world_from_floor(normal, d)
+    camera = Camera(K, np.zeros(5), R, t, size)
+    return camera, [(roots - t) @ R for roots in roots_cam]
+
+
+def write_calibration(
+    path: Path, K: np.ndarray, dist: np.ndarray, size: tuple[int, int], rms_px: float
+) -> None:
+    """Save intrinsics as JSON: K (3x3), dist (5), size [width, height], rms_px."""
+    path.write_text(
+        json.dumps(
+            {"K": K.tolist(), "dist": list(map(float, dist)), "size": list(size), "rms_px": rms_px},
+            indent=2,
+        )
+        + "\n"
+    )
+
+
+def read_calibration(path: Path) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """K (3, 3), dist (5,) and size (width, height) from a file :func:`write_calibration` wrote.
+
+    Raises :class:`BadInput` naming the file and what is wrong with it.
+    """
+    try:
+        data = json.loads(path.read_text())
+        K = np.array(data["K"], dtype=np.float64)
+        dist = np.array(data["dist"], dtype=np.float64)
+        width, height = (int(v) for v in data["size"])
+    except FileNotFoundError:
+        raise BadInput(str(path), "calibration file not found") from None
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise BadInput(
+            str(path),
+            f"is not a calibration file ({type(error).__name__}: "
+            f"{error}); expected JSON with K, dist and size",
+        ) from None
+    if K.shape != (3, 3) or dist.shape != (5,) or not np.isfinite(K).all() or K[0, 0] <= 0:
+        raise BadInput(
+            str(path),
+            f"has K of shape {K.shape} and dist of shape {dist.shape}; "
+            "expected a 3x3 K with positive focal length and 5 dist values",
+        )
+    return K, dist, (width, height)
