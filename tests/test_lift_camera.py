@@ -15,22 +15,13 @@ from tasks.lift.camera import (
     calibrate_chessboard,
     fov_intrinsics,
     ground_fighters,
+    look_at,
     project,
     read_calibration,
     root_translations,
     triangulate,
     world_from_floor,
 )
-
-
-def look_at(position: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World-to-camera R, t of a camera at ``position`` looking at ``target``, world z up."""
-    forward = (target - position) / np.linalg.norm(target - position)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    R = np.stack([right, down, forward])
-    return R, -R @ position
 
 
 def standing_person(rng: np.random.Generator, at: np.ndarray) -> np.ndarray:

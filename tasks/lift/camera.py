@@ -65,6 +65,33 @@ def fov_intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
     return np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
 
 
+def look_at(centre: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera (R, t) of an upright OpenCV camera at `centre` looking at `target`.
+
+    Camera axes: z along the view, x to the right parallel to the floor, y down.
+
+    Args:
+        centre: (3,) camera position, metres, z up.
+        target: (3,) the point it looks at; not straight above or below `centre`.
+
+    Returns:
+        R (3, 3) and t (3,) with x_cam = R x_world + t.
+    """
+    c = np.asarray(centre, dtype=np.float64)
+    g = np.asarray(target, dtype=np.float64)
+    if c.shape != (3,) or g.shape != (3,):
+        raise ValueError(f"centre and target must be (3,) points, got {c.shape} and {g.shape}")
+    forward = g - c
+    forward = forward / np.linalg.norm(forward)
+    right = np.cross(forward, (0.0, 0.0, 1.0))
+    if np.linalg.norm(right) < 1e-9:
+        raise ValueError("target must not be straight above or below the camera centre")
+    right = right / np.linalg.norm(right)
+    down = np.cross(forward, right)
+    rotation = np.stack([right, down, forward])
+    return rotation, -rotation @ c
+
+
 def project(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(..., 3) world points -> (..., 2) pixels (no distortion)."""
     cam = np.asarray(points) @ R.T + t
