@@ -9,6 +9,7 @@ from prefect.task_runners import ThreadPoolTaskRunner
 
 from flows.config import STAGES, from_tables
 from flows.ingest import ingest_flow
+from flows.lift import lift_flow
 from flows.pose import pose_flow
 from flows.runs import StageSummary
 from tasks.errors import BadInput
@@ -86,9 +87,19 @@ def video_to_opponent(
         if "pose" not in stages:
             continue
         try:
-            summaries.append(
-                pose(data_root, ingested.video_id, ingested.key, config, force="pose" in forced)
-            )
+            posed = pose(data_root, ingested.video_id, ingested.key, config, force="pose" in forced)
+            summaries.append(posed)
+            if "lift" in stages:
+                summaries.append(
+                    lift_flow(
+                        data_root,
+                        ingested.video_id,
+                        ingested.key,
+                        posed.key,
+                        config,
+                        force="lift" in forced,
+                    )
+                )
         except BadInput as error:
             failures.append(str(error))
     if failures:

@@ -61,6 +61,27 @@ def count(db: Path, sql: str) -> int:
     return query(db.parent, sql)[0][0]
 
 
+@pytest.fixture(scope="session")
+def sample_run(tmp_path_factory, sample_video: Path) -> Path:
+    """A data directory where the sample went through every stage, in chunks of 30 frames (so
+    chunk borders are crossed). Tests may add picks or reruns to it, never remove anything."""
+    from flows.cli import main
+
+    data = tmp_path_factory.mktemp("sample_run") / "data"
+    argv = [
+        "--data",
+        str(data),
+        "process",
+        str(sample_video),
+        "--adversary",
+        "A",
+        "--ingest-chunk-frames",
+        "30",
+    ]
+    assert main(argv) == 0
+    return data
+
+
 def write_video(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> Path:
     """Write BGR frames as an MPEG-4 Part 2 file (the codec OpenCV's wheel can write)."""
     h, w = frames[0].shape[:2]

@@ -6,6 +6,7 @@ import hashlib
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -39,19 +40,23 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
     code, out, _ = run_cli(capsys, *process)
     assert code == 0
     first = json.loads(out)
-    assert [(s["stage"], s["state"]) for s in first] == [("ingest", "done"), ("pose", "done")]
+    assert [(s["stage"], s["state"]) for s in first] == [
+        ("ingest", "done"),
+        ("pose", "done"),
+        ("lift", "done"),
+    ]
     assert len(scans) == 1
 
     code, out, _ = run_cli(capsys, *process)
-    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached", "cached"]
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached"] * 3
     assert len(scans) == 1, "a rerun with nothing changed decoded the video again"
 
     video_id = first[0]["video_id"]
     code, out, _ = run_cli(
         capsys, "--data", data, "rerun", "ingest", "--video", video_id[:10], "--json"
     )
-    # Ingest is recomputed; its key is unchanged, so pose is found in the cache.
-    assert code == 0 and [s["state"] for s in json.loads(out)] == ["done", "cached"]
+    # Ingest is recomputed; its key is unchanged, so pose and lift are found in the cache.
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["done", "cached", "cached"]
     assert len(scans) == 2
     db = Path(data) / "ringside.duckdb"
     runs = "SELECT stage, state, count(*) FROM stage_runs GROUP BY ALL ORDER BY ALL"
@@ -59,6 +64,8 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
         assert con.execute(runs).fetchall() == [
             ("ingest", "cached", 1),
             ("ingest", "done", 2),
+            ("lift", "cached", 2),
+            ("lift", "done", 1),
             ("pose", "cached", 2),
             ("pose", "done", 1),
         ]
@@ -77,6 +84,13 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
             "video_id": video_id,
             "stage": "pose",
             "key": first[1]["key"],
+            "state": "cached",
+            "error": None,
+        },
+        {
+            "video_id": video_id,
+            "stage": "lift",
+            "key": first[2]["key"],
             "state": "cached",
             "error": None,
         },
@@ -346,11 +360,12 @@ def test_killed_mid_stage_loses_nothing_and_rerun_finishes(
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
+        start_new_session=True,  # so its Prefect server can be killed with it
     )
     try:
         assert victim.stdout.readline().strip() == "mid-stage"
     finally:
-        victim.kill()
+        os.killpg(victim.pid, signal.SIGKILL)
         victim.wait()
     assert db_snapshot(db)[1] == before[1], "a killed run changed committed rows"
 

@@ -21,7 +21,12 @@ class IngestOutput:
     adversary: str
     colour: str | None
     chunks: tuple[tuple[int, int, int, int], ...]  # (chunk, shot, start, end)
-    shot_frames: dict[int, int]  # shot -> frames in it
+    shots: tuple[tuple[int, int, int], ...]  # (shot, start, end)
+
+    @property
+    def shot_frames(self) -> dict[int, int]:
+        """Shot -> frames in it."""
+        return {shot: end - start for shot, start, end in self.shots}
 
 
 def load_ingest(con: duckdb.DuckDBPyConnection, video_id: str, key: str) -> IngestOutput:
@@ -42,10 +47,11 @@ def load_ingest(con: duckdb.DuckDBPyConnection, video_id: str, key: str) -> Inge
         [key, video_id],
     ).fetchall()
     shots = con.execute(
-        "SELECT shot, end_frame - start_frame FROM ingest_shots WHERE key = ? AND video_id = ?",
+        "SELECT shot, start_frame, end_frame FROM ingest_shots "
+        "WHERE key = ? AND video_id = ? ORDER BY shot",
         [key, video_id],
     ).fetchall()
     path, fps, frames, width, height, name, colour = probe
     return IngestOutput(
-        video_id, key, path, fps, frames, width, height, name, colour, tuple(chunks), dict(shots)
+        video_id, key, path, fps, frames, width, height, name, colour, tuple(chunks), tuple(shots)
     )

@@ -830,3 +830,53 @@ def make_case(
         inputs=inputs,
         retarget=retargeted,
     )
+
+
+def evaluate_lift(case: SyntheticCase, config, workdir: Path) -> dict[str, float]:
+    """Run the lift stage (:func:`tasks.lift.stage.lift_video`) on one synthetic case and score
+    its input and output against the truth.
+
+    The stage gets the case's true intrinsics through a calibration file, as an analyst with a
+    calibrated camera would; it finds the floor and the camera's pose itself. Its output, in its
+    own world, is carried back to the truth's world through the two cameras before scoring.
+    Returns MPJPE / PA-MPJPE (mm) of the noisy 3D input and of the output, and the stage's own
+    metrics.
+    """
+    from tasks.lift.camera import write_calibration
+    from tasks.lift.metrics import mpjpe_mm, pa_mpjpe_mm
+    from tasks.lift.stage import FighterTrack, lift_video
+
+    calibration = workdir / "calibration.json"
+    write_calibration(calibration, case.K, np.zeros(5), case.size, 0.0)
+    frames = len(case.points)
+    track = FighterTrack(
+        case.inputs.keypoints_2d, case.inputs.confidence, case.inputs.world_landmarks
+    )
+    output = lift_video(
+        {"adversary": track},
+        key="synthetic",
+        video_id=case.clip_name,
+        fps=case.fps,
+        size=case.size,
+        shots=[(0, 0, frames)],
+        config=config,
+        calibration=calibration,
+        artifacts=workdir / "artifacts",
+    )
+    camera = output.rows["lift_cameras"][0]
+    R_est, t_est = np.reshape(camera[5], (3, 3)), np.asarray(camera[6])
+    motion = output.rows["lift_motion"]
+    lifted = np.full((frames, 33, 3), np.nan)
+    lifted[motion["frame"]] = motion["joints"].reshape(-1, 33, 3)
+    # Stage world -> camera -> truth world.
+    in_truth_world = ((lifted @ R_est.T + t_est) - case.t) @ case.R
+    # The noisy input: hip-centred landmarks in camera axes, turned into the world's axes.
+    hips = case.points[:, list(HIPS)].mean(axis=1)
+    noisy = case.inputs.world_landmarks @ case.R + hips[:, None]
+    return {
+        "input_mpjpe_mm": mpjpe_mm(noisy, case.points),
+        "input_pa_mpjpe_mm": pa_mpjpe_mm(noisy, case.points),
+        "output_mpjpe_mm": mpjpe_mm(in_truth_world, case.points),
+        "output_pa_mpjpe_mm": pa_mpjpe_mm(in_truth_world, case.points),
+        **output.metrics,
+    }

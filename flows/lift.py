@@ -1,0 +1,60 @@
+"""The lift stage as a flow: both fighters of a video to humanoid motions in one world."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from prefect import flow
+from prefect.runtime import flow_run
+
+from flows.config import from_tables
+from flows.runs import StageSummary, record_failure, settle, still_committed
+from storage.db import connect
+from storage.files import sha256_file
+from storage.paths import data_paths
+from tasks.errors import BadInput
+from tasks.ingest.outputs import load_ingest
+from tasks.lift.stage import STAGE, lift_key
+from tasks.lift.task import lift_task
+from tasks.runner import committed
+
+
+def _run_name() -> str:
+    return f"lift-{flow_run.parameters['video_id'][:12]}"
+
+
+@flow(name="lift", flow_run_name=_run_name)
+def lift_flow(
+    data_root: str,
+    video_id: str,
+    ingest_key: str,
+    pose_key: str,
+    config: dict | None = None,
+    force: bool = False,
+) -> StageSummary:
+    """Lift both fighters of an ingested, posed video to 3D and clean them up in MuJoCo."""
+    settings = from_tables(config or {}).lift
+    paths = data_paths(data_root)
+    with connect(paths.db, read_only=True) as con:
+        ingest = load_ingest(con, video_id, ingest_key)
+    calibration_sha = None
+    if settings.calibration:
+        calibration = Path(settings.calibration)
+        if not calibration.is_file():
+            raise BadInput(str(calibration), "calibration file not found (lift.calibration)")
+        calibration_sha = sha256_file(calibration)
+    key = lift_key(settings, pose_key, calibration_sha)
+    result = None if force else committed(paths.db, STAGE, video_id, key)
+    if result is None:
+        task = lift_task.with_options(refresh_cache=True) if force else lift_task
+        try:
+            result = task(data_root, ingest, pose_key, settings, key, calibration_sha, force=force)
+            if not still_committed(data_root, result):
+                result = lift_task.with_options(refresh_cache=True)(
+                    data_root, ingest, pose_key, settings, key, calibration_sha, force=True
+                )
+        except BadInput as error:
+            record_failure(data_root, video_id, STAGE, key, error)
+            raise
+    state = settle(data_root, result)
+    return StageSummary(video_id, ingest.path, STAGE, key, state, result.seconds, result.notes)

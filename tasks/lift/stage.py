@@ -1,0 +1,345 @@
+"""The lift stage: both fighters' 2D keypoints become humanoid motions in one world.
+
+Per shot: the camera and floor come from the fighters' own bodies (:func:`ground_fighters`),
+each fighter is lifted to 3D joints (:func:`lift_fighter`), fitted with a humanoid scaled to
+its measured bones (:func:`fit_humanoid`) and cleaned up in MuJoCo against the floor and the
+other fighter (:func:`cleanup`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from models.humanoid.boxer import BoneLengths, single_scene_mjcf
+from storage.artifacts import put_bytes
+from storage.keys import code_version, stage_key
+from tasks.errors import BadInput
+from tasks.lift.camera import Camera, fov_intrinsics, ground_fighters, read_calibration
+from tasks.lift.config import LiftStageConfig
+from tasks.lift.metrics import bone_length_std_mm
+from tasks.lift.playback import playback_html
+from tasks.lift.solve import (
+    Cleaned,
+    cleanup,
+    cleanup_pair,
+    fit_humanoid,
+    geom_poses,
+    lift_fighter,
+    lowest_points,
+)
+from tasks.runner import StageOutput
+
+STAGE = "lift"
+ROLES = ("adversary", "opponent")
+NQ, NV = 35, 34
+
+
+def lift_code() -> str:
+    return code_version("tasks.lift", "models.humanoid")
+
+
+def lift_upstream(pose_key: str, calibration_sha: str | None) -> dict:
+    return {"pose": pose_key, "calibration": calibration_sha}
+
+
+def lift_key(config: LiftStageConfig, pose_key: str, calibration_sha: str | None) -> str:
+    return stage_key(STAGE, config, lift_code(), lift_upstream(pose_key, calibration_sha))
+
+
+@dataclass(frozen=True, eq=False)
+class FighterTrack:
+    """One fighter's 2D input over the video. F frames of the video."""
+
+    keypoints: np.ndarray  # (F, 33, 2) pixels, NaN where unseen
+    confidence: np.ndarray  # (F, 33)
+    world: np.ndarray  # (F, 33, 3) BlazePose world landmarks, NaN where unseen
+
+
+def fighter_tracks(columns: Mapping[str, np.ndarray], frames: int) -> dict[str, FighterTrack]:
+    """Dense per-fighter arrays from ``pose_keypoints`` columns (role, frame, x, y, confidence,
+    world, track; as DuckDB's ``fetchnumpy`` or the pose stage's own rows give them)."""
+    fighters = {}
+    roles = np.asarray(columns["role"])
+    for role in ROLES:
+        mine = roles == role
+        if not mine.any():
+            continue
+        at = np.asarray(columns["frame"])[mine].astype(np.int64)
+        pick = np.flatnonzero(mine)
+        keypoints = np.full((frames, 33, 2), np.nan)
+        confidence = np.zeros((frames, 33))
+        world = np.full((frames, 33, 3), np.nan)
+        keypoints[at, :, 0] = np.stack([columns["x"][i] for i in pick])
+        keypoints[at, :, 1] = np.stack([columns["y"][i] for i in pick])
+        confidence[at] = np.stack([columns["confidence"][i] for i in pick])
+        world[at] = np.stack([columns["world"][i] for i in pick]).reshape(-1, 33, 3)
+        # Frames the pose stage filled in without seeing the fighter carry no world landmarks.
+        world[at[np.asarray(columns["track"])[mine] < 0]] = np.nan
+        fighters[role] = FighterTrack(keypoints, confidence, world)
+    return fighters
+
+
+def _segment(track: FighterTrack, start: int, end: int, min_frames: int) -> tuple[int, int] | None:
+    """The span [first, last + 1) of frames in [start, end) where the fighter is seen, if long
+    enough to lift."""
+    # Seen = observed by the pose stage (its world landmarks exist); single 2D joints may still
+    # be NaN where refinement did not trust them, which the lift takes as missing.
+    seen = np.flatnonzero(np.isfinite(track.world[start:end]).all(axis=(1, 2)))
+    if len(seen) < min_frames:
+        return None
+    return start + int(seen[0]), start + int(seen[-1]) + 1
+
+
+def _camera_for_shot(
+    config: LiftStageConfig, size: tuple[int, int], calibration: Path | None
+) -> tuple[np.ndarray, str]:
+    if calibration is None:
+        return fov_intrinsics(*size, config.fov_deg), "fov"
+    K, _, calibrated_size = read_calibration(calibration)
+    if calibrated_size != tuple(size):
+        raise BadInput(
+            str(calibration),
+            f"was made for {calibrated_size[0]}x{calibrated_size[1]} "
+            f"images, but the video is {size[0]}x{size[1]}",
+        )
+    return K, "calibration"
+
+
+def _parked(qpos: np.ndarray) -> np.ndarray:
+    """``qpos`` moved 1 km away: an opponent that is not there cannot be touched."""
+    far = qpos.copy()
+    far[:, 0] += 1000.0
+    return far
+
+
+def _clean_shot(fitted: dict, fps: float, config: LiftStageConfig) -> dict[str, Cleaned]:
+    """Each fitted fighter of a shot cleaned up in MuJoCo, the two together when both are there.
+
+    ``fitted`` maps role to (first frame, end frame, Lifted3D, qpos). Two fighters are cleaned
+    over the frames either is seen; where one is not, it stands parked far away.
+    """
+    models = {
+        role: mujoco.MjModel.from_xml_string(single_scene_mjcf(lifted.bones))
+        for role, (_, _, lifted, _) in fitted.items()
+    }
+    if len(fitted) == 1:
+        ((role, (_, _, lifted, fit)),) = fitted.items()
+        return {role: cleanup(models[role], fit, lifted.contacts, fps=fps, config=config.solve)}
+    lo = min(a for a, _, _, _ in fitted.values())
+    hi = max(b for _, b, _, _ in fitted.values())
+    roles, padded, padded_contacts = list(fitted), [], []
+    for role in roles:
+        a, b, lifted, fit = fitted[role]
+        q = _parked(np.repeat(fit[:1], hi - lo, axis=0))
+        q[a - lo : b - lo] = fit
+        c = np.zeros((hi - lo, 2), bool)
+        c[a - lo : b - lo] = lifted.contacts
+        padded.append(q)
+        padded_contacts.append(c)
+    pair = cleanup_pair(
+        tuple(models[r] for r in roles),
+        tuple(padded),
+        tuple(padded_contacts),
+        fps=fps,
+        config=config.solve,
+    )
+    out = {}
+    for role, cleaned in zip(roles, pair, strict=True):
+        a, b = fitted[role][0] - lo, fitted[role][1] - lo
+        out[role] = dataclasses.replace(
+            cleaned,
+            qpos=cleaned.qpos[a:b],
+            qvel=cleaned.qvel[a:b],
+            points=cleaned.points[a:b],
+            contacts=cleaned.contacts[a:b],
+        )
+    return out
+
+
+def lift_video(
+    fighters: Mapping[str, FighterTrack],
+    *,
+    key: str,
+    video_id: str,
+    fps: float,
+    size: tuple[int, int],
+    shots: list[tuple[int, int, int]],
+    config: LiftStageConfig,
+    calibration: Path | None,
+    artifacts: Path,
+) -> StageOutput:
+    """Lift every shot of a video; the rows and metrics of its lift output.
+
+    ``fighters`` maps role to its 2D input; ``shots`` are (shot, start, end) frame ranges.
+    Raises :class:`BadInput` when no fighter is seen long enough in any shot.
+    """
+    frames = next(iter(fighters.values())).keypoints.shape[0]
+    qpos = {r: np.full((frames, NQ), np.nan) for r in fighters}
+    qvel = {r: np.full((frames, NV), np.nan) for r in fighters}
+    joints = {r: np.full((frames, 33, 3), np.nan) for r in fighters}
+    contacts = {r: np.zeros((frames, 2), bool) for r in fighters}
+    bones: dict[str, tuple[int, BoneLengths]] = {}
+    lifted_std: dict[str, list[float]] = {r: [] for r in fighters}
+    change_mm: dict[str, list[float]] = {r: [] for r in fighters}
+    cleanup_metrics: dict[str, list[dict[str, float]]] = {r: [] for r in fighters}
+    camera_rows = []
+    for shot, start, end in shots:
+        spans = {
+            r: s
+            for r, t in fighters.items()
+            if (s := _segment(t, start, end, config.min_frames)) is not None
+        }
+        if not spans:
+            continue
+        K, source = _camera_for_shot(config, size, calibration)
+        inputs = {
+            r: (fighters[r].keypoints[a:b], fighters[r].confidence[a:b], fighters[r].world[a:b])
+            for r, (a, b) in spans.items()
+        }
+        camera, roots = ground_fighters(list(inputs.values()), K, size)
+        camera_rows.append((shot, source, camera))
+        fitted = {}
+        for (role, (a, b)), root in zip(spans.items(), roots, strict=True):
+            lifted = lift_fighter(
+                *inputs[role],
+                camera.K,
+                camera.R,
+                camera.t,
+                fps=fps,
+                config=config.solve,
+                root_init=root,
+            )
+            fitted[role] = (
+                a,
+                b,
+                lifted,
+                fit_humanoid(lifted.points, lifted.bones, config=config.solve),
+            )
+            lifted_std[role].append(bone_length_std_mm(lifted.points))
+            if role not in bones or b - a > bones[role][0]:
+                bones[role] = (b - a, lifted.bones)
+        for role, cleaned in _clean_shot(fitted, fps, config).items():
+            a, b, lifted, _ = fitted[role]
+            qpos[role][a:b], qvel[role][a:b] = cleaned.qpos, cleaned.qvel
+            joints[role][a:b], contacts[role][a:b] = cleaned.points, cleaned.contacts
+            change_mm[role].append(
+                float(np.nanmean(np.linalg.norm(cleaned.points - lifted.points, axis=-1)) * 1000)
+            )
+            model = mujoco.MjModel.from_xml_string(single_scene_mjcf(lifted.bones))
+            sunk = np.maximum(-lowest_points(geom_poses(model, cleaned.qpos)).min(1), 0.0)
+            cleanup_metrics[role].append(
+                {**cleaned.metrics, "floor_penetration_mean_mm": float(sunk.mean() * 1000)}
+            )
+    if not camera_rows:
+        raise BadInput(
+            STAGE,
+            f"no fighter is seen in {config.min_frames} frames of any shot "
+            f"(lift.min_frames); nothing to lift",
+        )
+
+    metrics = _metrics(qpos, cleanup_metrics, lifted_std, change_mm)
+    page = playback_html(
+        {r: joints[r] for r in fighters if np.isfinite(joints[r]).any()},
+        fps=fps,
+        title=f"Ringside lift {video_id[:12]}",
+    )
+    rows = {
+        "lift_cameras": [
+            (
+                key,
+                video_id,
+                shot,
+                source,
+                camera.K.ravel().tolist(),
+                camera.R.ravel().tolist(),
+                camera.t.tolist(),
+                float(camera.centre[2]),
+                _pitch_deg(camera),
+            )
+            for shot, source, camera in camera_rows
+        ],
+        "lift_motion": _motion_columns(qpos, qvel, joints, contacts),
+        "lift_bones": [
+            (key, video_id, role, name, float(value))
+            for role, (_, lengths) in bones.items()
+            for name, value in dataclasses.asdict(lengths).items()
+        ],
+        "lift_media": [(key, video_id, "playback", put_bytes(artifacts, page.encode(), ".html"))],
+    }
+    return StageOutput(rows, metrics)
+
+
+def _pitch_deg(camera: Camera) -> float:
+    """How far the camera looks down from the horizon, degrees."""
+    forward_world = camera.R[2]  # the camera's z axis in world coordinates
+    return float(math.degrees(math.asin(-np.clip(forward_world[2], -1, 1))))
+
+
+def _motion_columns(qpos, qvel, joints, contacts) -> dict[str, np.ndarray]:
+    parts: dict[str, list[np.ndarray]] = {}
+    for role in qpos:
+        rows = np.flatnonzero(np.isfinite(qpos[role]).all(axis=1))
+        values = {
+            "role": np.array([role] * len(rows)),
+            "frame": rows.astype(np.int64),
+            "qpos": qpos[role][rows].astype(np.float32),
+            "qvel": qvel[role][rows].astype(np.float32),
+            "joints": joints[role][rows].reshape(len(rows), -1).astype(np.float32),
+            "contact_left": contacts[role][rows, 0],
+            "contact_right": contacts[role][rows, 1],
+        }
+        for name, value in values.items():
+            parts.setdefault(name, []).append(value)
+    return {name: np.concatenate(values) for name, values in parts.items()}
+
+
+# Names the cleanup reports -> the stage's metric names (max over shots for maxima).
+_CLEANUP_NAMES = {
+    "floor_penetration_mm_after": "floor_penetration_max_mm",
+    "floor_penetration_mm_before": "floor_penetration_max_mm_before",
+    "interpenetration_mm_after": "inter_fighter_penetration_max_mm",
+    "interpenetration_mm_before": "inter_fighter_penetration_max_mm_before",
+    "foot_skating_cm_per_frame_after": "foot_skating_cm_per_frame",
+    "foot_skating_cm_per_frame_before": "foot_skating_cm_per_frame_before",
+    "jitter_m_s2_after": "jitter_m_s2",
+    "jitter_m_s2_before": "jitter_m_s2_before",
+    "contact_slide_cm_per_frame_after": "contact_slide_cm_per_frame",
+    "contact_slide_cm_per_frame_before": "contact_slide_cm_per_frame_before",
+    "contact_share": "contact_share",
+    "floor_penetration_mean_mm": "floor_penetration_mean_mm",
+}
+
+
+def _metrics(qpos, cleanup_metrics, lifted_std, change_mm) -> dict[str, float]:
+    """Per fighter (prefixed with its role) and, unprefixed, the worst of the two fighters."""
+    metrics: dict[str, float] = {}
+    worst: dict[str, float] = {}
+    for role, shot_metrics in cleanup_metrics.items():
+        if not shot_metrics:
+            continue
+        merged = {}
+        for source, name in _CLEANUP_NAMES.items():
+            values = [m[source] for m in shot_metrics if np.isfinite(m.get(source, np.nan))]
+            if values:
+                merged[name] = max(values) if "max" in name else float(np.mean(values))
+        merged["bone_length_std_mm"] = float(np.mean(lifted_std[role]))
+        merged["cleanup_change_mm"] = float(np.mean(change_mm[role]))
+        merged["frames_lifted"] = float(np.isfinite(qpos[role]).all(axis=1).sum())
+        for name, value in merged.items():
+            metrics[f"{role}_{name}"] = value
+            if name != "frames_lifted":
+                worst[name] = max(worst.get(name, -np.inf), value)
+    metrics.update(worst)
+    if all(r in qpos for r in ROLES):
+        both = np.isfinite(qpos["adversary"]).all(1) & np.isfinite(qpos["opponent"]).all(1)
+        if both.any():
+            gap = qpos["adversary"][both, :2] - qpos["opponent"][both, :2]
+            metrics["fighter_distance_mean_m"] = float(np.linalg.norm(gap, axis=1).mean())
+    return {k: float(v) for k, v in metrics.items() if np.isfinite(v)}

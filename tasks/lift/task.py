@@ -1,0 +1,84 @@
+"""Prefect task of the lift stage, and reading the pose output it starts from."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import duckdb
+from prefect import task
+from prefect.cache_policies import INPUTS, TASK_SOURCE
+from prefect.runtime import flow_run
+
+from storage.paths import data_paths
+from tasks.ingest.outputs import IngestOutput
+from tasks.lift.config import LiftStageConfig
+from tasks.lift.stage import (
+    STAGE,
+    FighterTrack,
+    fighter_tracks,
+    lift_code,
+    lift_upstream,
+    lift_video,
+)
+from tasks.runner import StageResult, run_stage
+
+
+def load_fighters(
+    con: duckdb.DuckDBPyConnection, video_id: str, pose_key: str, frames: int
+) -> dict[str, FighterTrack]:
+    """Each fighter's refined 2D keypoints and world landmarks from pose output ``pose_key``."""
+    columns = con.execute(
+        "SELECT role, frame, x, y, confidence, world, track FROM pose_keypoints "
+        "WHERE key = ? AND video_id = ? ORDER BY role, frame",
+        [pose_key, video_id],
+    ).fetchnumpy()
+    return fighter_tracks(columns, frames)
+
+
+@task(
+    name="lift",
+    cache_policy=(INPUTS + TASK_SOURCE) - "force",
+    persist_result=True,
+    task_run_name="lift-{ingest.video_id:.12}",
+)
+def lift_task(
+    data_root: str,
+    ingest: IngestOutput,
+    pose_key: str,
+    config: LiftStageConfig,
+    key: str,
+    calibration_sha: str | None,
+    force: bool = False,
+) -> StageResult:
+    """Lift both fighters of a video and commit the output under ``key``."""
+    from storage.db import connect
+
+    paths = data_paths(data_root)
+
+    def compute():
+        with connect(paths.db, read_only=True) as con:
+            fighters = load_fighters(con, ingest.video_id, pose_key, ingest.frames)
+        return lift_video(
+            fighters,
+            key=key,
+            video_id=ingest.video_id,
+            fps=ingest.fps,
+            size=(ingest.width, ingest.height),
+            shots=list(ingest.shots),
+            config=config,
+            calibration=Path(config.calibration) if config.calibration else None,
+            artifacts=paths.artifacts,
+        )
+
+    return run_stage(
+        db=paths.db,
+        stage=STAGE,
+        video_id=ingest.video_id,
+        key=key,
+        config=config,
+        code=lift_code(),
+        upstream=lift_upstream(pose_key, calibration_sha),
+        run_id=str(flow_run.id),
+        compute=compute,
+        force=force,
+    )

@@ -1,0 +1,119 @@
+"""The lift stage: synthetic ground truth, the real two-person sample, bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import query, run_cli
+
+from storage.artifacts import artifact_path
+from tasks.errors import BadInput
+from tasks.lift.config import LiftStageConfig
+from tasks.lift.stage import FighterTrack, lift_video
+from tasks.lift.synthetic import evaluate_lift, make_case
+
+
+def lift_metrics(data: Path) -> dict[str, float]:
+    return dict(
+        query(
+            data,
+            "SELECT m.name, m.value FROM stage_metrics m "
+            "JOIN stage_outputs o USING (stage, video_id, key) WHERE m.stage = 'lift' "
+            "QUALIFY row_number() OVER (PARTITION BY m.name ORDER BY o.created_at DESC) = 1",
+        )
+    )
+
+
+@pytest.mark.parametrize("clip", ["punch", "walk"])
+def test_synthetic_truth_is_recovered(clip, assets, tmp_path):
+    case = make_case(clip, 0, assets)
+    m = evaluate_lift(case, LiftStageConfig(), tmp_path)
+    assert 40 < m["input_pa_mpjpe_mm"] < 60  # the BlazePose-like noise the lift starts from
+    assert m["output_pa_mpjpe_mm"] < 40
+    assert m["output_pa_mpjpe_mm"] <= 0.7 * m["input_pa_mpjpe_mm"]
+    assert m["output_mpjpe_mm"] < m["input_mpjpe_mm"]
+    assert m["floor_penetration_max_mm"] < 10 and m["bone_length_std_mm"] < 5
+    # Foot skating is checked on the real sample below: here the floor the stage finds for one
+    # lone fighter is tilted by several degrees, which hides most contacts (see issue notes).
+
+
+def test_sample_after_cleanup(sample_run: Path):
+    m = lift_metrics(sample_run)
+    assert m["floor_penetration_max_mm"] < 10
+    assert m["inter_fighter_penetration_max_mm"] < 10
+    assert m["foot_skating_cm_per_frame"] < m["foot_skating_cm_per_frame_before"]
+    assert m["bone_length_std_mm"] < 5
+    assert 0.5 < m["fighter_distance_mean_m"] < 3.0
+    rows = query(
+        sample_run,
+        "SELECT role, count(*), min(frame), max(frame) FROM lift_motion "
+        "GROUP BY role ORDER BY role",
+    )
+    assert [(role, n) for role, n, _, _ in rows] == [("adversary", 100), ("opponent", 100)]
+    qpos, joints = query(sample_run, "SELECT qpos, joints FROM lift_motion LIMIT 1")[0]
+    assert len(qpos) == 35 and np.isfinite(qpos).all() and np.isfinite(joints).all()
+    # The camera: above the floor, looking down, as the phone that filmed the sample was.
+    height, pitch = query(sample_run, "SELECT height_m, pitch_deg FROM lift_cameras")[0]
+    assert 1.0 < height < 3.5 and 0 < pitch < 80
+
+
+def test_playback_page(sample_run: Path, tmp_path: Path):
+    name = query(sample_run, "SELECT artifact FROM lift_media WHERE kind = 'playback'")[0][0]
+    page = artifact_path(sample_run / "artifacts", name).read_text()
+    data = json.loads(page.split("const D = ", 1)[1].split(";\n", 1)[0])
+    assert data["frames"] == 100 and len(data["fighters"]) == 2
+    assert len(data["fighters"][0]["joints"][0]) == 33
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node is not installed: the page's script is not syntax-checked")
+    script = tmp_path / "page.js"
+    script.write_text(page.split("<script>", 1)[1].split("</script>", 1)[0])
+    subprocess.run([node, "--check", str(script)], check=True)
+
+
+def test_bad_calibration_is_one_line_and_writes_nothing(sample_run, sample_video, tmp_path, capsys):
+    bad = tmp_path / "calib.json"
+    bad.write_text("{ this is not json")
+    before = query(sample_run, "SELECT count(*) FROM lift_motion")[0][0]
+    code, _, err = run_cli(
+        capsys,
+        "--data",
+        str(sample_run),
+        "process",
+        str(sample_video),
+        "--adversary",
+        "A",
+        "--ingest-chunk-frames",
+        "30",
+        "--lift-calibration",
+        str(bad),
+    )
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and f"{bad}: is not a calibration file" in lines[0]
+    assert query(sample_run, "SELECT count(*) FROM lift_motion")[0][0] == before
+
+
+def test_too_few_frames_is_a_clear_error(tmp_path):
+    frames = 40
+    track = FighterTrack(
+        np.full((frames, 33, 2), np.nan), np.zeros((frames, 33)), np.full((frames, 33, 3), np.nan)
+    )
+    track.world[:5] = 0.1  # seen in 5 frames only
+    track.keypoints[:5] = 100.0
+    with pytest.raises(BadInput, match="no fighter is seen in 10 frames of any shot"):
+        lift_video(
+            {"adversary": track},
+            key="k",
+            video_id="v",
+            fps=30.0,
+            size=(640, 480),
+            shots=[(0, 0, frames)],
+            config=LiftStageConfig(),
+            calibration=None,
+            artifacts=tmp_path,
+        )
