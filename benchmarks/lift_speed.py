@@ -53,7 +53,7 @@ def main() -> None:
         )
         fighters = lift.fighter_tracks(posed.rows["pose_keypoints"], FRAMES)
         spent: dict[str, float] = {}
-        for name in ("ground_fighters", "lift_fighter", "fit_humanoid", "cleanup"):
+        for name in ("ground_fighters", "lift_fighter", "fit_humanoid", "cleanup", "cleanup_pair"):
             real = getattr(lift, name)
 
             def timed(*a, _real=real, _name=name, **k):
