@@ -18,6 +18,7 @@ from tasks.lift.camera import (
     look_at,
     project,
     read_calibration,
+    read_qca,
     root_translations,
     triangulate,
     world_from_floor,
@@ -180,3 +181,26 @@ def test_bad_calibration_files_are_named(tmp_path):
         read_calibration(broken)
     with pytest.raises(BadInput, match="calibration file not found"):
         read_calibration(tmp_path / "missing.json")
+
+
+def test_qca_cameras_of_the_sample(assets):
+    cameras = read_qca(assets / "samples" / "multi_person" / "Calib.qca.txt")
+    assert [name for name, _ in cameras] == ["cam01", "cam02", "cam03", "cam04"]
+    for _, cam in cameras:
+        np.testing.assert_allclose(cam.R @ cam.R.T, np.eye(3), atol=1e-6)
+        assert np.linalg.det(cam.R) == pytest.approx(1.0)
+        assert 1.5 < cam.centre[2] < 2.5  # hung about 2 m above the floor
+        assert cam.size == (1088, 1920) and cam.K[0, 0] == pytest.approx(1680, rel=0.01)
+        # Each camera sees the middle of the room, in front of it and inside its image.
+        uv, _ = cv2.projectPoints(
+            np.array([[0.0, 0.0, 1.0]]), cv2.Rodrigues(cam.R)[0], cam.t, cam.K, cam.dist
+        )
+        assert (cam.R @ [0.0, 0.0, 1.0] + cam.t)[2] > 0
+        assert 0 < uv[0, 0, 0] < 1088 and 0 < uv[0, 0, 1] < 1920
+
+
+def test_bad_qca_file_is_named(tmp_path):
+    broken = tmp_path / "Calib.qca.txt"
+    broken.write_text("<calibration><cameras><camera serial='c'>")
+    with pytest.raises(BadInput, match="Calib.qca.txt: is not a readable .qca"):
+        read_qca(broken)

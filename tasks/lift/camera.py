@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,6 +98,68 @@ def project(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray) -> 
     cam = np.asarray(points) @ R.T + t
     uv = cam[..., :2] / cam[..., 2:3]
     return uv * np.diag(K)[:2] + K[:2, 2]
+
+
+def read_qca(path: Path) -> list[tuple[str, Camera]]:
+    """The cameras of a Qualisys ``.qca`` calibration file (Pose2Sim's samples use one).
+
+    Intrinsics are stored in sensor units, 64 per pixel. Each camera's transform holds its
+    position (millimetres) and a rotation whose y and z axes point opposite to OpenCV's; the
+    convention was settled on the four-camera sample, where it is the only one of the 48
+    axis permutations and sign flips under which both people triangulate consistently
+    (median reprojection error 23 px, the next best 79 px; benchmarks/lift_multiview.py).
+    Lens distortion is kept (k1, k2, p1, p2, k3).
+    """
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError) as error:
+        raise BadInput(str(path), f"is not a readable .qca calibration file ({error})") from None
+    flip = np.diag([1.0, -1.0, -1.0])
+    cameras = []
+    for node in root.iter("camera"):
+        serial = node.get("serial", f"cam{len(cameras) + 1:02d}")
+        transform, intrinsic, fov = (
+            node.find("transform"),
+            node.find("intrinsic"),
+            node.find("fov_video"),
+        )
+        if transform is None or intrinsic is None or fov is None:
+            raise BadInput(str(path), f"camera {serial} lacks its transform, intrinsic or fov")
+        try:
+            a = {k: float(v) for k, v in transform.attrib.items()}
+            i = {k: float(v) for k, v in intrinsic.attrib.items()}
+            orientation = np.array([[a[f"r{r}{c}"] for c in (1, 2, 3)] for r in (1, 2, 3)])
+            position = np.array([a["x"], a["y"], a["z"]]) / 1000.0
+            K = (
+                np.array(
+                    [
+                        [i["focalLengthU"], 0.0, i["centerPointU"]],
+                        [0.0, i["focalLengthV"], i["centerPointV"]],
+                        [0.0, 0.0, 64.0],
+                    ]
+                )
+                / 64.0
+            )
+            dist = np.array(
+                [
+                    i["radialDistortion1"],
+                    i["radialDistortion2"],
+                    i["tangentalDistortion1"],
+                    i["tangentalDistortion2"],
+                    i["radialDistortion3"],
+                ]
+            )
+            size = (
+                int(fov.get("right")) - int(fov.get("left")) + 1,
+                int(fov.get("bottom")) - int(fov.get("top")) + 1,
+            )
+        except (KeyError, TypeError, ValueError) as error:
+            raise BadInput(str(path), f"camera {serial}: missing or bad value ({error})") from None
+        R = flip @ orientation
+        cameras.append((serial, Camera(K, dist, R, -R @ position, size)))
+    if not cameras:
+        raise BadInput(str(path), "holds no cameras")
+    return cameras
 
 
 def calibrate_chessboard(
