@@ -127,9 +127,10 @@ def main() -> None:
     for role in ROLES:
         mine = motion["role"] == role
         ours = np.full((FRAMES, 33, 3), np.nan)
-        ours[motion["frame"][mine]] = motion["joints"][mine].reshape(-1, 33, 3)
-        ours_cam = (ours @ R_est.T + t_est)[:, BODY]
-        ref_cam = (reference[role] @ cam1.R.T + cam1.t)[:, BODY]
+        frames = np.round(motion["time_s"][mine] * FPS).astype(int)  # 30 Hz steps -> 60 fps
+        ours[frames] = motion["joints"][mine].reshape(-1, 33, 3)
+        ours_cam = (ours @ R_est.T + t_est)[frames][:, BODY]
+        ref_cam = (reference[role] @ cam1.R.T + cam1.t)[frames][:, BODY]
         body_hips = [BODY.index(h) for h in HIPS]
         hip_error = np.linalg.norm(
             ours_cam[:, body_hips].mean(1) - ref_cam[:, body_hips].mean(1), axis=-1

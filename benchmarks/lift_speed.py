@@ -82,7 +82,9 @@ def main() -> None:
             if run == 0:
                 first = dict(spent), seconds
             best = min(best, seconds)
-            lifted = len(out.rows["lift_motion"]["frame"])
+            lifted = int(
+                out.metrics["adversary_frames_lifted"] + out.metrics["opponent_frames_lifted"]
+            )
     split, total = first
     print(
         f"input: {video.name}, {FRAMES} frames, {len(fighters)} fighters, "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -49,13 +50,22 @@ def test_sample_after_cleanup(sample_run: Path):
     assert m["foot_skating_cm_per_frame"] < m["foot_skating_cm_per_frame_before"]
     assert m["bone_length_std_mm"] < 5
     assert 0.5 < m["fighter_distance_mean_m"] < 3.0
+    # 100 frames at 60 fps are 1.65 s: steps 0..49 at 30 Hz.
     rows = query(
         sample_run,
-        "SELECT role, count(*), min(frame), max(frame) FROM lift_motion "
+        "SELECT role, count(*), min(step), max(time_s) FROM lift_motion "
         "GROUP BY role ORDER BY role",
     )
-    assert [(role, n) for role, n, _, _ in rows] == [("adversary", 100), ("opponent", 100)]
+    assert rows == [("adversary", 50, 0, 49 / 30), ("opponent", 50, 0, 49 / 30)]
+    steps = query(
+        sample_run, "SELECT qpos, qvel FROM lift_motion WHERE role = 'adversary' ORDER BY step"
+    )
+    root = np.array([q[:3] for q, _ in steps])
+    root_speed = np.array([v[:3] for _, v in steps])
+    # qvel is on the 30 Hz grid: central differences of the root there.
+    np.testing.assert_allclose((root[2:] - root[:-2]) * 15, root_speed[1:-1], atol=1e-3)
     qpos, joints = query(sample_run, "SELECT qpos, joints FROM lift_motion LIMIT 1")[0]
+    assert np.linalg.norm(qpos[3:7]) == pytest.approx(1.0, abs=1e-5)
     assert len(qpos) == 35 and np.isfinite(qpos).all() and np.isfinite(joints).all()
     # The camera: above the floor, looking down, as the phone that filmed the sample was.
     height, pitch = query(sample_run, "SELECT height_m, pitch_deg FROM lift_cameras")[0]
@@ -66,7 +76,7 @@ def test_playback_page(sample_run: Path, tmp_path: Path):
     name = query(sample_run, "SELECT artifact FROM lift_media WHERE kind = 'playback'")[0][0]
     page = artifact_path(sample_run / "artifacts", name).read_text()
     data = json.loads(page.split("const D = ", 1)[1].split(";\n", 1)[0])
-    assert data["frames"] == 100 and len(data["fighters"]) == 2
+    assert data["frames"] == 50 and data["fps"] == 30 and len(data["fighters"]) == 2
     assert len(data["fighters"][0]["joints"][0]) == 33
     node = shutil.which("node")
     if node is None:
@@ -117,3 +127,18 @@ def test_too_few_frames_is_a_clear_error(tmp_path):
             calibration=None,
             artifacts=tmp_path,
         )
+
+
+def test_frames_without_the_fighter_are_bridged(assets, tmp_path):
+    """NaN keypoints (the pose stage lost the fighter for 10 frames) are missing data, not
+    numbers: the output stays finite and close to the truth."""
+    case = make_case("punch", 0, assets)
+    keypoints = case.inputs.keypoints_2d.copy()
+    world = case.inputs.world_landmarks.copy()
+    keypoints[20:30] = np.nan
+    world[20:30] = np.nan
+    keypoints[40, :11] = np.nan  # and a face lost for a frame
+    inputs = dataclasses.replace(case.inputs, keypoints_2d=keypoints, world_landmarks=world)
+    m = evaluate_lift(dataclasses.replace(case, inputs=inputs), LiftStageConfig(), tmp_path)
+    assert m["adversary_frames_lifted"] == len(case.points)
+    assert m["output_pa_mpjpe_mm"] < 40

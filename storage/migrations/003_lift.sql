@@ -13,20 +13,21 @@ CREATE TABLE lift_cameras (
     PRIMARY KEY (key, video_id, shot)
 );
 
--- lift: each fighter's humanoid state per frame at the video's frame rate: qpos (root position,
--- root quaternion w x y z, 28 hinge angles), qvel, the cleaned 3D joints in BlazePose order
--- (x0, y0, z0, x1, ...; world metres, z up) and the detected foot contacts.
+-- lift: each fighter's humanoid state at 30 Hz (step k is k / 30 s into the video, whatever its
+-- frame rate): qpos (root position, root quaternion w x y z, 28 hinge angles), qvel, the cleaned
+-- 3D joints in BlazePose order (x0, y0, z0, x1, ...; world metres, z up) and the foot contacts.
 CREATE TABLE lift_motion (
     key            VARCHAR NOT NULL,
     video_id       VARCHAR NOT NULL,
     role           VARCHAR NOT NULL CHECK (role IN ('adversary', 'opponent')),
-    frame          INTEGER NOT NULL,
+    step           INTEGER NOT NULL,
+    time_s         DOUBLE NOT NULL,
     qpos           FLOAT[35] NOT NULL,
     qvel           FLOAT[34] NOT NULL,
     joints         FLOAT[99] NOT NULL,
     contact_left   BOOLEAN NOT NULL,
     contact_right  BOOLEAN NOT NULL,
-    PRIMARY KEY (key, video_id, role, frame)
+    PRIMARY KEY (key, video_id, role, step)
 );
 
 -- lift: each fighter's bone lengths (metres), measured from the video.

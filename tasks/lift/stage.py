@@ -33,12 +33,15 @@ from tasks.lift.solve import (
     geom_poses,
     lift_fighter,
     lowest_points,
+    velocities,
 )
 from tasks.runner import StageOutput
 
 STAGE = "lift"
 ROLES = ("adversary", "opponent")
 NQ, NV = 35, 34
+# The rate every motion is stored at, whatever the video's: the simulation's policy rate.
+RATE = 30.0
 
 
 def lift_code() -> str:
@@ -245,11 +248,24 @@ def lift_video(
         )
 
     metrics = _metrics(qpos, cleanup_metrics, lifted_std, change_mm)
-    page = playback_html(
-        {r: joints[r] for r in fighters if np.isfinite(joints[r]).any()},
-        fps=fps,
-        title=f"Ringside lift {video_id[:12]}",
-    )
+    motion = {
+        role: resample(
+            qpos[role],
+            joints[role],
+            contacts[role],
+            fps=fps,
+            rate=RATE,
+            model=mujoco.MjModel.from_xml_string(single_scene_mjcf(bones[role][1])),
+        )
+        for role in bones
+    }
+    steps = 1 + max(int(m.step.max()) for m in motion.values() if len(m.step))
+    page_joints = {}
+    for role, m in motion.items():
+        dense = np.full((steps, 33, 3), np.nan)
+        dense[m.step] = m.joints
+        page_joints[role] = dense
+    page = playback_html(page_joints, fps=RATE, title=f"Ringside lift {video_id[:12]}")
     rows = {
         "lift_cameras": [
             (
@@ -265,7 +281,7 @@ def lift_video(
             )
             for shot, source, camera in camera_rows
         ],
-        "lift_motion": _motion_columns(qpos, qvel, joints, contacts),
+        "lift_motion": _motion_columns(motion),
         "lift_bones": [
             (key, video_id, role, name, float(value))
             for role, (_, lengths) in bones.items()
@@ -282,18 +298,69 @@ def _pitch_deg(camera: Camera) -> float:
     return float(math.degrees(math.asin(-np.clip(forward_world[2], -1, 1))))
 
 
-def _motion_columns(qpos, qvel, joints, contacts) -> dict[str, np.ndarray]:
+@dataclass(frozen=True, eq=False)
+class Motion:
+    """One fighter's motion on the 30 Hz grid: N steps, step k at k / 30 s into the video."""
+
+    step: np.ndarray  # (N,) int
+    qpos: np.ndarray  # (N, 35)
+    qvel: np.ndarray  # (N, 34)
+    joints: np.ndarray  # (N, 33, 3)
+    contacts: np.ndarray  # (N, 2) bool
+
+
+def resample(
+    qpos: np.ndarray,
+    joints: np.ndarray,
+    contacts: np.ndarray,
+    *,
+    fps: float,
+    rate: float,
+    model: mujoco.MjModel,
+) -> Motion:
+    """A motion at the video's ``fps`` (F frames, NaN rows where not lifted) on the ``rate`` grid.
+
+    Positions, hinge angles and joints are interpolated linearly and the root quaternion by
+    normalised interpolation, between the two frames around each step; steps without a lifted
+    frame on both sides are left out. Contacts come from the nearer frame; qvel is recomputed
+    on the grid, by central differences within each unbroken run of steps.
+    """
+    frames = len(qpos)
+    last = (frames - 1) / fps
+    step = np.arange(int(math.floor(last * rate + 1e-9)) + 1)
+    at = step / rate * fps
+    lo = np.minimum(np.floor(at).astype(int), frames - 1)
+    hi = np.minimum(lo + 1, frames - 1)
+    w = (at - lo)[:, None]
+    ok = np.isfinite(qpos[lo]).all(1) & np.isfinite(qpos[hi]).all(1)
+    step, lo, hi, w = step[ok], lo[ok], hi[ok], w[ok]
+    q = (1 - w) * qpos[lo] + w * qpos[hi]
+    quat_lo, quat_hi = qpos[lo, 3:7], qpos[hi, 3:7]
+    quat_hi = np.where((np.sum(quat_lo * quat_hi, axis=1) < 0)[:, None], -quat_hi, quat_hi)
+    quat = (1 - w) * quat_lo + w * quat_hi
+    q[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    j = (1 - w[:, :, None]) * joints[lo] + w[:, :, None] * joints[hi]
+    c = contacts[np.where(w[:, 0] < 0.5, lo, hi)]
+    v = np.zeros((len(step), NV))
+    breaks = np.flatnonzero(np.diff(step) > 1) + 1
+    for run in np.split(np.arange(len(step)), breaks):
+        if len(run):
+            v[run] = velocities(model, q[run], rate)
+    return Motion(step, q, v, j, c)
+
+
+def _motion_columns(motion: Mapping[str, Motion]) -> dict[str, np.ndarray]:
     parts: dict[str, list[np.ndarray]] = {}
-    for role in qpos:
-        rows = np.flatnonzero(np.isfinite(qpos[role]).all(axis=1))
+    for role, m in motion.items():
         values = {
-            "role": np.array([role] * len(rows)),
-            "frame": rows.astype(np.int64),
-            "qpos": qpos[role][rows].astype(np.float32),
-            "qvel": qvel[role][rows].astype(np.float32),
-            "joints": joints[role][rows].reshape(len(rows), -1).astype(np.float32),
-            "contact_left": contacts[role][rows, 0],
-            "contact_right": contacts[role][rows, 1],
+            "role": np.array([role] * len(m.step)),
+            "step": m.step.astype(np.int64),
+            "time_s": m.step / RATE,
+            "qpos": m.qpos.astype(np.float32),
+            "qvel": m.qvel.astype(np.float32),
+            "joints": m.joints.reshape(len(m.step), -1).astype(np.float32),
+            "contact_left": m.contacts[:, 0],
+            "contact_right": m.contacts[:, 1],
         }
         for name, value in values.items():
             parts.setdefault(name, []).append(value)

@@ -867,7 +867,8 @@ def evaluate_lift(case: SyntheticCase, config, workdir: Path) -> dict[str, float
     R_est, t_est = np.reshape(camera[5], (3, 3)), np.asarray(camera[6])
     motion = output.rows["lift_motion"]
     lifted = np.full((frames, 33, 3), np.nan)
-    lifted[motion["frame"]] = motion["joints"].reshape(-1, 33, 3)
+    # The case is at 30 fps, the rate the stage stores motion at: step k is frame k.
+    lifted[motion["step"]] = motion["joints"].reshape(-1, 33, 3)
     # Stage world -> camera -> truth world.
     in_truth_world = ((lifted @ R_est.T + t_est) - case.t) @ case.R
     # The noisy input: hip-centred landmarks in camera axes, turned into the world's axes.
