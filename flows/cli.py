@@ -29,8 +29,6 @@ def prepare_environment(data_root: Path, *, verbose: bool) -> None:
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
     # FFmpeg's own complaints ("moov atom not found") would bury our one-line errors.
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
-    # LiteRT announces its CPU delegate on stderr at every model load.
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
     if not verbose:
         # Flow and task logs still reach the Prefect API and UI; the terminal shows our summary.
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "CRITICAL")

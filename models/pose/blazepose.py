@@ -27,6 +27,10 @@ J landmarks.
 from __future__ import annotations
 
 import math
+import os
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -474,6 +478,22 @@ def check_image(image_bgr: np.ndarray) -> None:
         raise ValueError(f"image_bgr is empty: shape {image_bgr.shape}")
 
 
+@contextmanager
+def _quiet_stderr() -> Iterator[None]:
+    """Silence the C++ runtime's stderr while a model loads: LiteRT announces its CPU delegate
+    on every load ("INFO: Created TensorFlow Lite XNNPACK delegate"), ignoring log-level
+    variables, which would bury the command line's one-line messages."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def _load_interpreter(model_path: Path, num_threads: int, input_size: int) -> Interpreter:
     """Open a TFLite model and check it takes a (1, input_size, input_size, 3) float image."""
     model_path = Path(model_path)
@@ -482,12 +502,13 @@ def _load_interpreter(model_path: Path, num_threads: int, input_size: int) -> In
     if num_threads < 1:
         raise ValueError(f"num_threads must be >= 1, got {num_threads}")
     try:
-        interpreter = Interpreter(model_path=str(model_path), num_threads=num_threads)
+        with _quiet_stderr():
+            interpreter = Interpreter(model_path=str(model_path), num_threads=num_threads)
+            interpreter.allocate_tensors()
     except ValueError as error:
         raise ValueError(
             f"model_path: {model_path} is not a readable TFLite model ({error})"
         ) from error
-    interpreter.allocate_tensors()
     (input_detail,) = interpreter.get_input_details()
     want = (1, input_size, input_size, 3)
     if tuple(input_detail["shape"]) != want or input_detail["dtype"] != np.float32:
