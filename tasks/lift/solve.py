@@ -65,7 +65,12 @@ from models.humanoid.kinematics import (
 from models.pose.types import BLAZEPOSE_33
 from tasks.config import setting
 from tasks.lift.camera import root_translations
-from tasks.lift.metrics import foot_skating_cm_per_frame, jitter_m_s2
+from tasks.lift.metrics import (
+    BLAZEPOSE_BONES,
+    SOLES,
+    foot_skating_cm_per_frame,
+    jitter_m_s2,
+)
 
 NUM_KEYPOINTS = len(BLAZEPOSE_33)
 
@@ -78,43 +83,20 @@ def _k(name: str) -> int:
 # the humanoid's pelvis origin).
 HIPS: tuple[int, int] = (_k("left_hip"), _k("right_hip"))
 
-# Each foot's sole landmarks (heel, toe tip): left then right. Contacts are (T, 2) in this order.
-SOLES: tuple[tuple[int, int], tuple[int, int]] = (
-    (_k("left_heel"), _k("left_foot_index")),
-    (_k("right_heel"), _k("right_foot_index")),
-)
-
 # Landmark pairs on one rigid segment of the humanoid (head, shoulder line, hip line, upper
 # arms, forearm + glove, thighs, shins, feet): each keeps one length over a clip in the lift.
-LIFT_BONES: tuple[tuple[int, int], ...] = tuple(
+# The metric's rigid pairs, plus the face and the gloved hand, which are rigid on the humanoid.
+LIFT_BONES: tuple[tuple[int, int], ...] = BLAZEPOSE_BONES + tuple(
     (_k(a), _k(b))
     for a, b in (
-        ("left_ear", "right_ear"),
-        ("nose", "left_ear"),
-        ("nose", "right_ear"),
         ("left_eye", "right_eye"),
         ("mouth_left", "mouth_right"),
         ("nose", "mouth_left"),
         ("nose", "mouth_right"),
-        ("left_shoulder", "right_shoulder"),
-        ("left_hip", "right_hip"),
-        *(
-            (f"{s}_{a}", f"{s}_{b}")
-            for s in ("left", "right")
-            for a, b in (
-                ("shoulder", "elbow"),
-                ("elbow", "wrist"),
-                ("wrist", "index"),
-                ("wrist", "pinky"),
-                ("wrist", "thumb"),
-                ("elbow", "index"),
-                ("hip", "knee"),
-                ("knee", "ankle"),
-                ("ankle", "heel"),
-                ("ankle", "foot_index"),
-                ("heel", "foot_index"),
-            )
-        ),
+        ("left_wrist", "left_thumb"),
+        ("right_wrist", "right_thumb"),
+        ("left_elbow", "left_index"),
+        ("right_elbow", "right_index"),
     )
 )
 
