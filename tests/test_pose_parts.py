@@ -111,6 +111,7 @@ def roles_for(tracks, **kwargs):
         colour=None,
         pick=None,
         min_share=0.2,
+        link_gap_frames=60,
         config=FighterConfig(),
     )
     return assign_roles(tracks, **{**options, **kwargs})
@@ -168,3 +169,23 @@ def test_tiles_find_people_the_whole_frame_misses(assets: Path, sample_video: Pa
     capture.release()
     assert min(tiles) >= 2, tiles
     assert sum(tiles) > sum(whole)
+
+
+def test_a_fighter_lost_for_a_while_is_still_one_fighter():
+    red, blue = colour_of((30, 30, 200)), colour_of((200, 60, 30))
+    # Track 0 (red) is lost from frame 20 to 29 and comes back as track 2 on its path.
+    spans = [ChunkSpan(0, 0, 0, 50, 0)]
+    chunks = [
+        chunk(
+            0,
+            50,
+            {0: (200.0, 0, 20), 1: (600.0, 0, 50), 2: (200.0, 30, 50)},
+            {0: red, 1: blue, 2: red},
+        )
+    ]
+    roles = roles_for(merge_chunks(spans, chunks), shot_frames={0: 50}, colour="#c81e1e")
+    assert roles.by_track == {0: "adversary", 1: "opponent", 2: "adversary"}
+    unlinked = roles_for(
+        merge_chunks(spans, chunks), shot_frames={0: 50}, colour="#c81e1e", link_gap_frames=5
+    )
+    assert sorted(unlinked.by_track.values()).count("adversary") == 1

@@ -54,6 +54,12 @@ class PoseConfig:
     min_fighter_share: float = setting(
         0.2, "A track seen in less than this share of its shot's frames is never a fighter."
     )
+    link_gap_s: float = setting(
+        2.0,
+        "Tracks of one shot that end and start again within this many seconds, near where the "
+        "first was heading and dressed alike, are joined as one person before fighters are "
+        "chosen (occlusions longer than the tracker survives).",
+    )
     overlay_seconds: float = setting(
         20.0, "Seconds of the review overlay video to render from the start (0: the whole video)."
     )
@@ -75,6 +81,8 @@ class PoseConfig:
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"pose.{name} must be at least 1, got {getattr(self, name)}")
+        if self.link_gap_s < 0:
+            raise ValueError(f"pose.link_gap_s must be at least 0, got {self.link_gap_s}")
         for name in ("overlap_frames", "stills"):
             if getattr(self, name) < 0:
                 raise ValueError(f"pose.{name} must be at least 0, got {getattr(self, name)}")

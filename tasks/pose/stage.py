@@ -23,7 +23,12 @@ from storage.keys import code_version, digest, stage_key
 from tasks.errors import BadInput
 from tasks.pose.chunk import ChunkTracks, track_chunk
 from tasks.pose.config import PoseConfig
-from tasks.pose.fighters import FighterConfig, adversary_by_colour, pick_fighters
+from tasks.pose.fighters import (
+    FighterConfig,
+    adversary_by_colour,
+    link_fragments,
+    pick_fighters,
+)
 from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, VideoTracks, merge_chunks, summaries
 from tasks.pose.overlay import H264Writer, draw_people, overlay_size
@@ -39,6 +44,7 @@ NOT_IN_CHUNKS = (
     "refine",
     "fighters",
     "min_fighter_share",
+    "link_gap_s",
     "overlay_seconds",
     "overlay_max_side",
     "stills",
@@ -165,13 +171,16 @@ def assign_roles(
     colour: str | None,
     pick: int | None,
     min_share: float,
+    link_gap_frames: int,
     config: FighterConfig,
 ) -> Roles:
     """Choose the two fighters in every shot and say which one is the adversary.
 
-    The analyst's pick wins; else the declared colour; else, in later shots, whoever looks most
-    like the adversary of the first shot; else (no pick, no colour) the first fighter found is
-    taken as the adversary and the source says it is a guess.
+    Within a shot, tracks that are one person lost for up to ``link_gap_frames`` are joined
+    first (:func:`link_fragments`), so a fighter hidden for a while is still one fighter. The
+    analyst's pick wins; else the declared colour; else, in later shots, whoever looks most like
+    the adversary of the first shot; else (no pick, no colour) the first fighter found is taken
+    as the adversary and the source says it is a guess.
     """
     all_tracks = {s.track_id: s for s in summaries(tracks)}
     if pick is not None and pick not in all_tracks:
@@ -184,11 +193,11 @@ def assign_roles(
     if pick is not None:
         shots.sort(key=lambda s: s != tracks.track_shot[pick])
     for shot in shots:
+        pieces = [s for t, s in all_tracks.items() if tracks.track_shot[t] == shot]
+        joined, head_of = link_fragments(pieces, max_gap_frames=max(1, link_gap_frames))
+        people = {s.track_id: s for s in joined}
         candidates = [
-            s
-            for t, s in all_tracks.items()
-            if tracks.track_shot[t] == shot
-            and s.frames_observed >= min_share * shot_frames.get(shot, 1)
+            s for s in joined if s.frames_observed >= min_share * shot_frames.get(shot, 1)
         ]
         fighters = pick_fighters(
             candidates, frame_size, num_frames=shot_frames.get(shot), config=config
@@ -196,25 +205,27 @@ def assign_roles(
         if not fighters:
             continue
         if pick is not None and tracks.track_shot[pick] == shot:
-            if pick not in fighters:
-                fighters = [pick, *[f for f in fighters if f != pick]][:2]
-            adversary = pick
+            picked = head_of[pick]
+            if picked not in fighters:
+                fighters = [picked, *[f for f in fighters if f != picked]][:2]
+            adversary = picked
         elif colour:
             adversary = adversary_by_colour(candidates, fighters, colour)
         elif reference:
             adversary = min(
                 fighters,
-                key=lambda f: colour_distance(all_tracks[f].colour, reference["adversary"]),
+                key=lambda f: colour_distance(people[f].colour, reference["adversary"]),
             )
             source = "appearance" if source == "guess" else source
         else:
             adversary = fighters[0]
-        roles[adversary] = "adversary"
-        for other in fighters:
-            if other != adversary:
-                roles[other] = "opponent"
+        for piece, head in head_of.items():
+            if head in fighters:
+                roles[piece] = "adversary" if head == adversary else "opponent"
         if not reference:
-            reference = {role: all_tracks[t].colour for t, role in roles.items() if role in ROLES}
+            reference = {
+                ("adversary" if f == adversary else "opponent"): people[f].colour for f in fighters
+            }
     return Roles(roles, source)
 
 
@@ -391,6 +402,7 @@ def assemble(
         colour=colour,
         pick=pick,
         min_share=config.min_fighter_share,
+        link_gap_frames=round(config.link_gap_s * fps),
         config=config.fighters,
     )
     fighters = {
