@@ -8,7 +8,7 @@ from prefect import flow
 from prefect.runtime import flow_run
 
 from flows.config import from_tables
-from flows.runs import StageSummary, record_failure, settle, still_committed
+from flows.runs import StageSummary, reuse_or_run
 from storage.db import connect
 from storage.files import sha256_file
 from storage.paths import data_paths
@@ -16,7 +16,7 @@ from tasks.errors import BadInput
 from tasks.ingest.outputs import load_ingest
 from tasks.lift.stage import STAGE, lift_key
 from tasks.lift.task import lift_task
-from tasks.runner import committed
+from tasks.runner import StageResult
 
 
 def _run_name() -> str:
@@ -44,17 +44,12 @@ def lift_flow(
             raise BadInput(str(calibration), "calibration file not found (lift.calibration)")
         calibration_sha = sha256_file(calibration)
     key = lift_key(settings, pose_key, calibration_sha)
-    result = None if force else committed(paths.db, STAGE, video_id, key)
-    if result is None:
-        task = lift_task.with_options(refresh_cache=True) if force else lift_task
-        try:
-            result = task(data_root, ingest, pose_key, settings, key, calibration_sha, force=force)
-            if not still_committed(data_root, result):
-                result = lift_task.with_options(refresh_cache=True)(
-                    data_root, ingest, pose_key, settings, key, calibration_sha, force=True
-                )
-        except BadInput as error:
-            record_failure(data_root, video_id, STAGE, key, error)
-            raise
-    state = settle(data_root, result)
+
+    def run(refresh: bool) -> StageResult:
+        task = lift_task.with_options(refresh_cache=refresh)
+        return task(data_root, ingest, pose_key, settings, key, calibration_sha, force=refresh)
+
+    result, state = reuse_or_run(
+        data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run
+    )
     return StageSummary(video_id, ingest.path, STAGE, key, state, result.seconds, result.notes)

@@ -10,16 +10,16 @@ from prefect.task_runners import ThreadPoolTaskRunner
 from tqdm import tqdm
 
 from flows.config import from_tables
-from flows.runs import StageSummary, record_failure, settle, still_committed
+from flows.runs import StageSummary, reuse_or_run
 from storage.db import connect
 from storage.files import sha256_file
 from storage.paths import data_paths
-from tasks.errors import BadInput
 from tasks.ingest.outputs import IngestOutput, load_ingest
 from tasks.pose.config import PoseConfig
+from tasks.pose.merge import ChunkSpan
 from tasks.pose.stage import STAGE, chunk_key, model_files, plan_spans, pose_key
 from tasks.pose.task import latest_pick, pose_chunk_task, pose_task
-from tasks.runner import StageResult, committed
+from tasks.runner import StageResult
 
 
 def _run_name() -> str:
@@ -41,26 +41,23 @@ def pose_flow(
         ingest = load_ingest(con, video_id, ingest_key)
     pick = latest_pick(paths.db, video_id)
     key = pose_key(settings, ingest_key, pick)
-    result = None if force else committed(paths.db, STAGE, video_id, key)
-    if result is None:
-        try:
-            result = _compute(data_root, ingest, settings, key, pick, force)
-        except BadInput as error:
-            record_failure(data_root, video_id, STAGE, key, error)
-            raise
-    state = settle(data_root, result)
+
+    def run(refresh: bool) -> StageResult:
+        # Chunks keep their own cache: a refreshed assembly reuses them.
+        spans, names = _track_chunks(data_root, ingest, settings)
+        task = pose_task.with_options(refresh_cache=refresh)
+        return task(data_root, ingest, spans, names, settings, key, pick, force=refresh)
+
+    result, state = reuse_or_run(
+        data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run
+    )
     return StageSummary(video_id, ingest.path, STAGE, key, state, result.seconds, result.notes)
 
 
-def _compute(
-    data_root: str,
-    ingest: IngestOutput,
-    settings: PoseConfig,
-    key: str,
-    pick: int | None,
-    force: bool,
-) -> StageResult:
-    """Track every chunk (each cached on its own), then assemble and commit the output."""
+def _track_chunks(
+    data_root: str, ingest: IngestOutput, settings: PoseConfig
+) -> tuple[list[ChunkSpan], list[str]]:
+    """Track every chunk, each cached on its own; their spans and artifact names."""
     models = model_files(settings, data_paths(data_root).assets)
     hashes = (sha256_file(models[0]), sha256_file(models[1]))
     spans = plan_spans(list(ingest.chunks), settings.overlap_frames)
@@ -84,10 +81,4 @@ def _compute(
         for span, future in zip(spans, futures, strict=True):
             names.append(future.result())
             bar.update(span.end - span.start)
-    task = pose_task.with_options(refresh_cache=True) if force else pose_task
-    result = task(data_root, ingest, spans, names, settings, key, pick, force=force)
-    if not still_committed(data_root, result):
-        result = pose_task.with_options(refresh_cache=True)(
-            data_root, ingest, spans, names, settings, key, pick, force=True
-        )
-    return result
+    return spans, names

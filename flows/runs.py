@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from prefect.artifacts import create_table_artifact
@@ -10,6 +11,7 @@ from prefect.runtime import flow_run
 from storage.db import connect
 from storage.paths import data_paths
 from storage.records import record_run
+from tasks.errors import BadInput
 from tasks.runner import StageResult, committed
 
 
@@ -56,3 +58,30 @@ def record_failure(data_root: str, video_id: str, stage: str, key: str, error: B
     """Note that ``stage`` failed for a registered video, so `ringside status` can say why."""
     with connect(data_paths(data_root).db) as con:
         record_run(con, current_run_id(), video_id, stage, key, "failed", str(error))
+
+
+def reuse_or_run(
+    data_root: str,
+    *,
+    stage: str,
+    video_id: str,
+    key: str,
+    force: bool,
+    run: Callable[[bool], StageResult],
+) -> tuple[StageResult, str]:
+    """The committed output of ``stage`` under ``key``, or ``run(refresh)``'s, and its state.
+
+    ``run(refresh)`` calls the stage's task, ignoring Prefect's cache when ``refresh``. It runs
+    once more, refreshed, when Prefect's cache remembers an output the database no longer has.
+    A stage that fails on bad input has the failure recorded for `ringside status`.
+    """
+    result = None if force else committed(data_paths(data_root).db, stage, video_id, key)
+    if result is None:
+        try:
+            result = run(force)
+            if not still_committed(data_root, result):
+                result = run(True)
+        except BadInput as error:
+            record_failure(data_root, video_id, stage, key, error)
+            raise
+    return result, settle(data_root, result)

@@ -43,8 +43,15 @@ def test_synthetic_truth_is_recovered(clip, assets, tmp_path):
     # lone fighter is tilted by several degrees, which hides most contacts (see issue notes).
 
 
+def latest_key(data: Path) -> str:
+    """The newest lift output's key (other tests may add outputs to the shared run)."""
+    sql = "SELECT key FROM stage_outputs WHERE stage = 'lift' ORDER BY created_at DESC LIMIT 1"
+    return query(data, sql)[0][0]
+
+
 def test_sample_after_cleanup(sample_run: Path):
     m = lift_metrics(sample_run)
+    key = latest_key(sample_run)
     assert m["floor_penetration_max_mm"] < 10
     assert m["inter_fighter_penetration_max_mm"] < 10
     assert m["foot_skating_cm_per_frame"] < m["foot_skating_cm_per_frame_before"]
@@ -53,12 +60,15 @@ def test_sample_after_cleanup(sample_run: Path):
     # 100 frames at 60 fps are 1.65 s: steps 0..49 at 30 Hz.
     rows = query(
         sample_run,
-        "SELECT role, count(*), min(step), max(time_s) FROM lift_motion "
+        "SELECT role, count(*), min(step), max(time_s) FROM lift_motion WHERE key = ? "
         "GROUP BY role ORDER BY role",
+        [key],
     )
     assert rows == [("adversary", 50, 0, 49 / 30), ("opponent", 50, 0, 49 / 30)]
     steps = query(
-        sample_run, "SELECT qpos, qvel FROM lift_motion WHERE role = 'adversary' ORDER BY step"
+        sample_run,
+        "SELECT qpos, qvel FROM lift_motion WHERE key = ? AND role = 'adversary' ORDER BY step",
+        [key],
     )
     root = np.array([q[:3] for q, _ in steps])
     root_speed = np.array([v[:3] for _, v in steps])
@@ -68,12 +78,18 @@ def test_sample_after_cleanup(sample_run: Path):
     assert np.linalg.norm(qpos[3:7]) == pytest.approx(1.0, abs=1e-5)
     assert len(qpos) == 35 and np.isfinite(qpos).all() and np.isfinite(joints).all()
     # The camera: above the floor, looking down, as the phone that filmed the sample was.
-    height, pitch = query(sample_run, "SELECT height_m, pitch_deg FROM lift_cameras")[0]
+    height, pitch = query(
+        sample_run, "SELECT height_m, pitch_deg FROM lift_cameras WHERE key = ?", [key]
+    )[0]
     assert 1.0 < height < 3.5 and 0 < pitch < 80
 
 
 def test_playback_page(sample_run: Path, tmp_path: Path):
-    name = query(sample_run, "SELECT artifact FROM lift_media WHERE kind = 'playback'")[0][0]
+    name = query(
+        sample_run,
+        "SELECT artifact FROM lift_media WHERE kind = 'playback' AND key = ?",
+        [latest_key(sample_run)],
+    )[0][0]
     page = artifact_path(sample_run / "artifacts", name).read_text()
     data = json.loads(page.split("const D = ", 1)[1].split(";\n", 1)[0])
     assert data["frames"] == 50 and data["fps"] == 30 and len(data["fighters"]) == 2
