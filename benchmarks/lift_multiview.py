@@ -21,40 +21,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from benchmarks._common import FPS, FRAMES, SIZE, sample_fighters  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.lift.camera import read_qca, triangulate, write_calibration  # noqa: E402
 from tasks.lift.config import LiftStageConfig  # noqa: E402
 from tasks.lift.metrics import HIPS, mpjpe_mm, pa_mpjpe_mm  # noqa: E402
-from tasks.lift.stage import fighter_tracks, lift_video  # noqa: E402
-from tasks.pose.config import PoseConfig  # noqa: E402
-from tasks.pose.stage import assemble, model_files, plan_spans, process_chunk  # noqa: E402
+from tasks.lift.stage import lift_video  # noqa: E402
 
-FPS, FRAMES, SIZE = 60.0, 100, (1088, 1920)
 BODY = [0, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28]
 ROLES = ("adversary", "opponent")
-
-
-def pose_of(video: Path, tmp: Path, assets: Path):
-    config = PoseConfig()
-    spans = plan_spans([(0, 0, 0, FRAMES)], config.overlap_frames)
-    chunks = [process_chunk(video, s, FPS, config, model_files(config, assets)) for s in spans]
-    out = assemble(
-        video,
-        spans,
-        chunks,
-        key="mv",
-        video_id=video.stem,
-        frames=FRAMES,
-        fps=FPS,
-        size=SIZE,
-        shots={0: FRAMES},
-        colour=None,
-        pick=None,
-        config=config,
-        artifacts=tmp,
-    )
-    return fighter_tracks(out.rows["pose_keypoints"], FRAMES)
 
 
 def reprojection_px(points: np.ndarray, weights: np.ndarray, cameras) -> float:
@@ -73,7 +49,7 @@ def main() -> None:
     folder = assets / "samples" / "multi_person"
     cameras = read_qca(folder / "Calib.qca.txt")
     with tempfile.TemporaryDirectory() as tmp:
-        tracks = [pose_of(folder / f"{name}.mp4", Path(tmp), assets) for name, _ in cameras]
+        tracks = [sample_fighters(folder / f"{name}.mp4", assets, Path(tmp)) for name, _ in cameras]
         cams = [cam for _, cam in cameras]
         # Which fighter is which in each view: the labelling that triangulates best.
         best = None

@@ -17,53 +17,21 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tasks.lift.stage as lift  # noqa: E402
+from benchmarks._common import FPS, FRAMES, SIZE, Timer, sample_fighters  # noqa: E402
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.lift.config import LiftStageConfig  # noqa: E402
-from tasks.pose.config import PoseConfig  # noqa: E402
-from tasks.pose.stage import assemble, model_files, plan_spans, process_chunk  # noqa: E402
-
-FPS, FRAMES, SIZE = 60.0, 100, (1088, 1920)
 
 
 def main() -> None:
     paths = data_paths()
     pull(paths.assets, log=lambda _line: None)
     video = paths.assets / SAMPLE_VIDEO
-    config = PoseConfig()
-    spans = plan_spans([(0, 0, 0, FRAMES)], config.overlap_frames)
-    chunks = [
-        process_chunk(video, s, FPS, config, model_files(config, paths.assets)) for s in spans
-    ]
     with tempfile.TemporaryDirectory() as tmp:
-        posed = assemble(
-            video,
-            spans,
-            chunks,
-            key="bench",
-            video_id="bench",
-            frames=FRAMES,
-            fps=FPS,
-            size=SIZE,
-            shots={0: FRAMES},
-            colour=None,
-            pick=None,
-            config=config,
-            artifacts=Path(tmp),
-        )
-        fighters = lift.fighter_tracks(posed.rows["pose_keypoints"], FRAMES)
-        spent: dict[str, float] = {}
+        fighters = sample_fighters(video, paths.assets, Path(tmp))
+        timer = Timer()
         for name in ("ground_fighters", "lift_fighter", "fit_humanoid", "cleanup", "cleanup_pair"):
-            real = getattr(lift, name)
-
-            def timed(*a, _real=real, _name=name, **k):
-                start = time.perf_counter()
-                try:
-                    return _real(*a, **k)
-                finally:
-                    spent[_name] = spent.get(_name, 0.0) + time.perf_counter() - start
-
-            setattr(lift, name, timed)
+            setattr(lift, name, timer.wrap(name, getattr(lift, name)))
         best, lifted = float("inf"), 0
         for run in range(3):
             start = time.perf_counter()
@@ -80,7 +48,7 @@ def main() -> None:
             )
             seconds = time.perf_counter() - start
             if run == 0:
-                first = dict(spent), seconds
+                first = dict(timer.spent), seconds
             best = min(best, seconds)
             lifted = int(
                 out.metrics["adversary_frames_lifted"] + out.metrics["opponent_frames_lifted"]

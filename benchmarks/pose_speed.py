@@ -18,39 +18,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tasks.pose.stage as stage  # noqa: E402
+from benchmarks._common import FPS, FRAMES, SIZE, Timer  # noqa: E402
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.pose.config import PoseConfig  # noqa: E402
 from tasks.pose.stage import assemble, model_files, plan_spans, process_chunk  # noqa: E402
-
-FPS, FRAMES, SIZE = 60.0, 100, (1088, 1920)
-
-
-class Timer:
-    def __init__(self):
-        self.spent: dict[str, float] = {}
-
-    def wrap(self, name, fn):
-        def timed(*args, **kwargs):
-            start = time.perf_counter()
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                self.spent[name] = self.spent.get(name, 0.0) + time.perf_counter() - start
-
-        return timed
-
-    def wrap_iter(self, name, iterable):
-        iterator = iter(iterable)
-        while True:
-            start = time.perf_counter()
-            try:
-                item = next(iterator)
-            except StopIteration:
-                return
-            finally:
-                self.spent[name] = self.spent.get(name, 0.0) + time.perf_counter() - start
-            yield item
 
 
 def run_once(video: Path, config: PoseConfig, models) -> tuple[float, float, dict[str, float]]:
