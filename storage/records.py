@@ -59,11 +59,14 @@ def insert_columns(
     """Insert one row per element of the equally long ``columns`` (arrays of shape (N,) or, for
     fixed-size array columns, (N, D)), with ``key`` and ``video_id`` filled in.
 
-    One statement for all rows: row-by-row inserts run at a few thousand rows per second.
+    The arrays are scanned in place as a registered view: row-by-row inserts run at a few
+    thousand rows per second, and so do (N, D) arrays passed as query parameters.
     """
     lengths = {name: len(values) for name, values in columns.items()}
     if len(set(lengths.values())) > 1:
         raise ValueError(f"{table}: columns differ in length {lengths}")
+    if not any(lengths.values()):
+        return
     types = dict(
         con.execute(
             "SELECT column_name, data_type FROM duckdb_columns() WHERE table_name = ?", [table]
@@ -72,12 +75,26 @@ def insert_columns(
     unknown = sorted(set(columns) - set(types))
     if unknown:
         raise ValueError(f"{table} has no columns {unknown}")
+    source = {}
+    for name, values in columns.items():
+        array = np.asarray(values)
+        if array.ndim > 1:  # one list per row: an object array of row views, not a copy
+            rows = np.empty(len(array), dtype=object)
+            rows[:] = list(array)
+            array = rows
+        source[name] = array
+    view = f"_insert_{table}"
     names = list(columns)
-    selects = ", ".join(f"unnest(${i + 3}::{types[n]}[])" for i, n in enumerate(names))
-    con.execute(
-        f"INSERT INTO {table} (key, video_id, {', '.join(names)}) SELECT $1, $2, {selects}",
-        [key, video_id, *(np.asarray(columns[n]) for n in names)],
-    )
+    casts = ", ".join(f"{n}::{types[n]}" for n in names)
+    con.register(view, source)
+    try:
+        con.execute(
+            f"INSERT INTO {table} (key, video_id, {', '.join(names)}) "
+            f"SELECT $1, $2, {casts} FROM {view}",
+            [key, video_id],
+        )
+    finally:
+        con.unregister(view)
 
 
 def write_output(
