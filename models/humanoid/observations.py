@@ -1,0 +1,236 @@
+"""The agents' observations, MAAIP §4.2: one function for demonstrations and simulation alike.
+
+The dataset stage computes demonstration transitions with these functions and the training
+environment computes the simulated ones with the same functions, so the discriminators compare
+like with like. Both start from a :class:`BodyState`, read from MuJoCo by :func:`body_state`
+(a running simulation) or :func:`body_states` (a recorded motion's qpos and qvel).
+
+Blocks and sizes (the paper gives 274 in all):
+
+o^self (223), in the agent's heading frame (origin at the pelvis, x along its facing direction
+on the floor, z up; `models.humanoid.kinematics.heading_frame`):
+
+=========================  ====  ==========================================================
+root_height                   1  pelvis height above the floor (z = 0)
+body_positions               42  the 14 non-root bodies' origins relative to the pelvis
+body_rotations               90  15 bodies x [tangent, normal] (`tangent_normal`), each body
+                                 in its parent's frame, the pelvis in the heading frame
+body_linear_velocities       45  15 bodies' origin velocities
+body_angular_velocities      45  15 bodies' angular velocities
+=========================  ====  ==========================================================
+
+o^opp (51), about the opponent, in the agent's heading frame:
+
+=========================  ====  ==========================================================
+root_position                 3  opponent pelvis relative to the agent's pelvis
+root_rotation                 6  opponent pelvis rotation as [tangent, normal]
+root_linear_velocity          3
+root_angular_velocity         3
+key_body_positions           18  head, torso, hands, feet (`KEY_BODIES`) relative to the
+                                 agent's pelvis
+key_body_velocities          18  their linear velocities
+=========================  ====  ==========================================================
+
+The paper lists the self velocities as one block of 45; its total of 274 needs both linear
+and angular velocities of all 15 bodies (45 each), which is what it says in words and what
+is computed here. Its opponent velocities likewise hold linear and angular (3 each).
+
+Shape letters: T frames (or any leading batch shape), N = 15 bodies.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from models.humanoid.kinematics import (
+    KEY_BODY_INDEX,
+    NUM_BODIES,
+    PARENTS,
+    HumanoidIndex,
+    heading_frame,
+    matrix_to_quat,
+    tangent_normal,
+)
+
+SELF_BLOCKS: tuple[tuple[str, int], ...] = (
+    ("root_height", 1),
+    ("body_positions", 3 * (NUM_BODIES - 1)),
+    ("body_rotations", 6 * NUM_BODIES),
+    ("body_linear_velocities", 3 * NUM_BODIES),
+    ("body_angular_velocities", 3 * NUM_BODIES),
+)
+OPPONENT_BLOCKS: tuple[tuple[str, int], ...] = (
+    ("root_position", 3),
+    ("root_rotation", 6),
+    ("root_linear_velocity", 3),
+    ("root_angular_velocity", 3),
+    ("key_body_positions", 3 * len(KEY_BODY_INDEX)),
+    ("key_body_velocities", 3 * len(KEY_BODY_INDEX)),
+)
+SELF_DIM = sum(size for _, size in SELF_BLOCKS)  # 223
+OPPONENT_DIM = sum(size for _, size in OPPONENT_BLOCKS)  # 51
+OBSERVATION_DIM = SELF_DIM + OPPONENT_DIM  # 274, as in the paper
+assert (SELF_DIM, OPPONENT_DIM, OBSERVATION_DIM) == (223, 51, 274)
+
+_PARENT_INDEX = np.array([max(p, 0) for p in PARENTS])
+
+
+def block_slices(blocks: tuple[tuple[str, int], ...], start: int = 0) -> dict[str, slice]:
+    """Where each named block lies in an observation vector."""
+    slices = {}
+    for name, size in blocks:
+        slices[name] = slice(start, start + size)
+        start += size
+    return slices
+
+
+@dataclass(frozen=True, eq=False)
+class BodyState:
+    """One humanoid's 15 bodies in the world: origins, rotations and their velocities.
+
+    Attributes:
+        pos: (..., 15, 3) body origins in metres (the pelvis origin is the root position).
+        rot: (..., 15, 3, 3) body rotations (MuJoCo's xmat).
+        lin_vel: (..., 15, 3) velocities of the body origins, m/s.
+        ang_vel: (..., 15, 3) angular velocities, rad/s, world axes.
+    """
+
+    pos: np.ndarray
+    rot: np.ndarray
+    lin_vel: np.ndarray
+    ang_vel: np.ndarray
+
+    def __post_init__(self) -> None:
+        lead = self.pos.shape[:-2]
+        shapes = {
+            "pos": (self.pos.shape, (*lead, NUM_BODIES, 3)),
+            "rot": (self.rot.shape, (*lead, NUM_BODIES, 3, 3)),
+            "lin_vel": (self.lin_vel.shape, (*lead, NUM_BODIES, 3)),
+            "ang_vel": (self.ang_vel.shape, (*lead, NUM_BODIES, 3)),
+        }
+        for name, (got, want) in shapes.items():
+            if got != want:
+                raise ValueError(f"BodyState.{name} must have shape {want}, got {got}")
+
+    @property
+    def root_quat(self) -> np.ndarray:
+        """(..., 4) pelvis quaternions (w, x, y, z)."""
+        return matrix_to_quat(self.rot[..., 0, :, :])
+
+    def __getitem__(self, index) -> BodyState:
+        """The state at some leading (time or batch) indices."""
+        return BodyState(self.pos[index], self.rot[index], self.lin_vel[index], self.ang_vel[index])
+
+
+def body_state(model: mujoco.MjModel, data: mujoco.MjData, index: HumanoidIndex) -> BodyState:
+    """The current state of one humanoid of a simulation.
+
+    `data` must hold positions and velocities computed by MuJoCo (after `mj_step` or
+    `mj_forward`, or at least `mj_kinematics`, `mj_comPos` and `mj_comVel`).
+    """
+    ids = index.body_ids
+    pos = data.xpos[ids].copy()
+    rot = data.xmat[ids].reshape(-1, 3, 3).copy()
+    # cvel is [angular, linear] at the centre of mass of the body's kinematic tree
+    # (subtree_com of its root body), world axes; move the linear part to each body origin.
+    cvel = data.cvel[ids]
+    centre = data.subtree_com[model.body_rootid[ids]]
+    ang = cvel[:, :3].copy()
+    lin = cvel[:, 3:] + np.cross(ang, pos - centre)
+    return BodyState(pos, rot, lin, ang)
+
+
+def body_states(
+    model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, index: HumanoidIndex
+) -> BodyState:
+    """States of one humanoid over T recorded frames.
+
+    Args:
+        model: a compiled model holding the humanoid `index` describes.
+        qpos: (T, nq) model positions.
+        qvel: (T, nv) model velocities.
+        index: from `humanoid_index`.
+
+    Returns:
+        BodyState with leading shape (T,).
+    """
+    qpos = np.asarray(qpos, dtype=np.float64)
+    qvel = np.asarray(qvel, dtype=np.float64)
+    if qpos.ndim != 2 or qpos.shape[1] != model.nq:
+        raise ValueError(f"qpos must have shape (T, {model.nq}), got {qpos.shape}")
+    if qvel.shape != (len(qpos), model.nv):
+        raise ValueError(f"qvel must have shape ({len(qpos)}, {model.nv}), got {qvel.shape}")
+    data = mujoco.MjData(model)
+    count = len(qpos)
+    pos = np.empty((count, NUM_BODIES, 3))
+    rot = np.empty((count, NUM_BODIES, 3, 3))
+    lin = np.empty((count, NUM_BODIES, 3))
+    ang = np.empty((count, NUM_BODIES, 3))
+    for t in range(count):
+        data.qpos[:] = qpos[t]
+        data.qvel[:] = qvel[t]
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        mujoco.mj_comVel(model, data)
+        s = body_state(model, data, index)
+        pos[t], rot[t], lin[t], ang[t] = s.pos, s.rot, s.lin_vel, s.ang_vel
+    return BodyState(pos, rot, lin, ang)
+
+
+def _in_heading(heading: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """(..., M, 3) world vectors in the heading frame `heading` (..., 3, 3)."""
+    return np.einsum("...ji,...mj->...mi", heading, vectors)
+
+
+def _flat(values: np.ndarray, trailing: int) -> np.ndarray:
+    return values.reshape(*values.shape[: values.ndim - trailing], -1)
+
+
+def self_observation(state: BodyState) -> np.ndarray:
+    """o^self: (..., 223), the blocks of `SELF_BLOCKS` in order."""
+    heading = heading_frame(state.root_quat)
+    root = state.pos[..., 0, :]
+    positions = _in_heading(heading, state.pos[..., 1:, :] - root[..., None, :])
+    parent_rot = state.rot[..., _PARENT_INDEX, :, :]
+    local = np.einsum("...nji,...njk->...nik", parent_rot, state.rot)
+    local[..., 0, :, :] = heading.swapaxes(-1, -2) @ state.rot[..., 0, :, :]
+    return np.concatenate(
+        [
+            root[..., 2:3],
+            _flat(positions, 2),
+            _flat(tangent_normal(local), 2),
+            _flat(_in_heading(heading, state.lin_vel), 2),
+            _flat(_in_heading(heading, state.ang_vel), 2),
+        ],
+        axis=-1,
+    )
+
+
+def opponent_observation(state: BodyState, opponent: BodyState) -> np.ndarray:
+    """o^opp: (..., 51), what the agent in `state` observes of `opponent` (`OPPONENT_BLOCKS`)."""
+    heading = heading_frame(state.root_quat)
+    root = state.pos[..., 0, :]
+    relative = opponent.pos[..., [0, *KEY_BODY_INDEX], :] - root[..., None, :]
+    positions = _in_heading(heading, relative)
+    velocities = _in_heading(heading, opponent.lin_vel[..., [0, *KEY_BODY_INDEX], :])
+    opponent_rot = heading.swapaxes(-1, -2) @ opponent.rot[..., 0, :, :]
+    opponent_ang = _in_heading(heading, opponent.ang_vel[..., 0:1, :])
+    return np.concatenate(
+        [
+            positions[..., 0, :],
+            tangent_normal(opponent_rot),
+            velocities[..., 0, :],
+            opponent_ang[..., 0, :],
+            _flat(positions[..., 1:, :], 2),
+            _flat(velocities[..., 1:, :], 2),
+        ],
+        axis=-1,
+    )
+
+
+def observation(state: BodyState, opponent: BodyState) -> np.ndarray:
+    """o = [o^self, o^opp]: (..., 274)."""
+    return np.concatenate([self_observation(state), opponent_observation(state, opponent)], -1)
