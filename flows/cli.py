@@ -107,6 +107,11 @@ def build_parser() -> argparse.ArgumentParser:
     metrics.add_argument("--stage", choices=STAGES)
     metrics.add_argument("--json", action="store_true")
 
+    datasets = commands.add_parser(
+        "datasets", help="assembled training datasets: key, adversary, videos, transitions"
+    )
+    datasets.add_argument("--json", action="store_true")
+
     assets = commands.add_parser("assets", help="third-party weights and sample videos")
     assets_commands = assets.add_subparsers(dest="assets_command", required=True, metavar="ACTION")
     pull = assets_commands.add_parser("pull", help="fetch them from the package index (idempotent)")
@@ -167,8 +172,9 @@ def _print_summary(summaries: list, data_root: Path, as_json: bool) -> None:
     ]
     _print_table(shown, ["video_id", "stage", "state", "key", "seconds", "path"])
     for row in rows:
+        where = " ".join(filter(None, (row["stage"], row["video_id"][:12])))
         for note in row["notes"]:
-            print(f"note: {row['stage']} {row['video_id'][:12]}: {note}")
+            print(f"note: {where}: {note}")
     paths = data_paths(data_root)
     print(f"\nresults: {paths.db}\nartifacts: {paths.artifacts}")
     print("see them with: ringside status | ringside metrics")
@@ -333,6 +339,24 @@ def _metrics(args, data_root: Path) -> int:
     return 0
 
 
+def _datasets(args, data_root: Path) -> int:
+    from storage.db import connect
+    from storage.paths import data_paths
+    from tasks.dataset.store import list_datasets
+
+    db = data_paths(data_root).db
+    rows = []
+    if db.exists():
+        with connect(db, read_only=True) as con:
+            rows = list_datasets(con)
+    rows = [{**r, "created_at": str(r["created_at"])} for r in rows]
+    if args.json:
+        print(json.dumps(rows))
+    else:
+        _print_table(rows, ["dataset_key", "adversary", "videos", "transitions", "created_at"])
+    return 0
+
+
 def _pull(data_root: Path, *, dev: bool = False) -> list[Path]:
     from storage.assets import pull
     from storage.paths import data_paths
@@ -420,6 +444,8 @@ def main(argv: list[str] | None = None) -> int:
             return _pick(args, data_root)
         if args.command == "metrics":
             return _metrics(args, data_root)
+        if args.command == "datasets":
+            return _datasets(args, data_root)
         if args.command == "assets":
             _pull(data_root, dev=args.dev)
             return 0

@@ -8,12 +8,18 @@ from pathlib import Path
 from typing import Any
 
 from tasks.config import apply_overrides, build, defaults_toml, read_toml
+from tasks.dataset.config import DatasetConfig
 from tasks.ingest.config import IngestConfig
 from tasks.lift.config import LiftStageConfig
 from tasks.pose.config import PoseConfig
 
 # Stage name -> its config class, in pipeline order. A stage joins here when it exists.
-SECTIONS: dict[str, type] = {"ingest": IngestConfig, "pose": PoseConfig, "lift": LiftStageConfig}
+SECTIONS: dict[str, type] = {
+    "ingest": IngestConfig,
+    "pose": PoseConfig,
+    "lift": LiftStageConfig,
+    "dataset": DatasetConfig,
+}
 STAGES: tuple[str, ...] = tuple(SECTIONS)
 DEFAULT_CONFIG_FILE = Path("ringside.toml")
 HEADER = """Ringside settings. Every value here is the built-in default; change what you need.
@@ -33,6 +39,7 @@ class PipelineConfig:
     ingest: IngestConfig = field(default_factory=IngestConfig)
     pose: PoseConfig = field(default_factory=PoseConfig)
     lift: LiftStageConfig = field(default_factory=LiftStageConfig)
+    dataset: DatasetConfig = field(default_factory=DatasetConfig)
 
     def as_dict(self) -> dict[str, dict[str, Any]]:
         return {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}

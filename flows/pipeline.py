@@ -8,6 +8,7 @@ from prefect import flow
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from flows.config import STAGES, from_tables
+from flows.dataset import assemble_flow, dataset_flow
 from flows.ingest import ingest_flow
 from flows.lift import lift_flow
 from flows.pose import pose_flow
@@ -89,17 +90,34 @@ def video_to_opponent(
         try:
             posed = pose(data_root, ingested.video_id, ingested.key, config, force="pose" in forced)
             summaries.append(posed)
-            if "lift" in stages:
+            if "lift" not in stages:
+                continue
+            lifted = lift_flow(
+                data_root,
+                ingested.video_id,
+                ingested.key,
+                posed.key,
+                config,
+                force="lift" in forced,
+            )
+            summaries.append(lifted)
+            if "dataset" in stages:
                 summaries.append(
-                    lift_flow(
+                    dataset_flow(
                         data_root,
                         ingested.video_id,
                         ingested.key,
-                        posed.key,
+                        lifted.key,
                         config,
-                        force="lift" in forced,
+                        force="dataset" in forced,
                     )
                 )
+        except BadInput as error:
+            failures.append(str(error))
+    if any(s.stage == "dataset" for s in summaries):
+        # Every video of this adversary with a current dataset output, not only this run's.
+        try:
+            summaries.append(assemble_flow(data_root, adversary, config, "dataset" in forced))
         except BadInput as error:
             failures.append(str(error))
     if failures:

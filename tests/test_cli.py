@@ -44,24 +44,28 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
         ("ingest", "done"),
         ("pose", "done"),
         ("lift", "done"),
+        ("dataset", "done"),
+        ("dataset-assemble", "done"),
     ]
     assert len(scans) == 1
 
     code, out, _ = run_cli(capsys, *process)
-    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached"] * 3
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached"] * 5
     assert len(scans) == 1, "a rerun with nothing changed decoded the video again"
 
     video_id = first[0]["video_id"]
     code, out, _ = run_cli(
         capsys, "--data", data, "rerun", "ingest", "--video", video_id[:10], "--json"
     )
-    # Ingest is recomputed; its key is unchanged, so pose and lift are found in the cache.
-    assert code == 0 and [s["state"] for s in json.loads(out)] == ["done", "cached", "cached"]
+    # Ingest is recomputed; its key is unchanged, so the later stages are found in the cache.
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["done"] + ["cached"] * 4
     assert len(scans) == 2
     db = Path(data) / "ringside.duckdb"
     runs = "SELECT stage, state, count(*) FROM stage_runs GROUP BY ALL ORDER BY ALL"
     with connect(db, read_only=True) as con:
         assert con.execute(runs).fetchall() == [
+            ("dataset", "cached", 2),
+            ("dataset", "done", 1),
             ("ingest", "cached", 1),
             ("ingest", "done", 2),
             ("lift", "cached", 2),
@@ -91,6 +95,13 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
             "video_id": video_id,
             "stage": "lift",
             "key": first[2]["key"],
+            "state": "cached",
+            "error": None,
+        },
+        {
+            "video_id": video_id,
+            "stage": "dataset",
+            "key": first[3]["key"],
             "state": "cached",
             "error": None,
         },

@@ -115,7 +115,7 @@ def test_rerun_is_cached_and_pick_reuses_the_chunks(
         "30",
         "--json",
     )
-    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached", "cached", "cached"]
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached"] * 5
     assert chunk_calls == []
 
     adversary = query(processed, "SELECT track FROM pose_tracks WHERE role = 'adversary'")[0][0]
@@ -133,8 +133,8 @@ def test_rerun_is_cached_and_pick_reuses_the_chunks(
         "30",
         "--json",
     )
-    # Pose reruns with the pick, the lift after it; the chunks come from the cache.
-    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached", "done", "done"]
+    # Pose reruns with the pick, and the stages after it; the chunks come from the cache.
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached"] + ["done"] * 4
     assert chunk_calls == [], "a new pick recomputed chunks"
     roles = dict(
         query(
@@ -157,7 +157,7 @@ def test_refine_setting_reruns_pose_not_chunks(tmp_path, capsys, sample_video, c
     assert run_cli(capsys, *base)[0] == 0
     assert chunk_calls == [0]
     code, out, _ = run_cli(capsys, *base, "--pose-refine-smoother", "one_euro")
-    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached", "done", "done"]
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached"] + ["done"] * 4
     assert chunk_calls == [0]
 
 
@@ -206,7 +206,7 @@ def test_chunks_run_on_a_dask_cluster(tmp_path, capsys, sample_video, monkeypatc
             "--json",
         )
     assert code == 0, err
-    assert [s["state"] for s in json.loads(out)] == ["done", "done", "done"]
+    assert [s["state"] for s in json.loads(out)] == ["done"] * 5
     # The same keypoints as the threaded run of the module's fixture (whose roles a pick may
     # have swapped since, hence the comparison without roles).
     sql = "SELECT DISTINCT frame, raw_x FROM pose_keypoints ORDER BY frame, raw_x"

@@ -1,0 +1,85 @@
+"""The dataset stage as flows: one video's demonstrations, then one adversary's dataset."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from prefect import flow
+from prefect.runtime import flow_run
+
+from flows.config import from_tables
+from flows.runs import StageSummary, reuse_or_run
+from storage.db import connect
+from storage.files import sha256_file
+from storage.keys import digest, stage_key
+from storage.paths import data_paths
+from tasks.dataset.stage import STAGE, dataset_code, dataset_key
+from tasks.dataset.task import assemble_task, dataset_task, extra_clips_task
+from tasks.errors import BadInput
+from tasks.ingest.outputs import load_ingest
+from tasks.runner import StageResult
+
+
+def _run_name() -> str:
+    return f"dataset-{flow_run.parameters['video_id'][:12]}"
+
+
+@flow(name="dataset", flow_run_name=_run_name)
+def dataset_flow(
+    data_root: str,
+    video_id: str,
+    ingest_key: str,
+    lift_key: str,
+    config: dict | None = None,
+    force: bool = False,
+) -> StageSummary:
+    """Cut one video's lifted motion into MAAIP demonstrations, labels and statistics."""
+    settings = from_tables(config or {}).dataset
+    with connect(data_paths(data_root).db, read_only=True) as con:
+        ingest = load_ingest(con, video_id, ingest_key)
+    key = dataset_key(settings, lift_key)
+
+    def run(refresh: bool) -> StageResult:
+        task = dataset_task.with_options(refresh_cache=refresh)
+        return task(data_root, ingest, lift_key, settings, key, force=refresh)
+
+    result, state = reuse_or_run(
+        data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run
+    )
+    return StageSummary(video_id, ingest.path, STAGE, key, state, result.seconds, result.notes)
+
+
+def _extra_clips(data_root: str, folder: str, force: bool) -> tuple[str, str]:
+    """The extra clips' dataset output: (its pseudo video id, key), computed when missing."""
+    path = Path(folder)
+    if not path.is_dir():
+        raise BadInput(folder, "not a folder (dataset.extra_clips)")
+    files = {p.name: sha256_file(p) for p in sorted(path.glob("*.txt"))}
+    if not files:
+        raise BadInput(folder, "no *.txt motion clips in this folder (dataset.extra_clips)")
+    video_id = "extra-" + digest(files)[:20]
+    key = stage_key(STAGE, {"extra_clips": "files"}, dataset_code(), {"files": files})
+
+    def run(refresh: bool) -> StageResult:
+        task = extra_clips_task.with_options(refresh_cache=refresh)
+        return task(data_root, str(path.resolve()), files, video_id, key, force=refresh)
+
+    reuse_or_run(data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run)
+    return video_id, key
+
+
+@flow(name="dataset-assemble")
+def assemble_flow(
+    data_root: str, adversary: str, config: dict | None = None, force: bool = False
+) -> StageSummary:
+    """Join every processed video of ``adversary`` (and any extra clips) into one dataset.
+
+    The summary's key is the dataset key training takes.
+    """
+    settings = from_tables(config or {}).dataset
+    extra = _extra_clips(data_root, settings.extra_clips, force) if settings.extra_clips else None
+    key, members, new = assemble_task(data_root, adversary, settings, extra)
+    notes = (f"dataset {key} of {adversary}: {len(members)} outputs",)
+    return StageSummary(
+        "", adversary, "dataset-assemble", key, "done" if new else "cached", 0.0, notes
+    )

@@ -1,0 +1,439 @@
+"""The dataset stage for one video: clips, observation transitions, labels and statistics.
+
+MAAIP (Younes et al. 2023, §3-4) trains on two demonstration sets: single-actor clips M^S (one
+fighter's motion alone, for the motion prior D^M) and interaction clips M^I (both fighters, for
+each agent's interaction prior D^I_i). From one video's lifted motion this makes both: every
+unbroken run of a fighter's 30 Hz motion is a single-actor clip, every run where both fighters
+were lifted an interaction clip (agent 0 the adversary, agent 1 the opponent). Runs are cut at
+shot cuts (each shot has its own camera, hence its own world frame) and at the train/validation
+boundary, the last ``validation_fraction`` of the video's time.
+
+Each clip of T steps gives T - 1 transitions, computed by `models.humanoid.observations`, the
+functions the training environment uses too.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.kinematics import heading_frame, humanoid_index
+from models.humanoid.observations import (
+    OPPONENT_DIM,
+    BodyState,
+    body_states,
+    observation,
+    self_observation,
+)
+from models.pose.types import BLAZEPOSE_33
+from storage.keys import code_version, stage_key
+from tasks.dataset.config import DatasetConfig
+from tasks.dataset.labels import Punch, label_punches, label_steps
+from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
+from tasks.errors import BadInput
+from tasks.lift.solve import velocities
+from tasks.lift.stage import RATE, ROLES
+from tasks.lift.synthetic import load_deepmimic, retarget
+from tasks.runner import StageOutput
+
+STAGE = "dataset"
+AGENTS: Mapping[str, int] = {"adversary": 0, "opponent": 1}
+EXTRA = "extra"  # the role and agent (2) of clips the user adds
+EXTRA_AGENT = 2
+_ANKLES = [BLAZEPOSE_33.index("left_ankle"), BLAZEPOSE_33.index("right_ankle")]
+
+
+def dataset_code() -> str:
+    return code_version("tasks.dataset", "models.humanoid")
+
+
+def dataset_upstream(lift_key: str) -> dict:
+    return {"lift": lift_key}
+
+
+def dataset_key(config: DatasetConfig, lift_key: str) -> str:
+    return stage_key(STAGE, config, dataset_code(), dataset_upstream(lift_key))
+
+
+@dataclass(frozen=True, eq=False)
+class FighterMotion:
+    """One fighter's lifted motion: N steps of the 30 Hz grid (step k at k / 30 s)."""
+
+    step: np.ndarray  # (N,) int, increasing
+    qpos: np.ndarray  # (N, 35)
+    qvel: np.ndarray  # (N, 34)
+    joints: np.ndarray  # (N, 33, 3) BlazePose-order keypoints, world metres
+    contacts: np.ndarray  # (N, 2) bool, left and right foot
+    bones: BoneLengths
+
+    def rows(self, steps: np.ndarray) -> np.ndarray:
+        """Row indices of ``steps`` (which must all be present)."""
+        return np.searchsorted(self.step, steps)
+
+
+@dataclass(frozen=True)
+class Clip:
+    kind: str  # "single" | "interaction"
+    role: str | None  # the fighter of a single clip
+    shot: int
+    split: str
+    start: int  # first step
+    end: int  # one past the last step
+
+    @property
+    def steps(self) -> np.ndarray:
+        return np.arange(self.start, self.end)
+
+
+def cut_clips(
+    steps: np.ndarray,
+    shot_of_step: np.ndarray,
+    validation_from: int,
+    min_steps: int,
+    *,
+    kind: str,
+    role: str | None,
+) -> list[Clip]:
+    """Unbroken runs of ``steps``, cut where the shot or the split changes; short ones dropped.
+
+    Args:
+        steps: (N,) increasing step numbers where the motion exists.
+        shot_of_step: (N,) the shot of each step.
+        validation_from: first step of the validation split.
+    """
+    if len(steps) == 0:
+        return []
+    split = steps >= validation_from
+    cut = (np.diff(steps) != 1) | (np.diff(shot_of_step) != 0) | (np.diff(split) != 0)
+    starts = np.r_[0, np.flatnonzero(cut) + 1]
+    ends = np.r_[starts[1:], len(steps)]
+    return [
+        Clip(
+            kind,
+            role,
+            int(shot_of_step[a]),
+            "validation" if split[a] else "train",
+            int(steps[a]),
+            int(steps[b - 1]) + 1,
+        )
+        for a, b in zip(starts, ends, strict=True)
+        if b - a >= min_steps
+    ]
+
+
+def _shot_of(steps: np.ndarray, shots: Sequence[tuple[int, int, int]], fps: float) -> np.ndarray:
+    """The shot holding each step's video frame (shots are (shot, start_frame, end_frame))."""
+    starts = np.array([s[1] for s in shots])
+    numbers = np.array([s[0] for s in shots])
+    frame = np.floor(steps / RATE * fps + 1e-6)
+    return numbers[np.clip(np.searchsorted(starts, frame, side="right") - 1, 0, None)]
+
+
+def _model(bones: BoneLengths) -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_string(boxer_mjcf(bones))
+
+
+def fighter_states(fighters: Mapping[str, FighterMotion]) -> dict[str, BodyState]:
+    """Each fighter's body states over its steps, on a humanoid of its own bone lengths."""
+    states = {}
+    for role, motion in fighters.items():
+        model = _model(motion.bones)
+        states[role] = body_states(model, motion.qpos, motion.qvel, humanoid_index(model))
+    return states
+
+
+def _single_transitions(clip: Clip, motion: FighterMotion, state: BodyState, agent: int) -> dict:
+    rows = motion.rows(clip.steps)
+    own = self_observation(state[rows])
+    return _columns(clip, agent, own[:-1], None, own[1:])
+
+
+def _interaction_transitions(
+    clip: Clip, fighters: Mapping[str, FighterMotion], states: Mapping[str, BodyState]
+) -> list[dict]:
+    at = {role: states[role][fighters[role].rows(clip.steps)] for role in ROLES}
+    out = []
+    for role, agent in AGENTS.items():
+        other = ROLES[1 - ROLES.index(role)]
+        full = observation(at[role], at[other])
+        own, opp = full[:, :-OPPONENT_DIM], full[:, -OPPONENT_DIM:]
+        out.append(_columns(clip, agent, own[:-1], opp[:-1], own[1:]))
+    return out
+
+
+def _columns(clip: Clip, agent: int, own, opp, next_own) -> dict:
+    n = len(own)
+    columns = {
+        "kind": np.array([clip.kind] * n),
+        "agent": np.full(n, agent, dtype=np.int8),
+        "split": np.array([clip.split] * n),
+        "clip": np.full(n, -1, dtype=np.int32),  # filled in when clips are numbered
+        "step": np.arange(clip.start, clip.start + n, dtype=np.int32),
+        "self": own.astype(np.float32),
+        "next_self": next_own.astype(np.float32),
+    }
+    if opp is not None:
+        columns["opp"] = opp.astype(np.float32)
+    return columns
+
+
+def _concat(parts: list[dict]) -> dict:
+    """Transition columns of several clips as one; single clips' missing opp becomes NULL."""
+    if not parts:
+        return {}
+    n = sum(len(p["step"]) for p in parts)
+    opp = np.empty(n, dtype=object)
+    at = 0
+    for p in parts:
+        count = len(p["step"])
+        if "opp" in p:
+            opp[at : at + count] = list(p["opp"])
+        at += count
+    names = [k for k in parts[0] if k != "opp"]
+    out = {k: np.concatenate([p[k] for p in parts]) for k in names}
+    out["opp"] = opp
+    return out
+
+
+def _punch_rows(
+    head: tuple[str, str],
+    role: str,
+    punches: list[tuple[Clip, Punch]],
+    fighters: Mapping[str, FighterMotion],
+) -> list[tuple]:
+    other = ROLES[1 - ROLES.index(role)] if role in ROLES else None
+    rows = []
+    for number, (clip, punch) in enumerate(punches):
+        peak_step = clip.start + punch.peak
+        local = None
+        if other in fighters and peak_step in set(fighters[other].step.tolist()):
+            row = fighters[other].rows(np.array([peak_step]))[0]
+            them = fighters[other].qpos[row]
+            heading = heading_frame(them[3:7])
+            local = (heading.T @ (punch.target - them[:3])).tolist()
+        rows.append(
+            (
+                *head,
+                role,
+                number,
+                punch.hand,
+                punch.kind,
+                clip.start + punch.start,
+                peak_step,
+                clip.start + punch.end,
+                float(punch.extension_m),
+                np.asarray(punch.target, dtype=float).tolist(),
+                local,
+            )
+        )
+    return rows
+
+
+def _label_fighter(
+    head: tuple[str, str],
+    role: str,
+    clips: list[Clip],
+    fighters: Mapping[str, FighterMotion],
+    config: DatasetConfig,
+) -> tuple[list[tuple[Clip, Punch]], list[tuple], FighterStatistics | None]:
+    """Punches, step rows and statistics of one fighter over its single clips."""
+    motion = fighters[role]
+    arm = motion.bones.upper_arm + motion.bones.forearm
+    other = ROLES[1 - ROLES.index(role)]
+    punches: list[tuple[Clip, Punch]] = []
+    steps: list[tuple] = []
+    stats: list[FighterStatistics] = []
+    durations: list[float] = []
+    for clip in clips:
+        rows = motion.rows(clip.steps)
+        keypoints = motion.joints[rows]
+        quat = motion.qpos[rows, 3:7]
+        found = label_punches(keypoints, quat, RATE, config.punch, arm_m=arm)
+        walked = label_steps(motion.contacts[rows], keypoints[:, _ANKLES])
+        punches.extend((clip, p) for p in found)
+        steps.extend(
+            (
+                *head,
+                role,
+                s.foot,
+                clip.start + s.lift_off,
+                clip.start + s.touch_down,
+                float(s.length_m),
+            )
+            for s in walked
+        )
+        opponent_root = None
+        if other in fighters and np.isin(clip.steps, fighters[other].step).all():
+            opponent_root = fighters[other].qpos[fighters[other].rows(clip.steps), :3]
+        stats.append(
+            fighter_statistics(
+                punches=found,
+                steps=walked,
+                keypoints=keypoints,
+                root_pos=motion.qpos[rows, :3],
+                root_quat=quat,
+                opponent_root=opponent_root,
+                rate=RATE,
+            )
+        )
+        durations.append(len(rows) / RATE)
+    return punches, steps, (combine(stats, durations) if stats else None)
+
+
+def build_dataset(
+    fighters: Mapping[str, FighterMotion],
+    *,
+    key: str,
+    video_id: str,
+    shots: Sequence[tuple[int, int, int]],
+    fps: float,
+    config: DatasetConfig,
+) -> StageOutput:
+    """The dataset rows and metrics of one video's lifted motion.
+
+    Args:
+        fighters: role -> its motion (the lift output's roles).
+        key, video_id: the output's key and video.
+        shots: the video's (shot, start_frame, end_frame) ranges.
+        fps: the video's frame rate.
+        config: the stage's settings.
+
+    Raises:
+        BadInput: when no fighter has a clip of ``min_clip_s``.
+    """
+    min_steps = max(2, math.ceil(config.min_clip_s * RATE))
+    last = max(int(m.step.max()) for m in fighters.values() if len(m.step))
+    validation_from = math.ceil((last + 1) * (1 - config.validation_fraction))
+    clips: list[Clip] = []
+    for role, motion in fighters.items():
+        shot = _shot_of(motion.step, shots, fps)
+        clips += cut_clips(motion.step, shot, validation_from, min_steps, kind="single", role=role)
+    if all(r in fighters for r in ROLES):
+        both = np.intersect1d(fighters[ROLES[0]].step, fighters[ROLES[1]].step)
+        clips += cut_clips(
+            both,
+            _shot_of(both, shots, fps),
+            validation_from,
+            min_steps,
+            kind="interaction",
+            role=None,
+        )
+    if not clips:
+        raise BadInput(
+            STAGE,
+            f"no fighter was lifted for {config.min_clip_s} s without a break "
+            f"(dataset.min_clip_s); no clips to learn from",
+        )
+    states = fighter_states(fighters)
+    parts = []
+    for number, clip in enumerate(clips):
+        if clip.kind == "single":
+            made = [
+                _single_transitions(clip, fighters[clip.role], states[clip.role], AGENTS[clip.role])
+            ]
+        else:
+            made = _interaction_transitions(clip, fighters, states)
+        for part in made:
+            part["clip"][:] = number
+        parts += made
+    order = {"single": 0, "interaction": 1}
+    parts.sort(key=lambda p: (order[p["kind"][0]], int(p["agent"][0]), int(p["clip"][0])))
+    transitions = _concat(parts)
+
+    head = (key, video_id)
+    punch_rows, step_rows, statistics = [], [], {}
+    for role in fighters:
+        own = [c for c in clips if c.kind == "single" and c.role == role]
+        punches, steps, stats = _label_fighter(head, role, own, fighters, config)
+        punch_rows += _punch_rows(head, role, punches, fighters)
+        step_rows += steps
+        if stats is not None:
+            statistics[role] = stats
+    return StageOutput(
+        rows={
+            "dataset_clips": _clip_rows(head, clips),
+            "dataset_transitions": transitions,
+            "dataset_punches": punch_rows,
+            "dataset_steps": step_rows,
+            "dataset_statistics": [
+                (*head, role, name, float(value))
+                for role, s in statistics.items()
+                for name, value in s.scalars.items()
+            ],
+            "dataset_distributions": [
+                (*head, role, name, np.asarray(values, dtype=float).tolist())
+                for role, s in statistics.items()
+                for name, values in s.distributions.items()
+            ],
+        },
+        metrics=_metrics(clips, transitions, punch_rows, statistics),
+    )
+
+
+def _clip_rows(head: tuple[str, str], clips: list[Clip]) -> list[tuple]:
+    return [
+        (*head, n, c.kind, c.role, c.shot, c.split, c.start, c.end) for n, c in enumerate(clips)
+    ]
+
+
+def _metrics(
+    clips: list[Clip], transitions: Mapping, punch_rows: list, statistics: Mapping
+) -> dict[str, float]:
+    metrics = {
+        "clips_single": float(sum(c.kind == "single" for c in clips)),
+        "clips_interaction": float(sum(c.kind == "interaction" for c in clips)),
+        "transitions": float(len(transitions.get("step", ()))),
+        "punches": float(len(punch_rows)),
+        "minutes_interaction": sum(c.end - c.start for c in clips if c.kind == "interaction")
+        / RATE
+        / 60,
+    }
+    for role in ROLES:
+        single = [c for c in clips if c.kind == "single" and c.role == role]
+        metrics[f"{role}_minutes_single"] = sum(c.end - c.start for c in single) / RATE / 60
+    for role, stats in statistics.items():
+        for name, value in stats.scalars.items():
+            metrics[f"{role}_{name}"] = float(value)
+    return {k: float(v) for k, v in metrics.items() if math.isfinite(v)}
+
+
+def extra_clip_output(folder: Path, *, key: str, video_id: str) -> StageOutput:
+    """Single-actor clips from the DeepMimic-format motion files in ``folder`` (agent 2).
+
+    Each file is retargeted to the default humanoid at 30 Hz (`tasks.lift.synthetic.retarget`).
+    """
+    files = sorted(folder.glob("*.txt"))
+    if not files:
+        raise BadInput(str(folder), "no *.txt motion clips in this folder (dataset.extra_clips)")
+    model = _model(BoneLengths())
+    index = humanoid_index(model)
+    clips, parts = [], []
+    for number, path in enumerate(files):
+        qpos = retarget(load_deepmimic(path))
+        qvel = velocities(model, qpos, RATE)
+        clip = Clip("single", EXTRA, number, "train", 0, len(qpos))
+        own = self_observation(body_states(model, qpos, qvel, index))
+        part = _columns(clip, EXTRA_AGENT, own[:-1], None, own[1:])
+        part["clip"][:] = number
+        clips.append(clip)
+        parts.append(part)
+    transitions = _concat(parts)
+    return StageOutput(
+        rows={
+            "dataset_clips": _clip_rows((key, video_id), clips),
+            "dataset_transitions": transitions,
+        },
+        metrics={
+            "clips_single": float(len(clips)),
+            "clips_interaction": 0.0,
+            "transitions": float(len(transitions["step"])),
+            "punches": 0.0,
+            "extra_minutes_single": sum(c.end for c in clips) / RATE / 60,
+        },
+    )

@@ -1,0 +1,258 @@
+"""Reading and writing the dataset tables: lifted motion in, assembled datasets, transitions out.
+
+A dataset (what one training run learns from) joins the per-video dataset outputs of one
+adversary's footage made with one config and code version. Its key is a hash of the members'
+output keys and the settings, so a rerun with nothing changed gives the same key and changing
+any setting gives a new one.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import duckdb
+import numpy as np
+
+from models.humanoid.boxer import BoneLengths
+from models.humanoid.observations import OPPONENT_DIM, SELF_DIM
+from storage.db import transaction, utcnow
+from storage.keys import digest, stable_json
+from tasks.dataset.config import DatasetConfig
+from tasks.dataset.stage import AGENTS, STAGE, FighterMotion
+
+
+class UnknownDataset(KeyError):
+    """A dataset key that was never assembled."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+def load_motion(
+    con: duckdb.DuckDBPyConnection, video_id: str, lift_key: str
+) -> dict[str, FighterMotion]:
+    """Each fighter's lifted motion and bone lengths from lift output ``lift_key``."""
+    bones: dict[str, dict[str, float]] = {}
+    for role, bone, length in con.execute(
+        "SELECT role, bone, length_m FROM lift_bones WHERE key = ? AND video_id = ?",
+        [lift_key, video_id],
+    ).fetchall():
+        bones.setdefault(role, {})[bone] = length
+    fighters = {}
+    for role, lengths in bones.items():
+        columns = con.execute(
+            "SELECT step, qpos, qvel, joints, contact_left, contact_right FROM lift_motion "
+            "WHERE key = ? AND video_id = ? AND role = ? ORDER BY step",
+            [lift_key, video_id, role],
+        ).fetchnumpy()
+        if len(columns["step"]) == 0:
+            continue
+        fighters[role] = FighterMotion(
+            step=np.asarray(columns["step"], dtype=np.int64),
+            qpos=np.stack(columns["qpos"]).astype(np.float64),
+            qvel=np.stack(columns["qvel"]).astype(np.float64),
+            joints=np.stack(columns["joints"]).astype(np.float64).reshape(-1, 33, 3),
+            contacts=np.stack([columns["contact_left"], columns["contact_right"]], axis=1),
+            bones=BoneLengths(**lengths),
+        )
+    return fighters
+
+
+def candidate_members(
+    con: duckdb.DuckDBPyConnection, adversary: str, config: DatasetConfig, code: str
+) -> list[tuple[str, str]]:
+    """(video_id, key) of the newest dataset output, made with ``config`` and ``code``, of each
+    video whose adversary is ``adversary``."""
+    return [
+        tuple(row)
+        for row in con.execute(
+            """
+            SELECT o.video_id, o.key FROM stage_outputs o
+            WHERE o.stage = ? AND o.config = ? AND o.code_version = ?
+              AND o.video_id IN (SELECT video_id FROM ingest_adversaries WHERE name = ?)
+            QUALIFY row_number() OVER (PARTITION BY o.video_id ORDER BY o.created_at DESC) = 1
+            ORDER BY o.video_id
+            """,
+            [STAGE, stable_json(config), code, adversary],
+        ).fetchall()
+    ]
+
+
+def assembled_key(adversary: str, config: DatasetConfig, members: list[tuple[str, str]]) -> str:
+    return digest({"adversary": adversary, "config": config, "members": sorted(members)})[:24]
+
+
+def record_dataset(
+    con: duckdb.DuckDBPyConnection,
+    adversary: str,
+    config: DatasetConfig,
+    members: list[tuple[str, str]],
+) -> tuple[str, bool]:
+    """Record the dataset joining ``members``; returns its key and whether it is new."""
+    if not members:
+        raise ValueError(f"no dataset outputs to assemble for adversary {adversary!r}")
+    key = assembled_key(adversary, config, members)
+    with transaction(con):
+        exists = con.execute("SELECT 1 FROM datasets WHERE dataset_key = ?", [key]).fetchone()
+        if exists:
+            return key, False
+        con.execute(
+            "INSERT INTO datasets VALUES (?, ?, ?, ?)",
+            [key, adversary, stable_json(config), utcnow()],
+        )
+        con.executemany(
+            "INSERT INTO dataset_members VALUES (?, ?, ?)",
+            [[key, video_id, output] for video_id, output in members],
+        )
+    return key, True
+
+
+@dataclass(frozen=True)
+class DatasetInfo:
+    dataset_key: str
+    adversary: str
+    config: dict
+    created_at: object
+    members: tuple[tuple[str, str], ...]
+
+
+def dataset_info(con: duckdb.DuckDBPyConnection, dataset_key: str) -> DatasetInfo:
+    """What dataset ``dataset_key`` is; UnknownDataset (listing the known keys) if none."""
+    row = con.execute(
+        "SELECT adversary, config, created_at FROM datasets WHERE dataset_key = ?",
+        [dataset_key],
+    ).fetchone()
+    if row is None:
+        known = [r[0] for r in con.execute("SELECT dataset_key FROM datasets").fetchall()]
+        raise UnknownDataset(
+            f"no dataset {dataset_key!r}; known: {', '.join(known) or 'none'} "
+            f"(`ringside datasets` lists them)"
+        )
+    members = con.execute(
+        "SELECT video_id, key FROM dataset_members WHERE dataset_key = ? ORDER BY video_id",
+        [dataset_key],
+    ).fetchall()
+    return DatasetInfo(dataset_key, row[0], json.loads(row[1]), row[2], tuple(members))
+
+
+def list_datasets(con: duckdb.DuckDBPyConnection) -> list[dict]:
+    """Every assembled dataset, newest first, with its size."""
+    rows = con.execute(
+        """
+        SELECT d.dataset_key, d.adversary, d.created_at, count(DISTINCT m.video_id) AS videos,
+               (SELECT count(*) FROM dataset_transitions t JOIN dataset_members n
+                  ON t.key = n.key AND t.video_id = n.video_id
+                WHERE n.dataset_key = d.dataset_key) AS transitions
+        FROM datasets d JOIN dataset_members m USING (dataset_key)
+        GROUP BY ALL ORDER BY d.created_at DESC
+        """
+    ).fetchall()
+    names = ("dataset_key", "adversary", "created_at", "videos", "transitions")
+    return [dict(zip(names, r, strict=True)) for r in rows]
+
+
+@dataclass(frozen=True, eq=False)
+class Transitions:
+    """Demonstration transitions as float32 arrays, one row each.
+
+    ``obs`` is o^self_t (223) for the motion prior or o_t = [o^self, o^opp] (274) for an
+    interaction prior; ``next_self`` is o^self_t+1.
+    """
+
+    obs: np.ndarray
+    next_self: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.obs)
+
+
+_KINDS = ("single", "interaction")
+
+
+def _selection(kind: str, agent: int | None, split: str) -> tuple[str, list]:
+    """The WHERE clause (after the output's key and video) and its parameters."""
+    if kind not in _KINDS:
+        raise ValueError(f"kind must be one of {_KINDS}, got {kind!r}")
+    if split not in ("train", "validation"):
+        raise ValueError(f"split must be 'train' or 'validation', got {split!r}")
+    if kind == "interaction" and agent not in AGENTS.values():
+        raise ValueError(f"interaction transitions need agent 0 or 1, got {agent!r}")
+    where, params = "kind = ? AND split = ?", [kind, split]
+    if agent is not None:
+        where, params = where + " AND agent = ?", [*params, agent]
+    return where, params
+
+
+def count_transitions(
+    con: duckdb.DuckDBPyConnection,
+    dataset_key: str,
+    *,
+    kind: str,
+    agent: int | None = None,
+    split: str = "train",
+) -> int:
+    """How many transitions `iter_transitions` would yield (one query over the members)."""
+    dataset_info(con, dataset_key)
+    where, params = _selection(kind, agent, split)
+    return con.execute(
+        f"SELECT count(*) FROM dataset_transitions t JOIN dataset_members m "
+        f"ON t.key = m.key AND t.video_id = m.video_id WHERE m.dataset_key = ? AND {where}",
+        [dataset_key, *params],
+    ).fetchone()[0]
+
+
+def iter_transitions(
+    con: duckdb.DuckDBPyConnection,
+    dataset_key: str,
+    *,
+    kind: str,
+    agent: int | None = None,
+    split: str = "train",
+) -> Iterator[Transitions]:
+    """The transitions of a dataset, one member video at a time (so memory holds one video's).
+
+    Single-actor transitions (the motion prior's M^S) of every fighter unless ``agent`` names
+    one (0 adversary, 1 opponent, 2 extra clips); interaction transitions (M^I) of ``agent``,
+    whose ``obs`` is [o^self, o^opp]. Each batch is in (agent, clip, step) order.
+    """
+    info = dataset_info(con, dataset_key)
+    where, params = _selection(kind, agent, split)
+    columns = "self, opp, next_self" if kind == "interaction" else "self, next_self"
+    for video_id, key in info.members:
+        found = con.execute(
+            f"SELECT {columns} FROM dataset_transitions WHERE key = ? AND video_id = ? "
+            f"AND {where} ORDER BY agent, clip, step",
+            [key, video_id, *params],
+        ).fetchnumpy()
+        if len(found["self"]) == 0:
+            continue
+        obs = np.stack(found["self"])
+        if kind == "interaction":
+            obs = np.concatenate([obs, np.stack(found["opp"])], axis=1)
+        yield Transitions(obs, np.stack(found["next_self"]))
+
+
+def load_transitions(
+    con: duckdb.DuckDBPyConnection,
+    dataset_key: str,
+    *,
+    kind: str,
+    agent: int | None = None,
+    split: str = "train",
+) -> Transitions:
+    """All transitions `iter_transitions` yields, as one pair of float32 arrays, filled batch
+    by batch into arrays allocated once."""
+    total = count_transitions(con, dataset_key, kind=kind, agent=agent, split=split)
+    width = SELF_DIM + (OPPONENT_DIM if kind == "interaction" else 0)
+    obs = np.empty((total, width), np.float32)
+    next_self = np.empty((total, SELF_DIM), np.float32)
+    at = 0
+    for batch in iter_transitions(con, dataset_key, kind=kind, agent=agent, split=split):
+        obs[at : at + len(batch)] = batch.obs
+        next_self[at : at + len(batch)] = batch.next_self
+        at += len(batch)
+    if at != total:
+        raise RuntimeError(f"dataset {dataset_key} changed while it was read ({at} of {total})")
+    return Transitions(obs, next_self)

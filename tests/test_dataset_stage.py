@@ -1,0 +1,266 @@
+"""The dataset stage: clips, transitions, labels and statistics, storage, the demo's dataset."""
+
+from __future__ import annotations
+
+import json
+
+import mujoco
+import numpy as np
+import pytest
+from conftest import query, run_cli
+
+from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.kinematics import (
+    axis_angle_matrix,
+    humanoid_index,
+    keypoint_positions,
+    matrix_to_quat,
+    quat_to_matrix,
+)
+from models.humanoid.observations import body_states, observation, self_observation
+from storage.db import connect
+from storage.records import OutputRecord, write_output
+from tasks.dataset.config import DatasetConfig
+from tasks.dataset.stage import FighterMotion, build_dataset, cut_clips
+from tasks.dataset.store import (
+    UnknownDataset,
+    count_transitions,
+    dataset_info,
+    load_transitions,
+    record_dataset,
+)
+from tasks.errors import BadInput
+from tasks.lift.solve import detect_contacts, velocities
+from tasks.lift.stage import RATE
+from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
+
+BONES = BoneLengths()
+
+
+def _motion(assets, name: str, *, turn: float = 0.0, shift=(0.0, 0.0)) -> FighterMotion:
+    """A DeepMimic clip on the humanoid, turned about z and moved, as the lift would store it."""
+    model = mujoco.MjModel.from_xml_string(boxer_mjcf(BONES))
+    qpos = retarget(load_deepmimic(clip_path(assets, name)), BONES, fps=RATE)
+    rotation = axis_angle_matrix((0, 0, 1), turn)
+    qpos[:, :3] = qpos[:, :3] @ rotation.T + (*shift, 0.0)
+    qpos[:, 3:7] = matrix_to_quat(rotation @ quat_to_matrix(qpos[:, 3:7]))
+    joints = keypoint_positions(model, qpos)
+    return FighterMotion(
+        step=np.arange(len(qpos)),
+        qpos=qpos,
+        qvel=velocities(model, qpos, RATE),
+        joints=joints,
+        contacts=detect_contacts(joints, fps=RATE),
+        bones=BONES,
+    )
+
+
+def _take(motion: FighterMotion, keep: np.ndarray) -> FighterMotion:
+    return FighterMotion(
+        motion.step[keep],
+        motion.qpos[keep],
+        motion.qvel[keep],
+        motion.joints[keep],
+        motion.contacts[keep],
+        motion.bones,
+    )
+
+
+@pytest.fixture(scope="module")
+def pair(assets) -> dict[str, FighterMotion]:
+    """The punch clip's boxer facing the walk clip's, 2.5 m apart; the walker lost 5 steps."""
+    adversary = _motion(assets, "punch")
+    walker = _motion(assets, "walk", turn=np.pi, shift=(2.5, 0.0))
+    n = min(len(adversary.step), len(walker.step))
+    keep = np.arange(n)
+    opponent = _take(walker, keep[(keep < 20) | (keep >= 25)])
+    return {"adversary": _take(adversary, keep), "opponent": opponent}
+
+
+def test_cut_clips_at_gaps_shots_and_the_split():
+    steps = np.r_[0:10, 12:30]
+    shot = np.where(steps < 20, 0, 1)
+    clips = cut_clips(steps, shot, 26, 3, kind="single", role="adversary")
+    assert [(c.start, c.end, c.shot, c.split) for c in clips] == [
+        (0, 10, 0, "train"),
+        (12, 20, 0, "train"),
+        (20, 26, 1, "train"),
+        (26, 30, 1, "validation"),
+    ]
+    assert [c.start for c in cut_clips(steps, shot, 26, 5, kind="single", role="a")] == [0, 12, 20]
+
+
+def test_build_dataset_on_two_deepmimic_fighters(pair):
+    frames = int(pair["adversary"].step[-1]) + 1
+    config = DatasetConfig(min_clip_s=0.2, validation_fraction=0.2)
+    out = build_dataset(
+        pair, key="k", video_id="v", shots=[(0, 0, 2 * frames)], fps=2 * RATE, config=config
+    )
+    clips = out.rows["dataset_clips"]
+    spans = {(c[3], c[4]): [] for c in clips}
+    for c in clips:
+        spans[(c[3], c[4])].append((c[7], c[8], c[6]))
+    validation_from = int(np.ceil(frames * 0.8))
+    # The walker's 5 lost steps cut its clip and the interaction; the split cuts every run.
+    assert spans[("single", "adversary")] == [
+        (0, validation_from, "train"),
+        (validation_from, frames, "validation"),
+    ]
+    expected_pieces = [(0, 20, "train"), (25, validation_from, "train")]
+    expected_pieces.append((validation_from, frames, "validation"))
+    assert spans[("single", "opponent")] == expected_pieces
+    assert spans[("interaction", None)] == expected_pieces
+
+    t = out.rows["dataset_transitions"]
+    single = sum(e - s - 1 for s, e, _ in spans[("single", "adversary")] + expected_pieces)
+    assert len(t["step"]) == single + 2 * sum(e - s - 1 for s, e, _ in expected_pieces)
+    assert out.metrics["transitions"] == len(t["step"])
+    assert out.metrics["clips_interaction"] == 3 and out.metrics["clips_single"] == 5
+
+    # A row is exactly the shared observation function on the two fighters at that step.
+    model = mujoco.MjModel.from_xml_string(boxer_mjcf(BONES))
+    index = humanoid_index(model)
+    states = {r: body_states(model, m.qpos, m.qvel, index) for r, m in pair.items()}
+    row = np.flatnonzero((t["kind"] == "interaction") & (t["agent"] == 1) & (t["step"] == 30))[0]
+    opp_rows = pair["opponent"].rows(np.array([30, 31]))
+    expected = observation(states["opponent"][opp_rows[0]], states["adversary"][30])
+    np.testing.assert_allclose(t["self"][row], expected[:223], atol=1e-5)
+    np.testing.assert_allclose(t["opp"][row], expected[223:], atol=1e-5)
+    np.testing.assert_allclose(
+        t["next_self"][row], self_observation(states["opponent"][opp_rows[1]]), atol=1e-5
+    )
+    single_rows = t["kind"] == "single"
+    assert all(o is None for o in t["opp"][single_rows])
+
+    # The punch clip's boxer throws punches at the walker; the walker throws none.
+    punches = out.rows["dataset_punches"]
+    assert punches and {p[2] for p in punches} == {"adversary"}
+    assert out.metrics["punches"] == len(punches)
+    stats = {(r[2], r[3]): r[4] for r in out.rows["dataset_statistics"]}
+    assert stats[("adversary", "punches_per_min")] > 0
+    assert stats[("opponent", "punches_per_min")] == 0
+    # Distance is measured where the other fighter is there all clip long: the last clip.
+    last = pair["opponent"].rows(np.arange(validation_from, frames))
+    gap = pair["adversary"].qpos[validation_from:, :2] - pair["opponent"].qpos[last, :2]
+    assert stats[("adversary", "distance_mean_m")] == pytest.approx(
+        np.linalg.norm(gap, axis=1).mean()
+    )
+    assert out.metrics["adversary_punches_per_min"] == stats[("adversary", "punches_per_min")]
+
+
+def test_no_long_enough_clip_is_a_clear_error(pair):
+    with pytest.raises(BadInput, match="dataset.min_clip_s"):
+        build_dataset(
+            pair,
+            key="k",
+            video_id="v",
+            shots=[(0, 0, 1000)],
+            fps=RATE,
+            config=DatasetConfig(min_clip_s=60.0),
+        )
+
+
+def test_transitions_round_trip_through_duckdb(tmp_path, pair):
+    out = build_dataset(
+        pair,
+        key="k1",
+        video_id="v1",
+        shots=[(0, 0, 1000)],
+        fps=RATE,
+        config=DatasetConfig(min_clip_s=0.2),
+    )
+    db = tmp_path / "ringside.duckdb"
+    record = OutputRecord("dataset", "v1", "k1", {}, "code", {}, "run", 1.0)
+    with connect(db) as con:
+        write_output(con, record, out.rows, out.metrics)
+        key, new = record_dataset(con, "A", DatasetConfig(), [("v1", "k1")])
+        assert new and record_dataset(con, "A", DatasetConfig(), [("v1", "k1")]) == (key, False)
+    t = out.rows["dataset_transitions"]
+    with connect(db, read_only=True) as con:
+        got = load_transitions(con, key, kind="interaction", agent=0)
+        mine = (t["kind"] == "interaction") & (t["agent"] == 0) & (t["split"] == "train")
+        want = np.concatenate([t["self"][mine], np.stack(t["opp"][mine])], axis=1)
+        np.testing.assert_array_equal(got.obs, want)
+        np.testing.assert_array_equal(got.next_self, t["next_self"][mine])
+        motion = load_transitions(con, key, kind="single", split="validation")
+        assert motion.obs.shape[1] == 223
+        assert len(motion) == int(((t["kind"] == "single") & (t["split"] == "validation")).sum())
+        assert count_transitions(con, key, kind="single") + len(motion) == int(
+            (t["kind"] == "single").sum()
+        )
+        assert dataset_info(con, key).members == (("v1", "k1"),)
+        with pytest.raises(UnknownDataset, match="no dataset 'nope'; known: " + key):
+            load_transitions(con, "nope", kind="single")
+        with pytest.raises(ValueError, match="agent 0 or 1"):
+            load_transitions(con, key, kind="interaction", agent=2)
+
+
+def _dataset_keys(capsys, data) -> list[str]:
+    code, out, _ = run_cli(capsys, "--data", str(data), "datasets", "--json")
+    assert code == 0
+    return [r["dataset_key"] for r in json.loads(out)]
+
+
+def test_demo_dataset_tables_metrics_and_key(capsys, sample_run, sample_video):
+    tables = ["dataset_clips", "dataset_transitions", "dataset_statistics", "datasets"]
+    counts = {t: query(sample_run, f"SELECT count(*) FROM {t}")[0][0] for t in tables}
+    assert all(counts.values()), counts
+    code, out, _ = run_cli(
+        capsys, "--data", str(sample_run), "metrics", "--stage", "dataset", "--json"
+    )
+    assert code == 0
+    metrics = {m["name"]: m["value"] for m in json.loads(out)}
+    for name in ("clips_single", "clips_interaction", "transitions", "punches"):
+        assert name in metrics
+    assert (
+        metrics["transitions"]
+        == query(
+            sample_run,
+            "SELECT count(*) FROM dataset_transitions t JOIN stage_outputs o "
+            "ON o.stage = 'dataset' AND o.key = t.key AND o.video_id = t.video_id",
+        )[0][0]
+    )
+    assert "adversary_guard_height_mean_m" in metrics
+    keys = _dataset_keys(capsys, sample_run)
+
+    # Nothing changed: the same dataset key, nothing recomputed.
+    base = ["--data", str(sample_run), "process", str(sample_video), "--adversary", "A"]
+    outputs = query(sample_run, "SELECT count(*) FROM stage_outputs WHERE stage = 'dataset'")
+    code, out, _ = run_cli(capsys, *base, "--ingest-chunk-frames", "30", "--json")
+    assert code == 0
+    summary = {r["stage"]: r for r in json.loads(out)}
+    assert summary["dataset"]["state"] == "cached"
+    assert summary["dataset-assemble"]["key"] == keys[0]
+    assert _dataset_keys(capsys, sample_run) == keys
+    assert query(sample_run, "SELECT count(*) FROM stage_outputs WHERE stage = 'dataset'") == (
+        outputs
+    )
+
+    # A dataset setting changes the dataset (and only it): a new key, the lift is reused.
+    code, out, _ = run_cli(
+        capsys, *base, "--ingest-chunk-frames", "30", "--dataset-min-clip-s", "0.5", "--json"
+    )
+    assert code == 0
+    summary = {r["stage"]: r for r in json.loads(out)}
+    assert summary["lift"]["state"] == "cached" and summary["dataset"]["state"] == "done"
+    new_key = summary["dataset-assemble"]["key"]
+    assert new_key != keys[0] and set(_dataset_keys(capsys, sample_run)) == {new_key, keys[0]}
+
+
+def test_extra_single_actor_clips_join_the_dataset(capsys, sample_run, sample_video, assets):
+    base = ["--data", str(sample_run), "process", str(sample_video), "--adversary", "A"]
+    base += ["--ingest-chunk-frames", "30", "--json"]
+    folder = assets / "dev" / "motions"
+    code, out, _ = run_cli(capsys, *base, "--dataset-extra-clips", str(folder))
+    assert code == 0
+    key = {r["stage"]: r for r in json.loads(out)}["dataset-assemble"]["key"]
+    lengths = [len(retarget(load_deepmimic(p))) for p in sorted(folder.glob("*.txt"))]
+    with connect(sample_run / "ringside.duckdb", read_only=True) as con:
+        extra = load_transitions(con, key, kind="single", agent=2)
+        assert len(extra) == sum(n - 1 for n in lengths)
+        assert len(dataset_info(con, key).members) == 2
+        assert count_transitions(con, key, kind="single", agent=0) > 0
+
+    code, _, err = run_cli(capsys, *base, "--dataset-extra-clips", str(sample_run / "nothing"))
+    assert code == 2
+    assert "not a folder (dataset.extra_clips)" in err and len(err.strip().splitlines()) == 1
