@@ -219,11 +219,15 @@ def iter_transitions(
     """
     info = dataset_info(con, dataset_key)
     where, params = _selection(kind, agent, split)
-    columns = "self, opp, next_self" if kind == "interaction" else "self, next_self"
+    # As variable-length lists, which DuckDB hands to numpy faster than fixed-size arrays.
+    names = ("self", "opp", "next_self") if kind == "interaction" else ("self", "next_self")
+    columns = ", ".join(f"{n}::FLOAT[] AS {n}" for n in names)
     for video_id, key in info.members:
+        # No ORDER BY: an output's rows were inserted in (kind, agent, clip, step) order and
+        # DuckDB returns a scan in insertion order (preserve_insertion_order, on by default);
+        # sorting again took 60 % of the read (benchmarks/dataset_io.py).
         found = con.execute(
-            f"SELECT {columns} FROM dataset_transitions WHERE key = ? AND video_id = ? "
-            f"AND {where} ORDER BY agent, clip, step",
+            f"SELECT {columns} FROM dataset_transitions WHERE key = ? AND video_id = ? AND {where}",
             [key, video_id, *params],
         ).fetchnumpy()
         if len(found["self"]) == 0:
