@@ -75,17 +75,25 @@ def insert_columns(
     unknown = sorted(set(columns) - set(types))
     if unknown:
         raise ValueError(f"{table} has no columns {unknown}")
-    source = {}
+    source, selects = {}, []
     for name, values in columns.items():
         array = np.asarray(values)
+        select = name
+        # DuckDB reads a float NaN from numpy as NULL; a float array cannot hold a NULL, so
+        # every NULL that comes out of one was a NaN and is turned back into one.
         if array.ndim > 1:  # one list per row: an object array of row views, not a copy
+            if np.issubdtype(array.dtype, np.floating):
+                select = f"list_transform({name}, lambda v: coalesce(v, 'NaN'::DOUBLE))"
             rows = np.empty(len(array), dtype=object)
             rows[:] = list(array)
             array = rows
+        elif np.issubdtype(array.dtype, np.floating):
+            select = f"coalesce({name}, 'NaN'::DOUBLE)"
         source[name] = array
+        selects.append(f"{select}::{types[name]}")
     view = f"_insert_{table}"
     names = list(columns)
-    casts = ", ".join(f"{n}::{types[n]}" for n in names)
+    casts = ", ".join(selects)
     con.register(view, source)
     try:
         con.execute(

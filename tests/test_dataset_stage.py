@@ -19,13 +19,14 @@ from models.humanoid.kinematics import (
 )
 from models.humanoid.observations import body_states, observation, self_observation
 from storage.db import connect
-from storage.records import OutputRecord, write_output
+from storage.records import OutputRecord, insert_columns, write_output
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.stage import FighterMotion, build_dataset, cut_clips
 from tasks.dataset.store import (
     UnknownDataset,
     count_transitions,
     dataset_info,
+    load_motion,
     load_transitions,
     record_dataset,
 )
@@ -264,3 +265,37 @@ def test_extra_single_actor_clips_join_the_dataset(capsys, sample_run, sample_vi
     code, _, err = run_cli(capsys, *base, "--dataset-extra-clips", str(sample_run / "nothing"))
     assert code == 2
     assert "not a folder (dataset.extra_clips)" in err and len(err.strip().splitlines()) == 1
+
+
+def test_damaged_motion_rows_are_named(tmp_path, pair):
+    """A lift row whose numbers were damaged stops the dataset with the video and the step."""
+    motion = pair["adversary"]
+    db = tmp_path / "ringside.duckdb"
+    qpos = motion.qpos.astype(np.float32)
+    qpos[7, 3] = np.nan
+    with connect(db) as con:
+        for name, value in vars(BONES).items():
+            con.execute(
+                "INSERT INTO lift_bones VALUES ('L', 'v', 'adversary', ?, ?)", [name, value]
+            )
+        insert_columns(
+            con,
+            "lift_motion",
+            "L",
+            "v",
+            {
+                "role": np.array(["adversary"] * len(motion.step)),
+                "step": motion.step,
+                "time_s": motion.step / RATE,
+                "qpos": qpos,
+                "qvel": motion.qvel.astype(np.float32),
+                "joints": motion.joints.reshape(-1, 99).astype(np.float32),
+                "contact_left": motion.contacts[:, 0],
+                "contact_right": motion.contacts[:, 1],
+            },
+        )
+    with (
+        connect(db, read_only=True) as con,
+        pytest.raises(BadInput, match="not finite at 1 steps from step 7"),
+    ):
+        load_motion(con, "v", "L")

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 import textwrap
@@ -12,7 +13,14 @@ import pytest
 from storage.artifacts import artifact_path, put_bytes, read_bytes
 from storage.db import DatabaseBusy, connect, migrations
 from storage.keys import code_version, stable_json, stage_key
-from storage.records import OutputRecord, latest_metrics, latest_runs, register_video, write_output
+from storage.records import (
+    OutputRecord,
+    insert_columns,
+    latest_metrics,
+    latest_runs,
+    register_video,
+    write_output,
+)
 
 
 def record(key: str = "k1", run_id: str = "run-1") -> OutputRecord:
@@ -181,3 +189,30 @@ def test_columns_insert_in_one_statement(tmp_path: Path):
         with pytest.raises(ValueError, match="no columns"):
             write_output(con, record(), {"t": {"nope": frames}}, {})
         assert con.execute("SELECT count(*) FROM t").fetchone()[0] == 5
+
+
+def test_insert_columns_keeps_nan_and_null_apart(tmp_path):
+    """NaN in float columns and arrays comes back as NaN; a missing row of an array is NULL."""
+    with connect(tmp_path / "t.duckdb") as con:
+        con.execute(
+            "CREATE TABLE t (key VARCHAR, video_id VARCHAR, n INTEGER, x DOUBLE, "
+            "a FLOAT[3], o FLOAT[2])"
+        )
+        opt = np.empty(2, dtype=object)
+        opt[:] = [None, np.array([1.0, 2.0], np.float32)]
+        insert_columns(
+            con,
+            "t",
+            "k",
+            "v",
+            {
+                "n": np.array([1, 2]),
+                "x": np.array([np.nan, 2.5]),
+                "a": np.array([[1, np.nan, 3], [4, 5, 6]], np.float32),
+                "o": opt,
+            },
+        )
+        rows = con.execute("SELECT key, n, x, a, o FROM t ORDER BY n").fetchall()
+    assert rows[0][0] == "k" and math.isnan(rows[0][2]) and rows[1][2] == 2.5
+    assert rows[0][3][0] == 1 and math.isnan(rows[0][3][1]) and rows[1][3] == (4, 5, 6)
+    assert rows[0][4] is None and rows[1][4] == (1, 2)

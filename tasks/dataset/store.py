@@ -21,6 +21,7 @@ from storage.db import transaction, utcnow
 from storage.keys import digest, stable_json
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.stage import AGENTS, STAGE, FighterMotion
+from tasks.errors import BadInput
 
 
 class UnknownDataset(KeyError):
@@ -49,10 +50,21 @@ def load_motion(
         ).fetchnumpy()
         if len(columns["step"]) == 0:
             continue
+        qpos = np.stack(columns["qpos"]).astype(np.float64)
+        qvel = np.stack(columns["qvel"]).astype(np.float64)
+        bad = ~(np.isfinite(qpos).all(1) & np.isfinite(qvel).all(1))
+        if bad.any():
+            steps = columns["step"][bad]
+            raise BadInput(
+                f"lift_motion of video {video_id[:12]} (lift key {lift_key[:12]})",
+                f"the {role}'s qpos/qvel is not finite at {len(steps)} steps from step "
+                f"{steps[0]}; the rows are damaged: rerun the lift "
+                f"(`ringside rerun lift --video {video_id[:12]}`)",
+            )
         fighters[role] = FighterMotion(
             step=np.asarray(columns["step"], dtype=np.int64),
-            qpos=np.stack(columns["qpos"]).astype(np.float64),
-            qvel=np.stack(columns["qvel"]).astype(np.float64),
+            qpos=qpos,
+            qvel=qvel,
             joints=np.stack(columns["joints"]).astype(np.float64).reshape(-1, 33, 3),
             contacts=np.stack([columns["contact_left"], columns["contact_right"]], axis=1),
             bones=BoneLengths(**lengths),
