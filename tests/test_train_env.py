@@ -1,0 +1,388 @@
+"""The two-fighter arena (models.humanoid.arena) and the batched training environment
+(tasks.train.env): placement, observations, falls, damage, batched stepping, bad inputs."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from models.humanoid.arena import DAMAGE_BODIES, arena_index, arena_mjcf
+from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.kinematics import (
+    HINGE_NAMES,
+    action_to_joint_targets,
+    heading_frame,
+    humanoid_index,
+    joint_targets_to_action,
+)
+from models.humanoid.observations import body_state, observation, self_observation
+from tasks.lift.solve import velocities
+from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
+from tasks.train.env import (
+    ArenaEnv,
+    EnvConfig,
+    ReferenceMotions,
+    centred_pair,
+    facing_reference,
+    geom_bottoms,
+)
+
+SMALL = BoneLengths().scaled(0.9)
+
+
+@pytest.fixture(scope="module")
+def punch(assets) -> ReferenceMotions:
+    """DeepMimic's punch performed by both fighters, 1.2 m apart and facing each other."""
+    qpos = retarget(load_deepmimic(clip_path(assets, "punch")))
+    model = mujoco.MjModel.from_xml_string(boxer_mjcf())
+    return facing_reference(qpos, velocities(model, qpos, 30.0), distance=1.2)
+
+
+def _env(**config) -> ArenaEnv:
+    config = {"num_envs": 2, "threads": 1, **config}
+    return ArenaEnv(EnvConfig(**config), np.random.default_rng(0))
+
+
+def _standing(env: ArenaEnv) -> ReferenceMotions:
+    """One frame: both fighters at rest, as the arena's qpos0 puts them."""
+    q = env.model.qpos0
+    zero = np.zeros((1, 34))
+    return ReferenceMotions(q[None, :35], zero, q[None, 35:], zero)
+
+
+def _floor_distances(model: mujoco.MjModel, data: mujoco.MjData, geoms) -> np.ndarray:
+    """Signed distance of each geom to the floor by MuJoCo's own narrow phase."""
+    floor = model.geom("floor").id
+    return np.array([mujoco.mj_geomDistance(model, data, floor, g, 10.0, None) for g in geoms])
+
+
+# ---------------------------------------------------------------- arena
+
+
+def test_arena_holds_two_boxers_that_touch_each_other_and_the_floor_only():
+    model = mujoco.MjModel.from_xml_string(arena_mjcf((BoneLengths(), SMALL), timestep=1 / 120))
+    assert (model.nq, model.nv, model.nu) == (70, 68, 56)
+    assert model.opt.timestep == pytest.approx(1 / 120)
+    red, blue = humanoid_index(model, prefix="a0/"), humanoid_index(model, prefix="a1/")
+    assert (red.qpos, blue.qpos) == (slice(0, 35), slice(35, 70))
+    index = arena_index(model)
+    owner = index.agent_of_geom
+    floor = model.geom("floor").id
+    for g1 in range(model.ngeom):
+        for g2 in range(g1 + 1, model.ngeom):
+            collide = bool(
+                model.geom_contype[g1] & model.geom_conaffinity[g2]
+                or model.geom_contype[g2] & model.geom_conaffinity[g1]
+            )
+            if floor in (g1, g2):
+                assert collide  # the floor touches every geom of both fighters
+            else:
+                assert collide == (owner[g1] != owner[g2]), (
+                    model.geom(g1).name,
+                    model.geom(g2).name,
+                )
+    for a, prefix in enumerate(("a0/", "a1/")):
+        bodies = {model.body(model.geom_bodyid[g]).name for g in index.damage_geoms[a]}
+        assert bodies == {prefix + b for b in DAMAGE_BODIES}
+        names = [model.geom(g).name for g in index.striker_geoms[a]]
+        assert names == [prefix + "right_glove", prefix + "left_glove"]
+        assert model.geom(index.head_geoms[a]).name == prefix + "head"
+        assert list(index.actuators[a]) == list(range(28 * a, 28 * (a + 1)))
+    # At qpos0 they stand 1.2 m apart across the origin, facing each other, soles on the floor.
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    assert data.qpos[[0, 35]] == pytest.approx([-0.6, 0.6])
+    facing = heading_frame(np.stack([data.qpos[3:7], data.qpos[38:42]]))[:, :, 0]
+    assert facing == pytest.approx(np.array([[1.0, 0, 0], [-1.0, 0, 0]]), abs=1e-12)
+    fighters = np.flatnonzero(owner >= 0)
+    assert _floor_distances(model, data, fighters).min() == pytest.approx(0.0, abs=1e-9)
+    assert geom_bottoms(model, data, fighters) == pytest.approx(
+        _floor_distances(model, data, fighters), abs=1e-9
+    )
+
+
+def test_arena_sensors_and_bad_arguments():
+    plain = mujoco.MjModel.from_xml_string(arena_mjcf())
+    assert plain.nsensor == 0 and arena_index(plain).sensors is None
+    sensed = mujoco.MjModel.from_xml_string(arena_mjcf(contact_sensors=True))
+    layout = arena_index(sensed).sensors
+    assert layout is not None and layout.damage.shape == (2, 3)
+    with pytest.raises(ValueError, match="prefixes"):
+        arena_mjcf(prefixes=("a/", "a/"))
+    with pytest.raises(ValueError, match="timestep"):
+        arena_mjcf(timestep=-1.0)
+    with pytest.raises(ValueError, match="bones"):
+        arena_mjcf((BoneLengths(),))
+
+
+# ---------------------------------------------------------------- reset
+
+
+def test_reset_places_both_fighters_at_the_reference_frame(punch):
+    frames = np.array([0, 12, 30, 50])
+    with _env(num_envs=4) as env:
+        obs = env.reset(np.arange(4), punch, frames=frames)
+        assert obs.shape == (4, 2, 274)
+        agents = env.index.agents
+        fighters = np.flatnonzero(env.index.agent_of_geom >= 0)
+        for k, frame in enumerate(frames):
+            data = env.datas[k]
+            q0, q1 = data.qpos[agents[0].qpos], data.qpos[agents[1].qpos]
+            shift = q0[:2] - punch.qpos0[frame, :2]
+            # One horizontal shift for both, centring the pelvises on the origin; all else equal.
+            assert q1[:2] - punch.qpos1[frame, :2] == pytest.approx(shift, abs=1e-12)
+            assert (q0[:2] + q1[:2]) / 2 == pytest.approx([0.0, 0.0], abs=1e-12)
+            assert np.array_equal(q0[2:], punch.qpos0[frame, 2:])
+            assert np.array_equal(q1[2:], punch.qpos1[frame, 2:])
+            assert np.array_equal(data.qvel[agents[0].qvel], punch.qvel0[frame])
+            assert np.array_equal(data.qvel[agents[1].qvel], punch.qvel1[frame])
+            assert _floor_distances(env.model, data, fighters).min() >= -1e-9
+
+
+def test_reset_lifts_a_fighter_out_of_the_floor_and_draws_frames_from_the_rng(punch):
+    sunk = ReferenceMotions(
+        punch.qpos0 - np.eye(35)[2] * 0.2, punch.qvel0, punch.qpos1, punch.qvel1
+    )
+    with _env(num_envs=3) as env:
+        env.reset([0, 1, 2], sunk, frames=[5, 6, 7])
+        mine = np.flatnonzero(env.index.agent_of_geom == 0)
+        for data in env.datas:
+            assert _floor_distances(env.model, data, mine).min() == pytest.approx(0.0, abs=1e-9)
+    draws = []
+    for _ in range(2):
+        with _env(num_envs=8) as env:
+            env.reset(np.ones(8, dtype=bool), punch)
+            draws.append(np.array([d.qpos[3:7].copy() for d in env.datas]))
+    assert np.array_equal(draws[0], draws[1])  # one seed, one draw
+    assert len({tuple(q) for q in draws[0]}) > 1  # frames differ between environments
+
+
+def test_centred_pair_and_facing_reference_geometry(punch):
+    a, b = centred_pair(punch.qpos0[:3], punch.qpos1[:3])
+    assert a[:, :2] + b[:, :2] == pytest.approx(np.zeros((3, 2)), abs=1e-12)
+    # Agent 1 starts 1.2 m in front of agent 0 and faces it.
+    facing0 = heading_frame(punch.qpos0[0, 3:7])[:, 0]
+    facing1 = heading_frame(punch.qpos1[0, 3:7])[:, 0]
+    gap = punch.qpos1[0, :3] - punch.qpos0[0, :3]
+    assert gap == pytest.approx(1.2 * facing0, abs=1e-9)
+    assert facing1 == pytest.approx(-facing0, abs=1e-9)
+
+
+# ---------------------------------------------------------------- observations
+
+
+@pytest.mark.parametrize("stepping", ["rollout", "threads"])
+def test_observations_are_the_dataset_functions_on_the_simulated_state(punch, stepping):
+    rng = np.random.default_rng(4)
+    with _env(num_envs=3, stepping=stepping) as env:
+        env.reset([0, 1, 2], punch, frames=[3, 20, 40])
+        for _ in range(3):
+            result = env.step(rng.normal(0.0, 0.3, (3, 2, 28)))
+        agents = env.index.agents
+        for k, data in enumerate(env.datas):
+            fresh = mujoco.MjData(env.model)
+            fresh.qpos[:], fresh.qvel[:] = data.qpos, data.qvel
+            mujoco.mj_forward(env.model, fresh)
+            me = body_state(env.model, fresh, agents[0])
+            them = body_state(env.model, fresh, agents[1])
+            assert result.observation[k, 0] == pytest.approx(observation(me, them), abs=1e-10)
+            assert result.observation[k, 1] == pytest.approx(observation(them, me), abs=1e-10)
+            assert result.self_observation[k, 1] == pytest.approx(self_observation(them), abs=1e-10)
+        assert np.array_equal(env.observe(), result.observation)
+
+
+# ---------------------------------------------------------------- falls and time-outs
+
+
+@pytest.mark.parametrize("stepping", ["rollout", "threads"])
+def test_zero_actions_stand_and_a_shove_knocks_a_fighter_down(stepping):
+    with _env(num_envs=2, stepping=stepping) as env:
+        reference = _standing(env)
+        env.reset([0, 1], reference)
+        for _ in range(30):  # one second at the rest targets
+            result = env.step(np.zeros((2, 2, 28)))
+            assert not result.done.any()
+        heads = np.array([d.geom_xpos[env.index.head_geoms, 2] for d in env.datas])
+        assert heads.min() > 1.6
+
+        shoved = ReferenceMotions(
+            reference.qpos0, reference.qvel0, reference.qpos1, reference.qvel1 + np.eye(34)[1] * 2.5
+        )
+        env.reset([0], reference)
+        env.reset([1], shoved)  # agent 1 of env 1 starts sliding sideways at 2.5 m/s
+        for _ in range(60):
+            result = env.step(np.zeros((2, 2, 28)))
+            if result.done[1]:
+                break
+        assert result.terminated[1] and not result.truncated[1]
+        assert result.fell[1].tolist() == [False, True]
+        assert not result.done[0]
+
+
+def test_time_limit_truncates_without_terminating():
+    with _env(episode_s=0.2) as env:
+        env.reset([0, 1], _standing(env))
+        for step in range(6):
+            result = env.step(np.zeros((2, 2, 28)))
+            assert result.done.tolist() == [step == 5] * 2
+        assert result.truncated.all() and not result.terminated.any()
+        env.reset([0], _standing(env))
+        assert env.elapsed.tolist() == [0, 6]
+
+
+# ---------------------------------------------------------------- damage
+
+
+def _jab_setup(env: ArenaEnv) -> tuple[ReferenceMotions, np.ndarray]:
+    """Agent 0 lunges at 1.5 m/s with its right arm raised forward, its glove 2 cm short of
+    agent 1's head; actions hold agent 0's arm and agent 1's rest pose."""
+    q0, q1 = env.model.qpos0[:35].copy(), env.model.qpos0[35:].copy()
+    q0[:2] = 0.0
+    q0[7 + HINGE_NAMES.index("right_shoulder_y")] = -1.9  # arm forward, 19 deg above level
+    q1[:2] = (0.833, -0.185)  # head in line with agent 0's right arm
+    v0 = np.zeros(34)
+    v0[0] = 1.5
+    reference = ReferenceMotions(q0[None], v0[None], q1[None], np.zeros((1, 34)))
+    actions = np.zeros((env.num_envs, 2, 28))
+    actions[:, 0] = joint_targets_to_action(q0[7:])
+    return reference, actions
+
+
+def _slow_damage(model: mujoco.MjModel, data: mujoco.MjData, prefixes=("a0/", "a1/")):
+    """Every contact's normal force on a head/torso/pelvis geom from the other fighter."""
+    damage = np.zeros(2)
+    force = np.zeros(6)
+    for c in range(data.ncon):
+        names = [model.geom(g).name for g in data.contact.geom[c]]
+        bodies = [model.body(model.geom_bodyid[g]).name for g in data.contact.geom[c]]
+        for side in (0, 1):
+            other = names[1 - side]
+            for a, prefix in enumerate(prefixes):
+                target = bodies[side] in {prefix + b for b in DAMAGE_BODIES}
+                if target and other.startswith(prefixes[1 - a]):
+                    mujoco.mj_contactForce(model, data, c, force)
+                    damage[a] += force[0]
+    return damage
+
+
+def test_a_glove_on_the_head_damages_the_one_hit_and_matches_a_slow_count():
+    with _env(num_envs=1, stepping="threads") as env:
+        reference, actions = _jab_setup(env)
+        env.reset([0], reference)
+        # Replay the same physics in a second MjData, counting contacts the slow way.
+        replay = mujoco.MjData(env.model)
+        replay.qpos[:], replay.qvel[:] = env.datas[0].qpos, env.datas[0].qvel
+        targets = action_to_joint_targets(actions[0])
+        replay.ctrl[:] = np.clip(targets.reshape(-1), *env.model.actuator_ctrlrange.T)
+        total = np.zeros(2)
+        hits = set()
+        for _ in range(8):
+            result = env.step(actions)
+            slow = np.zeros(2)
+            for _ in range(env.config.substeps):
+                mujoco.mj_step(env.model, replay)
+                slow += _slow_damage(env.model, replay)
+                for c in range(replay.ncon):
+                    hits.add(tuple(sorted(env.model.geom(g).name for g in replay.contact.geom[c])))
+            assert np.array_equal(result.damage[0], slow)
+            total += result.damage[0]
+        assert ("a0/right_glove", "a1/head") in hits
+        assert total[0] == 0.0 and total[1] > 500.0  # newtons, summed over the steps
+        assert not result.done.any()
+
+    # mujoco.rollout reads the same contacts through sensors: the same damage.
+    with _env(num_envs=1, stepping="rollout") as env:
+        env.reset([0], reference)
+        rollout_total = sum(env.step(actions).damage[0] for _ in range(8))
+    assert rollout_total == pytest.approx(total, rel=1e-6)
+
+
+# ---------------------------------------------------------------- batched stepping
+
+
+def test_threaded_stepping_is_bitwise_sequential_stepping(punch):
+    frames = [0, 9, 18, 27, 36, 45]
+    rng = np.random.default_rng(7)
+    actions = rng.normal(0.0, 0.4, (6, 6, 2, 28))
+    with _env(num_envs=6, threads=2, stepping="threads") as env:
+        env.reset(np.arange(6), punch, frames=frames)
+        start = [(d.qpos.copy(), d.qvel.copy()) for d in env.datas]
+        results = [env.step(a) for a in actions]
+        threaded = [(d.qpos.copy(), d.qvel.copy()) for d in env.datas]
+        model, ctrlrange = env.model, env.model.actuator_ctrlrange
+    # The obviously correct way: one MjData at a time, mj_step after mj_step.
+    for k, (qpos, qvel) in enumerate(start):
+        data = mujoco.MjData(model)
+        data.qpos[:], data.qvel[:] = qpos, qvel
+        for a in actions:
+            data.ctrl[:] = np.clip(action_to_joint_targets(a[k]).reshape(-1), *ctrlrange.T)
+            for _ in range(2):
+                mujoco.mj_step(model, data)
+        assert np.array_equal(data.qpos, threaded[k][0])
+        assert np.array_equal(data.qvel, threaded[k][1])
+    with _env(num_envs=6, threads=1, stepping="threads") as env:
+        env.reset(np.arange(6), punch, frames=frames)
+        sequential = [env.step(a) for a in actions]
+    for one, two in zip(results, sequential, strict=True):
+        assert np.array_equal(one.observation, two.observation)
+        assert np.array_equal(one.damage, two.damage)
+        assert np.array_equal(one.fell, two.fell)
+    # mujoco.rollout: the same physics up to the solver's warm start, and the same on 1 or 2
+    # threads.
+    rolled = []
+    for threads in (1, 2):
+        with _env(num_envs=6, threads=threads, stepping="rollout") as env:
+            env.reset(np.arange(6), punch, frames=frames)
+            rolled.append([env.step(a) for a in actions])
+            for k, data in enumerate(env.datas):
+                assert data.qpos == pytest.approx(threaded[k][0], abs=1e-8)
+    assert rolled[0][-1].observation == pytest.approx(results[-1].observation, abs=1e-6)
+    for one, two in zip(*rolled, strict=True):
+        assert np.array_equal(one.observation, two.observation)
+        assert np.array_equal(one.damage, two.damage)
+
+
+@pytest.mark.parametrize("stepping", ["rollout", "threads"])
+def test_physics_rates_follow_the_config(stepping):
+    for substeps, timestep in ((2, 1 / 60), (4, 1 / 120)):
+        with _env(substeps=substeps, stepping=stepping) as env:
+            assert env.model.opt.timestep == pytest.approx(timestep)
+            before = env.datas[0].time
+            env.step_physics()
+            assert env.datas[0].time - before == pytest.approx(1 / 30)
+            assert env.elapsed.tolist() == [0, 0]
+
+
+# ---------------------------------------------------------------- bad inputs
+
+
+def test_bad_inputs_raise_clear_errors(punch):
+    with _env() as env:
+        env.reset([0, 1], punch)
+        with pytest.raises(ValueError, match=r"actions must have shape \(2, 2, 28\)"):
+            env.step(np.zeros((2, 28)))
+        bad = np.zeros((2, 2, 28))
+        bad[1, 0, 5] = math.nan
+        with pytest.raises(ValueError, match="actions must be finite; env 1, agent 0, action 5"):
+            env.step(bad)
+        with pytest.raises(ValueError, match="env_ids"):
+            env.reset([2], punch)
+        with pytest.raises(ValueError, match="frames"):
+            env.reset([0], punch, frames=[punch.num_frames])
+        with pytest.raises(ValueError, match="reference must be a ReferenceMotions"):
+            env.reset([0], punch.qpos0)
+        with pytest.raises(ValueError, match="ctrl"):
+            env.step_physics(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match=r"qpos0 must have shape \(M, 35\)"):
+        ReferenceMotions(punch.qpos0[:, :34], punch.qvel0, punch.qpos1, punch.qvel1)
+    with pytest.raises(ValueError, match="qvel1 has 3 frames"):
+        ReferenceMotions(punch.qpos0, punch.qvel0, punch.qpos1, punch.qvel1[:3])
+    with pytest.raises(ValueError, match="qpos1 must be finite"):
+        ReferenceMotions(punch.qpos0, punch.qvel0, punch.qpos1 * math.nan, punch.qvel1)
+    with pytest.raises(ValueError, match="substeps"):
+        EnvConfig(substeps=0)
+    with pytest.raises(ValueError, match="stepping"):
+        EnvConfig(stepping="gpu")
