@@ -1,0 +1,309 @@
+"""The train stage's config: networks, rewards, discriminators and MAPPO, MAAIP §4.3-§4.5.
+
+Numbers from the paper (Younes et al., "MAAIP: Multi-Agent Adversarial Interaction Priors",
+SCA 2023) are marked as such; the rest are choices where the paper is silent (its
+supplementary hyper-parameters are not available here), most following AMP (Peng et al.
+2021) and MAPPO (Yu et al. 2021), which the paper builds on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from tasks.config import setting
+from tasks.train.env import EnvConfig
+
+PRESETS: dict[str, tuple[int, ...]] = {
+    # MAAIP §4.4: 3 hidden layers of 1024, 1024, 512 ReLU units.
+    "paper": (1024, 1024, 512),
+    # A smaller net for CPU training; the sizes are to be chosen by measurement.
+    "cpu": (256, 256, 128),
+}
+CONTROL_TASKS = ("none", "damage_min", "damage_max", "heading")
+DISCRIMINATOR_LOSSES = ("gail", "lsgan")
+NUM_AGENTS = 2
+HEADING_OBSERVATION_DIM = 2
+
+
+def _finite(value: float) -> bool:
+    return math.isfinite(value)
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Sizes of the policy, the centralised value and the discriminators (MAAIP §4.4: all of a
+    similar architecture, so all use the same hidden sizes here)."""
+
+    preset: str = setting(
+        "cpu",
+        "Hidden layer sizes by name: 'paper' is 1024,1024,512 (MAAIP §4.4), 'cpu' is "
+        "256,256,128 for training without a GPU.",
+    )
+    hidden: str = setting(
+        "", "Comma-separated hidden layer sizes, e.g. '512,256'; overrides the preset if set."
+    )
+    observation_clip: float = setting(
+        5.0, "Normalised observations are clipped to +-this many standard deviations."
+    )
+
+    def __post_init__(self) -> None:
+        if self.preset not in PRESETS:
+            raise ValueError(
+                f"train.network.preset must be one of {sorted(PRESETS)}, got {self.preset!r}"
+            )
+        if self.hidden:
+            self._parse_hidden()
+        if not (self.observation_clip > 0 and _finite(self.observation_clip)):
+            raise ValueError(
+                f"train.network.observation_clip must be positive, got {self.observation_clip}"
+            )
+
+    def _parse_hidden(self) -> tuple[int, ...]:
+        try:
+            sizes = tuple(int(part) for part in self.hidden.split(","))
+        except ValueError:
+            sizes = ()
+        if not sizes or min(sizes) < 1:
+            raise ValueError(
+                "train.network.hidden must be comma-separated positive integers such as "
+                f"'1024,1024,512', got {self.hidden!r}"
+            )
+        return sizes
+
+    @property
+    def hidden_sizes(self) -> tuple[int, ...]:
+        """The hidden layer sizes in use: ``hidden`` if set, else the preset's."""
+        return self._parse_hidden() if self.hidden else PRESETS[self.preset]
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """How the motion, interaction and control rewards are weighted and scheduled (MAAIP eq 4,
+    §4.5, §5.2-§5.4)."""
+
+    w_motion: float = setting(
+        0.2, "Weight w^M of the motion prior's reward (eq 4; 0.2 in MAAIP §5.2, 0.1 with a task)."
+    )
+    w_interaction: float = setting(
+        0.8,
+        "Weight w^I of the interaction prior's reward (eq 4; 0.8 in MAAIP §5.2, 0.4 with a task).",
+    )
+    w_control: float = setting(
+        0.0,
+        "Weight w^C of the control reward (0.5 in MAAIP §5.3-§5.4); 0 when control_task is 'none'.",
+    )
+    control_task: str = setting(
+        "none",
+        "Control reward: 'none', 'damage_min' (eq 9), 'damage_max' (eq 10) or 'heading' (eq 11).",
+    )
+    interaction_start: int = setting(
+        0,
+        "Training iteration from which the interaction reward is on; before it only the motion "
+        "reward is (MAAIP §4.5 reward scheduling, which gives no numbers).",
+    )
+    control_start: int = setting(
+        500, "Training iteration from which the control reward is on (MAAIP §4.5 scheduling)."
+    )
+    renormalize_schedule: bool = setting(
+        True,
+        "While a reward is scheduled off, scale the active weights up so that they keep the sum "
+        "of all three weights (so with 0.1/0.4/0.5 the middle phase is 0.2/0.8, the paper's "
+        "imitation-only weights); false leaves them as they are.",
+    )
+    damage_scale: float = setting(
+        0.01,
+        "w in eqs 9-10 (1/N): a contact force of 1/damage_scale newtons on head, torso and "
+        "pelvis gives exp(-1). The paper gives no value.",
+    )
+    heading_scale: float = setting(
+        0.25, "w in eq 11 (s^2/m^2), on the squared shortfall of speed along the heading."
+    )
+    heading_speed: float = setting(
+        1.0, "Target speed (m/s) along the target heading for the 'heading' task."
+    )
+
+    def __post_init__(self) -> None:
+        weights = {
+            "w_motion": self.w_motion,
+            "w_interaction": self.w_interaction,
+            "w_control": self.w_control,
+        }
+        for name, value in weights.items():
+            if not (_finite(value) and value >= 0):
+                raise ValueError(f"train.reward.{name} must be non-negative, got {value}")
+        if sum(weights.values()) <= 0:
+            raise ValueError(
+                "train.reward.w_motion + w_interaction + w_control must be positive; all three "
+                "weights are 0, so the agents would get no reward"
+            )
+        if self.control_task not in CONTROL_TASKS:
+            raise ValueError(
+                f"train.reward.control_task must be one of {list(CONTROL_TASKS)}, got "
+                f"{self.control_task!r}"
+            )
+        if self.control_task == "none" and self.w_control != 0:
+            raise ValueError(
+                f"train.reward.w_control must be 0 when train.reward.control_task is 'none', "
+                f"got {self.w_control}"
+            )
+        if self.control_task != "none" and self.w_control <= 0:
+            raise ValueError(
+                f"train.reward.w_control must be positive when control_task is "
+                f"{self.control_task!r}, got {self.w_control}"
+            )
+        for name in ("interaction_start", "control_start"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"train.reward.{name} must be >= 0, got {getattr(self, name)}")
+        first = self.w_motion
+        first += self.w_interaction if self.interaction_start == 0 else 0.0
+        first += self.w_control if self.control_start == 0 else 0.0
+        if first <= 0:
+            raise ValueError(
+                "train.reward: every reward active at iteration 0 has weight 0 (w_motion is 0 "
+                "and the others are scheduled later by interaction_start/control_start); give "
+                "w_motion a positive weight or start another reward at 0"
+            )
+        for name in ("damage_scale", "heading_scale", "heading_speed"):
+            value = getattr(self, name)
+            if not (_finite(value) and value > 0):
+                raise ValueError(f"train.reward.{name} must be positive, got {value}")
+
+    @property
+    def task_observation_dim(self) -> int:
+        """Extra policy inputs for the control task: the target heading (x, y) in the agent's
+        heading frame for 'heading' (MAAIP §5.4 conditions the policy on it), else 0."""
+        return HEADING_OBSERVATION_DIM if self.control_task == "heading" else 0
+
+
+@dataclass(frozen=True)
+class DiscriminatorConfig:
+    """How the motion prior D^M and the interaction priors D^I are trained (MAAIP eqs 7-8,
+    12-13, Algorithm 1 lines 17-20)."""
+
+    loss: str = setting(
+        "gail",
+        "Discriminator objective: 'gail' (cross-entropy, eqs 7-8, the paper's choice) or "
+        "'lsgan' (least squares, eqs 12-13, worse for interaction in MAAIP §6.2).",
+    )
+    gp_weight: float = setting(
+        5.0,
+        "w_gp of the gradient penalty w_gp E||grad D||^2 on demonstration samples (eqs 7-8), "
+        "taken on the logit with respect to the normalised input.",
+    )
+    logit_reg: float = setting(
+        0.05, "Weight of the squared output-layer weights added to the loss (as in AMP); 0 is off."
+    )
+    replay_size: int = setting(
+        100_000,
+        "Transitions kept in each discriminator's FIFO replay buffer of policy samples (§4.5).",
+    )
+    samples_per_update: int = setting(
+        512, "K in Algorithm 1: demonstration and policy transitions per discriminator update."
+    )
+    updates_per_iteration: int = setting(
+        5, "n in Algorithm 1: discriminator updates per training iteration."
+    )
+    learning_rate: float = setting(1e-4, "Adam learning rate of the discriminators.")
+    max_reward: float = setting(
+        9.21,
+        "GAIL style reward -log(1 - D) is clipped to [0, max_reward]; 9.21 = -log(1e-4), i.e. "
+        "D is capped at 0.9999.",
+    )
+    lsgan_reward_offset: float = setting(
+        1.0, "u in eq 13, r = max(0, u - v (d - 1)^2); u = 1 and v = 0.25 bound r in [0, 1]."
+    )
+    lsgan_reward_scale: float = setting(0.25, "v in eq 13.")
+
+    def __post_init__(self) -> None:
+        if self.loss not in DISCRIMINATOR_LOSSES:
+            raise ValueError(
+                f"train.discriminator.loss must be one of {list(DISCRIMINATOR_LOSSES)}, got "
+                f"{self.loss!r}"
+            )
+        for name in ("gp_weight", "logit_reg"):
+            value = getattr(self, name)
+            if not (_finite(value) and value >= 0):
+                raise ValueError(f"train.discriminator.{name} must be non-negative, got {value}")
+        for name in ("replay_size", "samples_per_update", "updates_per_iteration"):
+            if getattr(self, name) < 1:
+                raise ValueError(
+                    f"train.discriminator.{name} must be at least 1, got {getattr(self, name)}"
+                )
+        for name in ("learning_rate", "max_reward", "lsgan_reward_offset", "lsgan_reward_scale"):
+            value = getattr(self, name)
+            if not (_finite(value) and value > 0):
+                raise ValueError(f"train.discriminator.{name} must be positive, got {value}")
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """MAPPO (MAAIP §4.5, Algorithm 1 line 21): GAE(lambda) advantages, TD(lambda) value
+    targets, clipped surrogate, a Gaussian policy with a fixed standard deviation (§4.4)."""
+
+    gamma: float = setting(0.99, "Discount factor.")
+    gae_lambda: float = setting(0.95, "lambda of GAE(lambda) and TD(lambda).")
+    clip_coef: float = setting(0.2, "PPO ratio clip epsilon (MAPPO recommends <= 0.2).")
+    epochs: int = setting(5, "Passes over each batch of samples (MAPPO: 5 for hard tasks).")
+    minibatch_size: int = setting(1024, "Samples per PPO gradient step.")
+    learning_rate: float = setting(1e-4, "Adam learning rate of the policy and the value.")
+    action_std: float = setting(
+        0.055,
+        "Fixed standard deviation of every action dimension (MAAIP §4.4 fixes the covariance; "
+        "0.055 = exp(-2.9) as in AMP), in the action's units (radians of PD targets).",
+    )
+    value_coef: float = setting(0.5, "Weight of the value loss in the PPO loss.")
+    horizon: int = setting(32, "T: steps collected per environment per iteration.")
+    max_grad_norm: float = setting(1.0, "Gradients are clipped to this global norm.")
+    normalize_advantages: bool = setting(
+        True, "Advantages are standardised per minibatch (MAPPO does)."
+    )
+
+    def __post_init__(self) -> None:
+        if not 0 < self.gamma <= 1:
+            raise ValueError(f"train.ppo.gamma must be in (0, 1], got {self.gamma}")
+        if not 0 <= self.gae_lambda <= 1:
+            raise ValueError(f"train.ppo.gae_lambda must be in [0, 1], got {self.gae_lambda}")
+        for name in ("clip_coef", "learning_rate", "action_std", "max_grad_norm"):
+            value = getattr(self, name)
+            if not (_finite(value) and value > 0):
+                raise ValueError(f"train.ppo.{name} must be positive, got {value}")
+        if not (_finite(self.value_coef) and self.value_coef >= 0):
+            raise ValueError(f"train.ppo.value_coef must be non-negative, got {self.value_coef}")
+        for name in ("epochs", "minibatch_size", "horizon"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"train.ppo.{name} must be at least 1, got {getattr(self, name)}")
+
+    def batch_size(self, num_envs: int) -> int:
+        """Samples per iteration: every step of every environment, for both agents."""
+        return num_envs * self.horizon * NUM_AGENTS
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """The whole MAAIP training setup: seed, length and the four parts above."""
+
+    seed: int = setting(0, "Seeds network initialisation, sampling and the environments.")
+    iterations: int = setting(1000, "Training iterations (collect, update D, update pi and V).")
+    checkpoint_every: int = setting(
+        25, "Iterations between checkpoints; a killed run resumes from the newest."
+    )
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    discriminator: DiscriminatorConfig = field(default_factory=DiscriminatorConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    env: EnvConfig = field(default_factory=EnvConfig)
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1:
+            raise ValueError(f"train.iterations must be at least 1, got {self.iterations}")
+        if self.checkpoint_every < 1:
+            raise ValueError(
+                f"train.checkpoint_every must be at least 1, got {self.checkpoint_every}"
+            )
+        batch = self.ppo.batch_size(self.env.num_envs)
+        if self.ppo.minibatch_size > batch:
+            raise ValueError(
+                f"train.ppo.minibatch_size ({self.ppo.minibatch_size}) must not exceed the "
+                f"batch, env.num_envs x ppo.horizon x {NUM_AGENTS} agents = {batch}"
+            )
