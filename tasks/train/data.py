@@ -1,0 +1,98 @@
+"""What training reads from a dataset: demonstration transitions, start states, the fighters.
+
+MAAIP's priors learn from the dataset stage's transitions (`tasks.dataset.store`): the motion
+prior D^M from every single-actor transition (o^self_t, o^self_t+1), the interaction prior D^I_i
+from agent i's side of the interaction clips (o_t, o^self_t+1). Episodes start from frames of the
+interaction clips (reference state initialisation), both fighters as in the footage, on
+humanoids with the fighters' own bone lengths.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import duckdb
+import numpy as np
+
+from models.humanoid.boxer import BoneLengths
+from tasks.dataset.stage import ROLES
+from tasks.dataset.store import dataset_info, load_motion, load_transitions
+from tasks.errors import BadInput
+from tasks.train.env import ReferenceMotions
+
+
+@dataclass(frozen=True, eq=False)
+class Demonstrations:
+    """One dataset, ready for training.
+
+    Attributes:
+        dataset_key: the dataset's key.
+        motion: (M, 446) single-actor transitions [o^self_t, o^self_t+1] (M^S).
+        interaction: per agent, (M_i, 497) transitions [o_t, o^self_t+1] (agent i's side of M^I).
+        reference: interaction frames of both fighters to start episodes from.
+        bones: the adversary's and the opponent's bone lengths (agents 0 and 1).
+    """
+
+    dataset_key: str
+    motion: np.ndarray
+    interaction: tuple[np.ndarray, np.ndarray]
+    reference: ReferenceMotions
+    bones: tuple[BoneLengths, BoneLengths]
+
+
+def _pairs(con: duckdb.DuckDBPyConnection, dataset_key: str, kind: str, agent) -> np.ndarray:
+    found = load_transitions(con, dataset_key, kind=kind, agent=agent)
+    return np.concatenate([found.obs, found.next_self], axis=1)
+
+
+def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Demonstrations:
+    """Everything training needs from dataset ``dataset_key`` (its train split).
+
+    Raises:
+        UnknownDataset: no such dataset.
+        BadInput: the dataset has no interaction clip to learn from or start episodes in.
+    """
+    info = dataset_info(con, dataset_key)
+    motion = _pairs(con, dataset_key, "single", None)
+    interaction = tuple(_pairs(con, dataset_key, "interaction", a) for a in (0, 1))
+    frames: list[tuple[np.ndarray, ...]] = []
+    bones, most = None, -1
+    for video_id, key in info.members:
+        upstream = con.execute(
+            "SELECT upstream FROM stage_outputs WHERE stage = 'dataset' AND video_id = ? "
+            "AND key = ?",
+            [video_id, key],
+        ).fetchone()
+        lift_key = json.loads(upstream[0]).get("lift") if upstream else None
+        if lift_key is None:  # extra single-actor clips: no interaction
+            continue
+        clips = con.execute(
+            "SELECT start_step, end_step FROM dataset_clips WHERE key = ? AND video_id = ? "
+            "AND kind = 'interaction' AND split = 'train' ORDER BY clip",
+            [key, video_id],
+        ).fetchall()
+        if not clips:
+            continue
+        fighters = load_motion(con, video_id, lift_key)
+        steps = np.concatenate([np.arange(a, b) for a, b in clips])
+        rows = {role: fighters[role].rows(steps) for role in ROLES}
+        frames.append(
+            tuple(getattr(fighters[r], f)[rows[r]] for r in ROLES for f in ("qpos", "qvel"))
+        )
+        if len(steps) > most:
+            most, bones = len(steps), (fighters[ROLES[0]].bones, fighters[ROLES[1]].bones)
+    if not frames or min(len(x) for x in interaction) == 0:
+        raise BadInput(
+            f"dataset {dataset_key}",
+            "has no interaction clips in its train split: nothing to learn interactions from "
+            "or to start episodes in (lower dataset.min_clip_s or add footage)",
+        )
+    q0, v0, q1, v1 = (np.concatenate([f[i] for f in frames]) for i in range(4))
+    return Demonstrations(
+        dataset_key=dataset_key,
+        motion=motion,
+        interaction=interaction,
+        reference=ReferenceMotions(qpos0=q0, qvel0=v0, qpos1=q1, qvel1=v1),
+        bones=bones,
+    )

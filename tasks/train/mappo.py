@@ -1,0 +1,380 @@
+"""MAAIP's training loop: MAPPO with a motion prior and one interaction prior per agent.
+
+MAAIP Algorithm 1 (§4.5), one iteration:
+1. collect T steps of N two-fighter environments with the shared policy (both agents);
+2. rewards: r^M from the motion discriminator on (o^self_t, o^self_t+1), r^I_i from agent i's
+   interaction discriminator on (o_t, o^self_t+1) (eqs 5-6), a control reward if asked
+   (eqs 9-11), combined with the scheduled weights (eq 4);
+3. the policy's transitions go into each discriminator's replay buffer; each discriminator
+   takes `updates_per_iteration` steps on K demonstration and K replayed transitions
+   (eqs 7-8 or 12-13);
+4. GAE(lambda) advantages and TD(lambda) returns per agent; PPO epochs over minibatches of
+   both agents' samples for the policy and the centralised value.
+
+Everything that decides what comes next is in :class:`Trainer` and saved by
+:meth:`Trainer.checkpoint`: networks, optimisers, normalisers, replay buffers, random
+generators, the environments' physics states and the iteration, so a run restored from a
+checkpoint continues exactly as the uninterrupted run would (tested).
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+import torch
+from torch import Tensor
+
+from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
+from tasks.train.config import TrainConfig
+from tasks.train.data import Demonstrations
+from tasks.train.env import ArenaEnv
+from tasks.train.losses import (
+    PPOBatch,
+    combine_rewards,
+    damage_reward,
+    discriminator_loss,
+    gae,
+    ppo_losses,
+    reward_weights,
+    style_reward_from_config,
+)
+from tasks.train.networks import ReplayBuffer, make_networks
+
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+CHECKPOINT_FORMAT = 1
+
+
+class CheckpointMismatch(ValueError):
+    """A checkpoint that does not belong to this run (other humanoid, sizes or dataset)."""
+
+
+def _signature(config: TrainConfig, demos: Demonstrations) -> dict:
+    """What a checkpoint must agree on to be resumed: the humanoids and the network sizes."""
+    return {
+        "format": CHECKPOINT_FORMAT,
+        "dataset_key": demos.dataset_key,
+        "bones": [asdict(b) for b in demos.bones],
+        "observation_dim": OBSERVATION_DIM,
+        "hidden": list(config.network.hidden_sizes),
+        "task_dim": config.reward.task_observation_dim,
+    }
+
+
+@dataclass
+class Rollout:
+    """T steps of N environments, both agents, as float32 tensors (T, N, 2, ...)."""
+
+    obs: Tensor
+    next_obs: Tensor
+    actions: Tensor
+    log_probs: Tensor
+    damage: Tensor  # received by each agent
+    terminated: Tensor  # (T, N)
+    truncated: Tensor  # (T, N)
+    fell: Tensor  # (T, N, 2)
+
+
+class Trainer:
+    """One MAAIP training run on one dataset; `iterate` runs Algorithm 1 once."""
+
+    def __init__(self, config: TrainConfig, demos: Demonstrations):
+        torch.manual_seed(config.seed)
+        self.config, self.demos = config, demos
+        self.generator = torch.Generator().manual_seed(config.seed)
+        self.nets = make_networks(config, generator=self.generator)
+        ppo, disc = config.ppo, config.discriminator
+        self.optimiser = torch.optim.Adam(
+            [*self.nets.policy.parameters(), *self.nets.value.parameters()], lr=ppo.learning_rate
+        )
+        self.discriminators = (self.nets.motion, *self.nets.interaction)
+        self.d_optimisers = [
+            torch.optim.Adam(d.parameters(), lr=disc.learning_rate) for d in self.discriminators
+        ]
+        self.buffers = [ReplayBuffer(disc.replay_size, d.input_dim) for d in self.discriminators]
+        self.real = [torch.from_numpy(demos.motion)] + [
+            torch.from_numpy(x) for x in demos.interaction
+        ]
+        self.env = ArenaEnv(config.env, np.random.default_rng(config.seed), demos.bones)
+        self.obs = self.env.reset(np.arange(self.env.num_envs), demos.reference)
+        self.iteration = 0
+        self.signature = _signature(config, demos)
+
+    def close(self) -> None:
+        self.env.close()
+
+    # ------------------------------------------------------------------ collect
+
+    def collect(self) -> Rollout:
+        """T policy steps of every environment; finished episodes restart from the demos."""
+        n, horizon = self.env.num_envs, self.config.ppo.horizon
+        agents = torch.arange(2).repeat(n)
+        parts: dict[str, list] = {k: [] for k in Rollout.__dataclass_fields__}
+        for _ in range(horizon):
+            obs = torch.from_numpy(self.obs.astype(np.float32))
+            actions, log_probs = self.nets.policy.act(
+                obs.reshape(2 * n, -1), agents, generator=self.generator
+            )
+            result = self.env.step(actions.reshape(n, 2, -1).double().numpy())
+            parts["obs"].append(obs)
+            parts["next_obs"].append(torch.from_numpy(result.observation.astype(np.float32)))
+            parts["actions"].append(actions.reshape(n, 2, -1))
+            parts["log_probs"].append(log_probs.reshape(n, 2))
+            parts["damage"].append(torch.from_numpy(result.damage.astype(np.float32)))
+            parts["terminated"].append(torch.from_numpy(result.terminated))
+            parts["truncated"].append(torch.from_numpy(result.truncated))
+            parts["fell"].append(torch.from_numpy(result.fell))
+            self.obs = result.observation
+            done = np.flatnonzero(result.done)
+            if done.size:
+                self.obs = self.obs.copy()
+                self.obs[done] = self.env.reset(done, self.demos.reference)
+        return Rollout(**{k: torch.stack(v) for k, v in parts.items()})
+
+    # ------------------------------------------------------------------ rewards
+
+    def rewards(self, r: Rollout) -> dict[str, Tensor]:
+        """Each reward term (T, N, 2) and their scheduled sum (eq 4)."""
+        disc = self.config.discriminator
+        next_self = r.next_obs[..., :SELF_DIM]
+        with torch.no_grad():
+            motion_in = torch.cat([r.obs[..., :SELF_DIM], next_self], -1)
+            motion = style_reward_from_config(
+                self.nets.motion(motion_in.reshape(-1, 2 * SELF_DIM)), disc
+            )
+            interaction = torch.empty_like(r.log_probs)
+            for agent, d in enumerate(self.nets.interaction):
+                pair = torch.cat([r.obs[:, :, agent], next_self[:, :, agent]], -1)
+                logits = d(pair.reshape(-1, pair.shape[-1]))
+                interaction[:, :, agent] = style_reward_from_config(logits, disc).reshape(
+                    pair.shape[:2]
+                )
+        terms = {"motion": motion.reshape(r.log_probs.shape), "interaction": interaction}
+        task = self.config.reward.control_task
+        control = None
+        if task in ("damage_min", "damage_max"):
+            # eq 9 on the damage an agent receives, eq 10 on what it deals (the other's).
+            force = r.damage if task == "damage_min" else r.damage.flip(-1)
+            control = damage_reward(
+                force, scale=self.config.reward.damage_scale, maximize=task == "damage_max"
+            )
+            terms["control"] = control
+        elif task == "heading":
+            raise NotImplementedError("the heading task needs target headings in the env")
+        terms["total"] = combine_rewards(
+            terms["motion"],
+            terms["interaction"],
+            control,
+            config=self.config.reward,
+            iteration=self.iteration,
+        )
+        return terms
+
+    # ------------------------------------------------------------------ discriminators
+
+    def update_discriminators(self, r: Rollout) -> dict[str, float]:
+        """Replay the policy's transitions and train D^M and each D^I (Algorithm 1, 17-20)."""
+        disc = self.config.discriminator
+        next_self = r.next_obs[..., :SELF_DIM]
+        fakes = [torch.cat([r.obs[..., :SELF_DIM], next_self], -1).reshape(-1, 2 * SELF_DIM)]
+        for agent in range(2):
+            pair = torch.cat([r.obs[:, :, agent], next_self[:, :, agent]], -1)
+            fakes.append(pair.reshape(-1, pair.shape[-1]))
+        stats: dict[str, float] = {}
+        names = ("motion", "interaction0", "interaction1")
+        for name, d, opt, buffer, real, fake in zip(
+            names,
+            self.discriminators,
+            self.d_optimisers,
+            self.buffers,
+            self.real,
+            fakes,
+            strict=True,
+        ):
+            buffer.add(fake)
+            pick = torch.randint(len(real), (len(fake),), generator=self.generator)
+            d.norm.update(torch.cat([real[pick], fake]))
+            for _ in range(disc.updates_per_iteration):
+                k = disc.samples_per_update
+                real_k = real[torch.randint(len(real), (k,), generator=self.generator)]
+                loss, s = discriminator_loss(
+                    d, real_k, buffer.sample(k, generator=self.generator), config=disc
+                )
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+            stats[f"{name}_accuracy_real"] = s.accuracy_real
+            stats[f"{name}_accuracy_fake"] = s.accuracy_fake
+            stats[f"{name}_gradient_penalty"] = s.gradient_penalty
+        return stats
+
+    # ------------------------------------------------------------------ PPO
+
+    def update_policy(self, r: Rollout, reward: Tensor) -> dict[str, float]:
+        """GAE per agent, then PPO epochs over minibatches of both agents' samples."""
+        ppo = self.config.ppo
+        horizon, n, _ = r.log_probs.shape
+        other = r.obs.flip(2)  # each agent's opponent's observation: the value's input
+        agent = torch.arange(2).expand(horizon, n, 2)
+        with torch.no_grad():
+            flat = lambda x: x.reshape(-1, x.shape[-1])  # noqa: E731
+            values = self.nets.value(flat(r.obs), flat(other), agent.reshape(-1))
+            next_values = self.nets.value(
+                flat(r.next_obs), flat(r.next_obs.flip(2)), agent.reshape(-1)
+            )
+        dones = (r.terminated | r.truncated)[..., None].expand(horizon, n, 2)
+        timeouts = r.truncated[..., None].expand(horizon, n, 2)
+        advantages, returns = gae(
+            reward.reshape(horizon, -1),
+            values.reshape(horizon, -1),
+            next_values.reshape(horizon, -1),
+            dones.reshape(horizon, -1),
+            timeouts.reshape(horizon, -1),
+            gamma=ppo.gamma,
+            lam=ppo.gae_lambda,
+        )
+        batch = PPOBatch(
+            obs=flat(r.obs),
+            other_obs=flat(other),
+            agent=agent.reshape(-1),
+            actions=flat(r.actions),
+            log_probs=r.log_probs.reshape(-1),
+            advantages=advantages.reshape(-1),
+            returns=returns.reshape(-1),
+        )
+        params = [*self.nets.policy.parameters(), *self.nets.value.parameters()]
+        last = None
+        for _ in range(ppo.epochs):
+            order = torch.randperm(len(batch), generator=self.generator)
+            for start in range(0, len(batch) - ppo.minibatch_size + 1, ppo.minibatch_size):
+                loss, last = ppo_losses(
+                    self.nets.policy,
+                    self.nets.value,
+                    batch.select(order[start : start + ppo.minibatch_size]),
+                    clip=ppo.clip_coef,
+                    value_coef=ppo.value_coef,
+                    normalize_advantages=ppo.normalize_advantages,
+                )
+                self.optimiser.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(params, ppo.max_grad_norm)
+                self.optimiser.step()
+        # The normalisers follow the data after the update, so the samples above were
+        # scored with the statistics they were collected under.
+        self.nets.policy.norm.update(batch.obs)
+        self.nets.value.norm.update(batch.obs)
+        assert last is not None
+        return {
+            "policy_loss": last.policy_loss,
+            "value_loss": last.value_loss,
+            "clip_fraction": last.clip_fraction,
+            "approx_kl": last.approx_kl,
+        }
+
+    # ------------------------------------------------------------------ one iteration
+
+    def iterate(self) -> dict[str, float]:
+        """Algorithm 1 once; returns the iteration's metrics."""
+        timings: dict[str, float] = {}
+
+        def timed(name: str, fn: Callable, *args):
+            start = time.perf_counter()
+            out = fn(*args)
+            timings[name] = time.perf_counter() - start
+            return out
+
+        rollout = timed("collect_s", self.collect)
+        terms = timed("rewards_s", self.rewards, rollout)
+        d_stats = timed("discriminators_s", self.update_discriminators, rollout)
+        p_stats = timed("ppo_s", self.update_policy, rollout, terms["total"])
+        steps = rollout.terminated.numel()  # environment steps (both agents move in each)
+        seconds = sum(timings.values())
+        sim_minutes = steps / self.env.config.policy_hz / 60
+        w_m, w_i, w_c = reward_weights(self.config.reward, self.iteration)
+        metrics = {
+            **{f"reward_{k}": float(v.mean()) for k, v in terms.items()},
+            **d_stats,
+            **p_stats,
+            **timings,
+            "env_steps_per_s": steps / seconds,
+            "falls_per_min": float(rollout.terminated.sum()) / sim_minutes,
+            "episodes_ended": float((rollout.terminated | rollout.truncated).sum()),
+            "episode_length_s": float(self.env.elapsed.mean()) / self.env.config.policy_hz,
+            "damage_received_n": float(rollout.damage.mean()),
+            "w_motion": w_m,
+            "w_interaction": w_i,
+            "w_control": w_c,
+        }
+        self.iteration += 1
+        return metrics
+
+    # ------------------------------------------------------------------ checkpoints
+
+    def checkpoint(self) -> bytes:
+        """Everything needed to continue exactly from here, as bytes (torch.save)."""
+        env = self.env
+        size = mujoco.mj_stateSize(env.model, _STATE)
+        physics = np.empty((env.num_envs, size))
+        warm = np.empty((env.num_envs, env.model.nv))
+        for i, data in enumerate(env.datas):
+            mujoco.mj_getState(env.model, data, physics[i], _STATE)
+            warm[i] = data.qacc_warmstart
+        state = {
+            "signature": self.signature,
+            "iteration": self.iteration,
+            "networks": {
+                "policy": self.nets.policy.state_dict(),
+                "value": self.nets.value.state_dict(),
+                "discriminators": [d.state_dict() for d in self.discriminators],
+            },
+            "optimiser": self.optimiser.state_dict(),
+            "d_optimisers": [o.state_dict() for o in self.d_optimisers],
+            "buffers": [(b._data.clone(), b._next, b._size) for b in self.buffers],
+            "torch_generator": self.generator.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "env_rng": env.rng.bit_generator.state,
+            "physics": physics,
+            "warmstart": warm,
+            "elapsed": env.elapsed.copy(),
+            "obs": self.obs.copy(),
+        }
+        out = io.BytesIO()
+        torch.save(state, out)
+        return out.getvalue()
+
+    def restore(self, blob: bytes) -> None:
+        """Continue from a `checkpoint`; CheckpointMismatch if it belongs to another run."""
+        state = torch.load(io.BytesIO(blob), weights_only=False)
+        theirs = state.get("signature", {})
+        differs = sorted(k for k in self.signature if theirs.get(k) != self.signature[k])
+        if differs:
+            first = differs[0]
+            raise CheckpointMismatch(
+                f"checkpoint was made for another run: its {', '.join(differs)} differ "
+                f"({first}: {theirs.get(first)!r} there, {self.signature[first]!r} here)"
+            )
+        self.iteration = state["iteration"]
+        self.nets.policy.load_state_dict(state["networks"]["policy"])
+        self.nets.value.load_state_dict(state["networks"]["value"])
+        for d, s in zip(self.discriminators, state["networks"]["discriminators"], strict=True):
+            d.load_state_dict(s)
+        self.optimiser.load_state_dict(state["optimiser"])
+        for o, s in zip(self.d_optimisers, state["d_optimisers"], strict=True):
+            o.load_state_dict(s)
+        for b, (data, nxt, size) in zip(self.buffers, state["buffers"], strict=True):
+            b._data.copy_(data)
+            b._next, b._size = nxt, size
+        self.generator.set_state(state["torch_generator"])
+        torch.set_rng_state(state["torch_rng"])
+        env = self.env
+        env.rng.bit_generator.state = state["env_rng"]
+        for i, data in enumerate(env.datas):
+            mujoco.mj_setState(env.model, data, state["physics"][i], _STATE)
+            data.qacc_warmstart[:] = state["warmstart"][i]
+            mujoco.mj_forward(env.model, data)
+        env.elapsed[:] = state["elapsed"]
+        self.obs = state["obs"]

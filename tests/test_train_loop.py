@@ -1,0 +1,145 @@
+"""MAAIP's training loop on a tiny setup: one iteration's pieces, checkpoints and resumption."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.kinematics import humanoid_index
+from models.humanoid.observations import SELF_DIM, body_states, observation
+from tasks.lift.solve import velocities
+from tasks.lift.stage import RATE
+from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
+from tasks.train.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
+from tasks.train.data import Demonstrations
+from tasks.train.env import EnvConfig, facing_reference
+from tasks.train.mappo import CheckpointMismatch, Trainer
+
+TINY = TrainConfig(
+    seed=3,
+    network=NetworkConfig(hidden="32,32"),
+    discriminator=DiscriminatorConfig(samples_per_update=32, updates_per_iteration=2),
+    ppo=PPOConfig(horizon=8, minibatch_size=32, epochs=2),
+    env=EnvConfig(num_envs=4, threads=2),
+)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+DEFAULT_BONES = (BoneLengths(), BoneLengths())
+
+
+def _demos(assets, bones=DEFAULT_BONES) -> Demonstrations:
+    """The punch clip performed by two fighters facing each other, as a dataset would hold it."""
+    qpos = retarget(load_deepmimic(clip_path(assets, "punch")))
+    single = mujoco.MjModel.from_xml_string(boxer_mjcf(bones[0]))
+    qvel = velocities(single, qpos, RATE)
+    reference = facing_reference(qpos, qvel)
+    index = humanoid_index(single)
+    states = [
+        body_states(single, reference.qpos0, reference.qvel0, index),
+        body_states(single, reference.qpos1, reference.qvel1, index),
+    ]
+    obs = [observation(states[0], states[1]), observation(states[1], states[0])]
+    motion = np.concatenate([np.concatenate([o[:-1, :SELF_DIM], o[1:, :SELF_DIM]], 1) for o in obs])
+    interaction = tuple(np.concatenate([o[:-1], o[1:, :SELF_DIM]], 1) for o in obs)
+    return Demonstrations(
+        dataset_key="synthetic",
+        motion=motion.astype(np.float32),
+        interaction=tuple(x.astype(np.float32) for x in interaction),
+        reference=reference,
+        bones=bones,
+    )
+
+
+@pytest.fixture(scope="module")
+def demos(assets) -> Demonstrations:
+    return _demos(assets)
+
+
+def _parameters(trainer: Trainer) -> torch.Tensor:
+    nets = [trainer.nets.policy, trainer.nets.value, *trainer.discriminators]
+    return torch.cat([p.detach().reshape(-1) for n in nets for p in n.state_dict().values()])
+
+
+def test_one_iteration_reports_every_term(demos):
+    trainer = Trainer(TINY, demos)
+    try:
+        before = _parameters(trainer)
+        metrics = trainer.iterate()
+    finally:
+        trainer.close()
+    for name in (
+        "reward_motion",
+        "reward_interaction",
+        "reward_total",
+        "motion_accuracy_real",
+        "interaction0_accuracy_fake",
+        "motion_gradient_penalty",
+        "episode_length_s",
+        "falls_per_min",
+        "damage_received_n",
+        "env_steps_per_s",
+        "collect_s",
+        "ppo_s",
+    ):
+        assert np.isfinite(metrics[name]), name
+    assert 0 <= metrics["reward_motion"] <= TINY.discriminator.max_reward
+    assert trainer.iteration == 1
+    assert not torch.equal(before, _parameters(trainer)), "nothing was learned"
+
+
+def test_resumed_run_matches_the_uninterrupted_one(demos):
+    whole = Trainer(TINY, demos)
+    try:
+        expected = [whole.iterate() for _ in range(3)]
+        final = _parameters(whole)
+    finally:
+        whole.close()
+
+    first = Trainer(TINY, demos)
+    try:
+        first.iterate()
+        blob = first.checkpoint()
+    finally:
+        first.close()
+    resumed = Trainer(TINY, demos)  # a new process would start exactly like this
+    try:
+        resumed.restore(blob)
+        assert resumed.iteration == 1
+        got = [resumed.iterate() for _ in range(2)]
+        assert torch.equal(_parameters(resumed), final)
+    finally:
+        resumed.close()
+    timing = {k for k in expected[0] if k.endswith("_s") and k != "episode_length_s"}
+    timing.add("env_steps_per_s")
+    for want, have in zip(expected[1:], got, strict=True):
+        assert {k: v for k, v in have.items() if k not in timing} == {
+            k: v for k, v in want.items() if k not in timing
+        }
+
+
+def test_a_checkpoint_of_another_humanoid_is_refused(demos, assets):
+    trainer = Trainer(TINY, demos)
+    try:
+        blob = trainer.checkpoint()
+    finally:
+        trainer.close()
+    taller = dataclasses.replace(BoneLengths(), thigh=0.5)
+    other = Trainer(TINY, dataclasses.replace(demos, bones=(taller, BoneLengths())))
+    try:
+        with pytest.raises(CheckpointMismatch, match="bones differ"):
+            other.restore(blob)
+    finally:
+        other.close()
