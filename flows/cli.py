@@ -103,8 +103,16 @@ def build_parser() -> argparse.ArgumentParser:
     pick.add_argument("--json", action="store_true")
     _config_flags(pick)
 
-    metrics = commands.add_parser("metrics", help="each stage's metrics per video")
-    metrics.add_argument("--stage", choices=STAGES)
+    train = commands.add_parser(
+        "train", help="train the fighters' policies on a dataset (MAAIP; resumes if killed)"
+    )
+    train.add_argument("--dataset", required=True, metavar="KEY", help="see `ringside datasets`")
+    train.add_argument("--rerun", action="store_true", help="train again from scratch")
+    train.add_argument("--json", action="store_true")
+    _config_flags(train)
+
+    metrics = commands.add_parser("metrics", help="each stage's metrics per video or dataset")
+    metrics.add_argument("--stage", choices=[*STAGES, "train"])
     metrics.add_argument("--json", action="store_true")
 
     datasets = commands.add_parser(
@@ -339,6 +347,16 @@ def _metrics(args, data_root: Path) -> int:
     return 0
 
 
+def _train(args, data_root: Path) -> int:
+    from flows.config import load_config
+    from flows.train import train_flow
+
+    config = load_config(args.config, _overrides(args))
+    summary = train_flow(str(data_root), args.dataset, config.as_dict(), args.rerun)
+    _print_summary([summary], data_root, args.json)
+    return 0
+
+
 def _datasets(args, data_root: Path) -> int:
     from storage.db import connect
     from storage.paths import data_paths
@@ -444,6 +462,8 @@ def main(argv: list[str] | None = None) -> int:
             return _pick(args, data_root)
         if args.command == "metrics":
             return _metrics(args, data_root)
+        if args.command == "train":
+            return _train(args, data_root)
         if args.command == "datasets":
             return _datasets(args, data_root)
         if args.command == "assets":

@@ -12,6 +12,7 @@ from tasks.dataset.config import DatasetConfig
 from tasks.ingest.config import IngestConfig
 from tasks.lift.config import LiftStageConfig
 from tasks.pose.config import PoseConfig
+from tasks.train.config import TrainConfig
 
 # Stage name -> its config class, in pipeline order. A stage joins here when it exists.
 SECTIONS: dict[str, type] = {
@@ -19,8 +20,10 @@ SECTIONS: dict[str, type] = {
     "pose": PoseConfig,
     "lift": LiftStageConfig,
     "dataset": DatasetConfig,
+    "train": TrainConfig,
 }
-STAGES: tuple[str, ...] = tuple(SECTIONS)
+# The stages `video_to_opponent` runs per video; training runs on an assembled dataset.
+STAGES: tuple[str, ...] = ("ingest", "pose", "lift", "dataset")
 DEFAULT_CONFIG_FILE = Path("ringside.toml")
 HEADER = """Ringside settings. Every value here is the built-in default; change what you need.
 Any setting can also be given on the command line as --SECTION-NAME VALUE, e.g.
@@ -40,6 +43,7 @@ class PipelineConfig:
     pose: PoseConfig = field(default_factory=PoseConfig)
     lift: LiftStageConfig = field(default_factory=LiftStageConfig)
     dataset: DatasetConfig = field(default_factory=DatasetConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
 
     def as_dict(self) -> dict[str, dict[str, Any]]:
         return {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}

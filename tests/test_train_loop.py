@@ -10,13 +10,11 @@ import pytest
 import torch
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.kinematics import humanoid_index
-from models.humanoid.observations import SELF_DIM, body_states, observation
 from tasks.lift.solve import velocities
 from tasks.lift.stage import RATE
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 from tasks.train.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
-from tasks.train.data import Demonstrations
+from tasks.train.data import Demonstrations, demonstrations_from_reference
 from tasks.train.env import EnvConfig, facing_reference
 from tasks.train.mappo import CheckpointMismatch, Trainer
 
@@ -44,23 +42,8 @@ def _demos(assets, bones=DEFAULT_BONES) -> Demonstrations:
     """The punch clip performed by two fighters facing each other, as a dataset would hold it."""
     qpos = retarget(load_deepmimic(clip_path(assets, "punch")))
     single = mujoco.MjModel.from_xml_string(boxer_mjcf(bones[0]))
-    qvel = velocities(single, qpos, RATE)
-    reference = facing_reference(qpos, qvel)
-    index = humanoid_index(single)
-    states = [
-        body_states(single, reference.qpos0, reference.qvel0, index),
-        body_states(single, reference.qpos1, reference.qvel1, index),
-    ]
-    obs = [observation(states[0], states[1]), observation(states[1], states[0])]
-    motion = np.concatenate([np.concatenate([o[:-1, :SELF_DIM], o[1:, :SELF_DIM]], 1) for o in obs])
-    interaction = tuple(np.concatenate([o[:-1], o[1:, :SELF_DIM]], 1) for o in obs)
-    return Demonstrations(
-        dataset_key="synthetic",
-        motion=motion.astype(np.float32),
-        interaction=tuple(x.astype(np.float32) for x in interaction),
-        reference=reference,
-        bones=bones,
-    )
+    reference = facing_reference(qpos, velocities(single, qpos, RATE))
+    return demonstrations_from_reference(reference, bones, key="synthetic")
 
 
 @pytest.fixture(scope="module")

@@ -13,9 +13,12 @@ import json
 from dataclasses import dataclass
 
 import duckdb
+import mujoco
 import numpy as np
 
-from models.humanoid.boxer import BoneLengths
+from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.kinematics import humanoid_index
+from models.humanoid.observations import SELF_DIM, body_states, observation
 from tasks.dataset.stage import ROLES
 from tasks.dataset.store import dataset_info, load_motion, load_transitions
 from tasks.errors import BadInput
@@ -96,3 +99,26 @@ def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Dem
         reference=ReferenceMotions(qpos0=q0, qvel0=v0, qpos1=q1, qvel1=v1),
         bones=bones,
     )
+
+
+def demonstrations_from_reference(
+    reference: ReferenceMotions, bones: tuple[BoneLengths, BoneLengths], *, key: str
+) -> Demonstrations:
+    """Demonstrations made from one interaction given as arrays, without a database.
+
+    The transitions are computed as the dataset stage computes them (the shared observation
+    functions on each fighter's own humanoid); both fighters' motions form the single-actor
+    set. For benchmarks and tests that train on a motion clip, e.g. `facing_reference`.
+    """
+    states = []
+    for agent, (qpos, qvel) in enumerate(
+        ((reference.qpos0, reference.qvel0), (reference.qpos1, reference.qvel1))
+    ):
+        model = mujoco.MjModel.from_xml_string(boxer_mjcf(bones[agent]))
+        states.append(body_states(model, qpos, qvel, humanoid_index(model)))
+    obs = [observation(states[0], states[1]), observation(states[1], states[0])]
+    motion = np.concatenate([np.concatenate([o[:-1, :SELF_DIM], o[1:, :SELF_DIM]], 1) for o in obs])
+    interaction = tuple(
+        np.concatenate([o[:-1], o[1:, :SELF_DIM]], 1).astype(np.float32) for o in obs
+    )
+    return Demonstrations(key, motion.astype(np.float32), interaction, reference, bones)

@@ -1,0 +1,88 @@
+"""Training throughput against raw physics, in one run, with the default `cpu` preset.
+
+The demonstrations are DeepMimic's punch clip performed by two facing fighters
+(`facing_reference`), so the benchmark needs no processed footage. Measured, best of 3 each:
+- raw physics: `ArenaEnv.step_physics` with zero actions (N environments x 2 substeps of both
+  fighters, no observations, no learning);
+- end to end: `Trainer.iterate` (policy inference, environment steps with observations,
+  rewards from the discriminators, discriminator and PPO updates), environment steps per
+  second of wall time, with the split of an iteration's time.
+Prints both and, last, ``train_vs_physics: R x`` (end to end over raw physics).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from models.humanoid.boxer import BoneLengths, boxer_mjcf  # noqa: E402
+from storage.assets import pull  # noqa: E402
+from storage.paths import data_paths  # noqa: E402
+from tasks.lift.solve import velocities  # noqa: E402
+from tasks.lift.stage import RATE  # noqa: E402
+from tasks.lift.synthetic import clip_path, load_deepmimic, retarget  # noqa: E402
+from tasks.train.config import TrainConfig  # noqa: E402
+from tasks.train.data import demonstrations_from_reference  # noqa: E402
+from tasks.train.env import ArenaEnv, facing_reference  # noqa: E402
+from tasks.train.mappo import Trainer  # noqa: E402
+
+REPEATS = 3
+PHYSICS_STEPS = 100
+
+
+def main() -> None:
+    assets = data_paths().assets
+    pull(assets, dev=True, log=lambda _line: None)
+    torch.set_num_threads(1)
+    bones = (BoneLengths(), BoneLengths())
+    qpos = retarget(load_deepmimic(clip_path(assets, "punch")))
+    model = mujoco.MjModel.from_xml_string(boxer_mjcf(bones[0]))
+    reference = facing_reference(qpos, velocities(model, qpos, RATE))
+    demos = demonstrations_from_reference(reference, bones, key="benchmark")
+    config = TrainConfig()
+    n = config.env.num_envs
+
+    with ArenaEnv(config.env, np.random.default_rng(0), bones) as env:
+        env.reset(np.arange(n), reference)
+        physics = 0.0
+        for _ in range(REPEATS):
+            start = time.perf_counter()
+            for _ in range(PHYSICS_STEPS):
+                env.step_physics()
+            physics = max(physics, PHYSICS_STEPS * n / (time.perf_counter() - start))
+
+    trainer = Trainer(config, demos)
+    try:
+        trainer.iterate()  # warm-up: first calls allocate
+        best, split = 0.0, {}
+        for _ in range(REPEATS):
+            start = time.perf_counter()
+            metrics = trainer.iterate()
+            rate = config.ppo.horizon * n / (time.perf_counter() - start)
+            if rate > best:
+                best = rate
+                split = {
+                    k: metrics[k] for k in ("collect_s", "rewards_s", "discriminators_s", "ppo_s")
+                }
+    finally:
+        trainer.close()
+    total = sum(split.values())
+    print(
+        f"environments: {n}, horizon {config.ppo.horizon}, preset {config.network.preset} "
+        f"{config.network.hidden_sizes}, stepping {config.env.stepping}"
+    )
+    print(f"raw_physics: {physics:,.0f} env steps/s")
+    print(f"end_to_end: {best:,.0f} env steps/s")
+    print("split: " + ", ".join(f"{k[:-2]} {v / total:.0%}" for k, v in split.items()))
+    print(f"train_vs_physics: {best / physics:.3f} x")
+
+
+if __name__ == "__main__":
+    main()

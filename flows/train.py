@@ -1,0 +1,46 @@
+"""The train stage as a flow: MAAIP on one assembled dataset."""
+
+from __future__ import annotations
+
+from prefect import flow
+
+from flows.config import from_tables
+from flows.runs import StageSummary, reuse_or_run
+from storage.db import connect
+from storage.paths import data_paths
+from tasks.dataset.store import UnknownDataset, dataset_info
+from tasks.errors import BadInput
+from tasks.runner import StageResult
+from tasks.train.run import STAGE
+from tasks.train.task import train_key, train_task
+
+
+@flow(name="train", flow_run_name="train-{dataset_key:.12}")
+def train_flow(
+    data_root: str, dataset_key: str, config: dict | None = None, force: bool = False
+) -> StageSummary:
+    """Train the two fighters' policies on dataset ``dataset_key`` (`ringside datasets`).
+
+    The settings and the dataset are checked before anything is computed.
+    """
+    settings = from_tables(config or {}).train
+    db = data_paths(data_root).db
+    if not db.exists():
+        raise BadInput(str(db), "no database yet: process some footage first")
+    with connect(db) as con:  # writable: brings an older database's schema up to date
+        try:
+            info = dataset_info(con, dataset_key)
+        except UnknownDataset as error:
+            raise BadInput(f"--dataset {dataset_key}", str(error)) from None
+    key = train_key(settings, dataset_key)
+
+    def run(refresh: bool) -> StageResult:
+        task = train_task.with_options(refresh_cache=refresh)
+        return task(data_root, dataset_key, settings, key, force=refresh)
+
+    result, state = reuse_or_run(
+        data_root, stage=STAGE, video_id=dataset_key, key=key, force=force, run=run
+    )
+    return StageSummary(
+        dataset_key, info.adversary, STAGE, key, state, result.seconds, result.notes
+    )

@@ -1,0 +1,48 @@
+"""Prefect task of the train stage."""
+
+from __future__ import annotations
+
+from prefect import task
+from prefect.cache_policies import INPUTS, TASK_SOURCE
+from prefect.runtime import flow_run
+
+from storage.keys import code_version, stage_key
+from storage.paths import data_paths
+from tasks.runner import StageResult, run_stage
+from tasks.train.config import TrainConfig
+from tasks.train.run import STAGE, train
+
+
+def train_code() -> str:
+    return code_version("tasks.train", "tasks.dataset", "models.humanoid")
+
+
+def train_key(config: TrainConfig, dataset_key: str) -> str:
+    return stage_key(STAGE, config, train_code(), {"dataset": dataset_key})
+
+
+@task(
+    name="train",
+    cache_policy=(INPUTS + TASK_SOURCE) - "force",
+    persist_result=True,
+    task_run_name="train-{dataset_key:.12}",
+)
+def train_task(
+    data_root: str, dataset_key: str, config: TrainConfig, key: str, force: bool = False
+) -> StageResult:
+    """Train MAAIP on a dataset (resuming from the run's newest checkpoint) and commit it."""
+    paths = data_paths(data_root)
+    return run_stage(
+        db=paths.db,
+        stage=STAGE,
+        video_id=dataset_key,
+        key=key,
+        config=config,
+        code=train_code(),
+        upstream={"dataset": dataset_key},
+        run_id=str(flow_run.id),
+        compute=lambda: train(
+            db=paths.db, artifacts=paths.artifacts, dataset_key=dataset_key, key=key, config=config
+        ),
+        force=force,
+    )
