@@ -77,8 +77,8 @@ def train(
 ) -> StageOutput:
     """Train (or go on training) run ``key`` on dataset ``dataset_key``; its stage output.
 
-    ``stop(iteration)`` may end the run early (tests use it to kill a run midway); the
-    run then raises KeyboardInterrupt after its checkpoint, like a killed process.
+    ``stop(iteration)`` may end the run early, as a kill would (raising KeyboardInterrupt,
+    nothing saved beyond the last checkpoint); tests use it.
     """
     with connect(db, read_only=True) as con:
         demos = load_demonstrations(con, dataset_key)
@@ -112,8 +112,6 @@ def train(
             if trainer.iteration % config.checkpoint_every == 0:
                 _save(db, artifacts, key, dataset_key, trainer)
             if stop is not None and stop(trainer.iteration):
-                if trainer.iteration % config.checkpoint_every:
-                    _save(db, artifacts, key, dataset_key, trainer)
                 raise KeyboardInterrupt(f"stopped at iteration {trainer.iteration}")
         bar.close()
         final = _save(db, artifacts, key, dataset_key, trainer)

@@ -1,0 +1,108 @@
+"""The train stage on the demo's dataset: the CLI, fail-fast checks, a killed run resuming."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from conftest import query, run_cli
+
+from storage.paths import data_paths
+from tasks.train.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
+from tasks.train.env import EnvConfig
+from tasks.train.run import train
+
+TINY_FLAGS = [
+    "--train-network-hidden",
+    "16,16",
+    "--train-env-num-envs",
+    "4",
+    "--train-ppo-horizon",
+    "4",
+    "--train-ppo-minibatch-size",
+    "16",
+    "--train-ppo-epochs",
+    "1",
+    "--train-discriminator-samples-per-update",
+    "16",
+    "--train-discriminator-updates-per-iteration",
+    "1",
+]
+TINY = TrainConfig(
+    iterations=4,
+    checkpoint_every=2,
+    network=NetworkConfig(hidden="16,16"),
+    discriminator=DiscriminatorConfig(samples_per_update=16, updates_per_iteration=1),
+    ppo=PPOConfig(horizon=4, minibatch_size=16, epochs=1),
+    env=EnvConfig(num_envs=4),
+)
+TIMING = {"collect_s", "rewards_s", "discriminators_s", "ppo_s", "env_steps_per_s"}
+
+
+@pytest.fixture(scope="module")
+def dataset_key(sample_run) -> str:
+    return query(sample_run, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1")[0][0]
+
+
+def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
+    base = ["--data", str(sample_run), "train", "--dataset", dataset_key, *TINY_FLAGS]
+    code, out, err = run_cli(capsys, *base, "--train-iterations", "2", "--json")
+    assert code == 0, err
+    (summary,) = json.loads(out)
+    assert summary["stage"] == "train" and summary["state"] == "done"
+    curves = query(
+        sample_run,
+        "SELECT count(DISTINCT iteration) FROM train_iterations WHERE key = ? "
+        "AND name = 'episode_length_s'",
+        [summary["key"]],
+    )
+    assert curves == [(2,)]
+    code, out, _ = run_cli(capsys, *base, "--train-iterations", "2", "--json")
+    assert code == 0 and json.loads(out)[0]["state"] == "cached"
+    code, out, _ = run_cli(capsys, "--data", str(sample_run), "metrics", "--stage", "train")
+    assert code == 0 and "falls_per_min" in out and "reward_interaction" in out
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--dataset", "0123456789abcdef01234567"], "no dataset '0123456789abcdef01234567'"),
+        (["--train-reward-w-motion", "-1"], "train.reward.w_motion must be non-negative"),
+        (["--train-reward-control-task", "damage_min"], "train.reward.w_control must be positive"),
+        (["--train-ppo-minibatch-size", "100000"], "must not exceed the batch"),
+    ],
+)
+def test_bad_training_input_fails_fast(capsys, sample_run, dataset_key, flags, message):
+    argv = ["--data", str(sample_run), "train", "--dataset", dataset_key, *flags]
+    before = query(sample_run, "SELECT count(*) FROM train_iterations")
+    code, _, err = run_cli(capsys, *argv)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert query(sample_run, "SELECT count(*) FROM train_iterations") == before
+
+
+def test_a_killed_run_resumes_where_it_stopped(sample_run, dataset_key):
+    paths = data_paths(sample_run)
+    common = {"db": paths.db, "artifacts": paths.artifacts, "dataset_key": dataset_key}
+    train(**common, key="whole", config=TINY)
+
+    with pytest.raises(KeyboardInterrupt):
+        train(**common, key="killed", config=TINY, stop=lambda iteration: iteration == 3)
+    # Killed after iteration 3 (index 2) was recorded but before it was checkpointed.
+    saved = query(sample_run, "SELECT max(iteration) FROM train_checkpoints WHERE key = 'killed'")
+    assert saved == [(2,)]
+    assert query(
+        sample_run, "SELECT max(iteration) FROM train_iterations WHERE key = 'killed'"
+    ) == [(2,)]
+    train(**common, key="killed", config=TINY)
+
+    def curves(key):
+        rows = query(
+            sample_run,
+            "SELECT iteration, name, value FROM train_iterations WHERE key = ? ORDER BY ALL",
+            [key],
+        )
+        return [r for r in rows if r[1] not in TIMING]
+
+    resumed = curves("killed")
+    assert [r[0] for r in resumed if r[1] == "reward_total"] == [0, 1, 2, 3]
+    assert resumed == curves("whole")
