@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import tasks.dataset.stage as dataset_stage
+import tasks.train.env as train_env
 from models.humanoid import observations as obs
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import (
@@ -51,10 +52,12 @@ def test_dimensions_are_the_papers():
 
 
 def test_the_training_environment_shares_the_dataset_features():
-    # The dataset stage must call these very functions (not copies) for its transitions.
+    # The dataset stage and the training environment call these very functions (not copies).
     assert dataset_stage.observation is obs.observation
     assert dataset_stage.self_observation is obs.self_observation
     assert dataset_stage.body_states is obs.body_states
+    assert train_env.observation is obs.observation
+    assert train_env.body_state is obs.body_state
 
 
 def test_hand_built_standing_pose(model):
