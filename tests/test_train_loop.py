@@ -13,7 +13,13 @@ from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from tasks.lift.solve import velocities
 from tasks.lift.stage import RATE
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
-from tasks.train.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
+from tasks.train.config import (
+    DiscriminatorConfig,
+    NetworkConfig,
+    PPOConfig,
+    RewardConfig,
+    TrainConfig,
+)
 from tasks.train.data import Demonstrations, demonstrations_from_reference
 from tasks.train.env import EnvConfig, facing_reference
 from tasks.train.mappo import CheckpointMismatch, Trainer
@@ -126,3 +132,9 @@ def test_a_checkpoint_of_another_humanoid_is_refused(demos, assets):
             other.restore(blob)
     finally:
         other.close()
+
+
+def test_the_heading_task_is_refused_before_any_work(demos):
+    config = dataclasses.replace(TINY, reward=RewardConfig(w_control=0.5, control_task="heading"))
+    with pytest.raises(ValueError, match="'heading' \\(eq 11\\) is not available yet"):
+        Trainer(config, demos)
