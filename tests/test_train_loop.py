@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.kinematics import heading_yaw
 from tasks.lift.solve import velocities
 from tasks.lift.stage import RATE
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
@@ -89,21 +90,24 @@ def test_one_iteration_reports_every_term(demos):
     assert not torch.equal(before, _parameters(trainer)), "nothing was learned"
 
 
-def test_resumed_run_matches_the_uninterrupted_one(demos):
-    whole = Trainer(TINY, demos)
+@pytest.mark.parametrize("task", ["none", "heading"])
+def test_resumed_run_matches_the_uninterrupted_one(demos, task):
+    reward = RewardConfig(w_control=0.5 if task == "heading" else 0.0, control_task=task)
+    config = dataclasses.replace(TINY, reward=reward)
+    whole = Trainer(config, demos)
     try:
         expected = [whole.iterate() for _ in range(3)]
         final = _parameters(whole)
     finally:
         whole.close()
 
-    first = Trainer(TINY, demos)
+    first = Trainer(config, demos)
     try:
         first.iterate()
         blob = first.checkpoint()
     finally:
         first.close()
-    resumed = Trainer(TINY, demos)  # a new process would start exactly like this
+    resumed = Trainer(config, demos)  # a new process would start exactly like this
     try:
         resumed.restore(blob)
         assert resumed.iteration == 1
@@ -134,7 +138,18 @@ def test_a_checkpoint_of_another_humanoid_is_refused(demos, assets):
         other.close()
 
 
-def test_the_heading_task_is_refused_before_any_work(demos):
-    config = dataclasses.replace(TINY, reward=RewardConfig(w_control=0.5, control_task="heading"))
-    with pytest.raises(ValueError, match="'heading' \\(eq 11\\) is not available yet"):
-        Trainer(config, demos)
+def test_the_heading_task_rewards_moving_along_the_target(demos):
+    reward = RewardConfig(w_control=0.5, control_task="heading", control_start=0)
+    trainer = Trainer(dataclasses.replace(TINY, reward=reward), demos)
+    try:
+        task = trainer.task_observation().numpy()
+        assert task.shape == (4, 2, 2)
+        np.testing.assert_allclose(np.linalg.norm(task, axis=-1), 1, atol=1e-6)
+        # The target seen from agent 0 of env 0, turned back into the world, is its target.
+        quat = trainer.env.datas[0].qpos[trainer.env.index.agents[0].qpos][3:7]
+        angle = np.arctan2(task[0, 0, 1], task[0, 0, 0]) + heading_yaw(quat)
+        assert np.isclose(np.cos(angle - trainer.targets[0, 0]), 1, atol=1e-5)
+        metrics = trainer.iterate()
+        assert 0 <= metrics["reward_control"] <= 1 and metrics["w_control"] > 0
+    finally:
+        trainer.close()

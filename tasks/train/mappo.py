@@ -29,7 +29,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
+from models.humanoid.kinematics import heading_yaw
+from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, SELF_DIM, block_slices
 from tasks.train.config import TrainConfig
 from tasks.train.data import Demonstrations
 from tasks.train.env import ArenaEnv
@@ -39,6 +40,7 @@ from tasks.train.losses import (
     damage_reward,
     discriminator_loss,
     gae,
+    heading_reward,
     ppo_losses,
     reward_weights,
     style_reward_from_config,
@@ -46,6 +48,8 @@ from tasks.train.losses import (
 from tasks.train.networks import ReplayBuffer, make_networks
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+_LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
+_ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 3)
 CHECKPOINT_FORMAT = 1
 
 
@@ -77,18 +81,14 @@ class Rollout:
     terminated: Tensor  # (T, N)
     truncated: Tensor  # (T, N)
     fell: Tensor  # (T, N, 2)
+    task: Tensor | None = None  # (T, N, 2, 2) heading targets the actions were chosen for
+    next_task: Tensor | None = None  # the same targets seen from the next state
 
 
 class Trainer:
     """One MAAIP training run on one dataset; `iterate` runs Algorithm 1 once."""
 
     def __init__(self, config: TrainConfig, demos: Demonstrations):
-        if config.reward.control_task == "heading":
-            # The networks take a heading input already; the environment has no targets yet.
-            raise ValueError(
-                "train.reward.control_task 'heading' (eq 11) is not available yet: the arena "
-                "has no target headings; use 'none', 'damage_min' or 'damage_max'"
-            )
         torch.manual_seed(config.seed)
         self.config, self.demos = config, demos
         self.generator = torch.Generator().manual_seed(config.seed)
@@ -106,12 +106,38 @@ class Trainer:
             torch.from_numpy(x) for x in demos.interaction
         ]
         self.env = ArenaEnv(config.env, np.random.default_rng(config.seed), demos.bones)
-        self.obs = self.env.reset(np.arange(self.env.num_envs), demos.reference)
+        # The heading task (§5.4): each agent's target direction on the floor, a world yaw drawn
+        # anew at every episode start.
+        self.heading = config.reward.control_task == "heading"
+        self.task_rng = np.random.default_rng([config.seed, 1])
+        self.targets = np.zeros((self.env.num_envs, 2))
+        self.obs = self._reset(np.arange(self.env.num_envs))
         self.iteration = 0
         self.signature = _signature(config, demos)
 
     def close(self) -> None:
         self.env.close()
+
+    def _reset(self, ids: np.ndarray) -> np.ndarray:
+        if self.heading:
+            self.targets[ids] = self.task_rng.uniform(-np.pi, np.pi, (len(ids), 2))
+        return self.env.reset(ids, self.demos.reference)
+
+    def task_observation(self) -> Tensor | None:
+        """(N, 2, 2) each agent's target direction in its own heading frame, or None."""
+        if not self.heading:
+            return None
+        quats = np.array(
+            [
+                [data.qpos[agent.qpos][3:7] for agent in self.env.index.agents]
+                for data in self.env.datas
+            ]
+        )
+        yaw = heading_yaw(quats)
+        relative = self.targets - yaw
+        return torch.from_numpy(
+            np.stack([np.cos(relative), np.sin(relative)], -1).astype(np.float32)
+        )
 
     # ------------------------------------------------------------------ collect
 
@@ -122,8 +148,12 @@ class Trainer:
         parts: dict[str, list] = {k: [] for k in Rollout.__dataclass_fields__}
         for _ in range(horizon):
             obs = torch.from_numpy(self.obs.astype(np.float32))
+            task = self.task_observation()
             actions, log_probs = self.nets.policy.act(
-                obs.reshape(2 * n, -1), agents, generator=self.generator
+                obs.reshape(2 * n, -1),
+                agents,
+                task=None if task is None else task.reshape(2 * n, -1),
+                generator=self.generator,
             )
             result = self.env.step(actions.reshape(n, 2, -1).double().numpy())
             parts["obs"].append(obs)
@@ -134,12 +164,16 @@ class Trainer:
             parts["terminated"].append(torch.from_numpy(result.terminated))
             parts["truncated"].append(torch.from_numpy(result.truncated))
             parts["fell"].append(torch.from_numpy(result.fell))
+            if task is not None:
+                parts["task"].append(task)
+                # Eq 11 rewards the move just made towards the targets it was made for.
+                parts["next_task"].append(self.task_observation())
             self.obs = result.observation
             done = np.flatnonzero(result.done)
             if done.size:
                 self.obs = self.obs.copy()
-                self.obs[done] = self.env.reset(done, self.demos.reference)
-        return Rollout(**{k: torch.stack(v) for k, v in parts.items()})
+                self.obs[done] = self._reset(done)
+        return Rollout(**{k: torch.stack(v) if v else None for k, v in parts.items()})
 
     # ------------------------------------------------------------------ rewards
 
@@ -168,6 +202,17 @@ class Trainer:
             control = damage_reward(
                 force, scale=self.config.reward.damage_scale, maximize=task == "damage_max"
             )
+            terms["control"] = control
+        elif task == "heading":
+            # The root's velocity and the target, both in the agent's heading frame after the
+            # step (o^self's first velocity row is the pelvis's).
+            velocity = r.next_obs[..., _ROOT_VELOCITY]
+            control = heading_reward(
+                r.next_task.reshape(-1, 2),
+                velocity[..., :2].reshape(-1, 2),
+                target_speed=self.config.reward.heading_speed,
+                scale=self.config.reward.heading_scale,
+            ).reshape(r.log_probs.shape)
             terms["control"] = control
         terms["total"] = combine_rewards(
             terms["motion"],
@@ -224,11 +269,11 @@ class Trainer:
         horizon, n, _ = r.log_probs.shape
         other = r.obs.flip(2)  # each agent's opponent's observation: the value's input
         agent = torch.arange(2).expand(horizon, n, 2)
+        flat = lambda x: None if x is None else x.reshape(-1, x.shape[-1])  # noqa: E731
         with torch.no_grad():
-            flat = lambda x: x.reshape(-1, x.shape[-1])  # noqa: E731
-            values = self.nets.value(flat(r.obs), flat(other), agent.reshape(-1))
+            values = self.nets.value(flat(r.obs), flat(other), agent.reshape(-1), flat(r.task))
             next_values = self.nets.value(
-                flat(r.next_obs), flat(r.next_obs.flip(2)), agent.reshape(-1)
+                flat(r.next_obs), flat(r.next_obs.flip(2)), agent.reshape(-1), flat(r.next_task)
             )
         dones = (r.terminated | r.truncated)[..., None].expand(horizon, n, 2)
         timeouts = r.truncated[..., None].expand(horizon, n, 2)
@@ -249,6 +294,7 @@ class Trainer:
             log_probs=r.log_probs.reshape(-1),
             advantages=advantages.reshape(-1),
             returns=returns.reshape(-1),
+            task=flat(r.task),
         )
         params = [*self.nets.policy.parameters(), *self.nets.value.parameters()]
         last = None
@@ -341,6 +387,8 @@ class Trainer:
             "torch_generator": self.generator.get_state(),
             "torch_rng": torch.get_rng_state(),
             "env_rng": env.rng.bit_generator.state,
+            "task_rng": self.task_rng.bit_generator.state,
+            "targets": self.targets.copy(),
             "physics": physics,
             "warmstart": warm,
             "elapsed": env.elapsed.copy(),
@@ -376,6 +424,8 @@ class Trainer:
         torch.set_rng_state(state["torch_rng"])
         env = self.env
         env.rng.bit_generator.state = state["env_rng"]
+        self.task_rng.bit_generator.state = state["task_rng"]
+        self.targets = state["targets"]
         for i, data in enumerate(env.datas):
             mujoco.mj_setState(env.model, data, state["physics"][i], _STATE)
             data.qacc_warmstart[:] = state["warmstart"][i]
