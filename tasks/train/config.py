@@ -246,7 +246,11 @@ class PPOConfig:
     clip_coef: float = setting(0.2, "PPO ratio clip epsilon (MAPPO recommends <= 0.2).")
     epochs: int = setting(5, "Passes over each batch of samples (MAPPO: 5 for hard tasks).")
     minibatch_size: int = setting(1024, "Samples per PPO gradient step.")
-    learning_rate: float = setting(1e-4, "Adam learning rate of the policy and the value.")
+    learning_rate: float = setting(
+        2e-5,
+        "Adam learning rate of the policy and the value (AMP's 2e-5: with the fixed, small "
+        "action_std, 1e-4 moved the policy past the clip range, KL 0.06-0.15 per iteration).",
+    )
     action_std: float = setting(
         0.055,
         "Fixed standard deviation of every action dimension (MAAIP §4.4 fixes the covariance; "
