@@ -111,6 +111,15 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--json", action="store_true")
     _config_flags(train)
 
+    curves = commands.add_parser(
+        "curves", help="a training run's learning curves, averaged over blocks of iterations"
+    )
+    curves.add_argument(
+        "--run", required=True, metavar="KEY", help="training key (a prefix will do)"
+    )
+    curves.add_argument("--every", type=int, default=100, metavar="N", help="iterations per row")
+    curves.add_argument("--json", action="store_true")
+
     metrics = commands.add_parser("metrics", help="each stage's metrics per video or dataset")
     metrics.add_argument("--stage", choices=[*STAGES, "train"])
     metrics.add_argument("--json", action="store_true")
@@ -357,6 +366,26 @@ def _train(args, data_root: Path) -> int:
     return 0
 
 
+def _curves(args, data_root: Path) -> int:
+    from storage.db import connect
+    from storage.paths import data_paths
+    from tasks.train.run import CURVES, learning_curves
+
+    if args.every < 1:
+        raise ValueError(f"--every must be at least 1, got {args.every}")
+    with connect(data_paths(data_root).db, read_only=True) as con:
+        rows = learning_curves(con, args.run, every=args.every)
+    if args.json:
+        print(json.dumps(rows))
+    else:
+        shown = [{k: v if isinstance(v, str) else f"{v:.3g}" for k, v in r.items()} for r in rows]
+        for r in shown:
+            for name in CURVES:
+                r.setdefault(name, "")
+        _print_table(shown, ["iterations", *CURVES])
+    return 0
+
+
 def _datasets(args, data_root: Path) -> int:
     from storage.db import connect
     from storage.paths import data_paths
@@ -464,6 +493,8 @@ def main(argv: list[str] | None = None) -> int:
             return _metrics(args, data_root)
         if args.command == "train":
             return _train(args, data_root)
+        if args.command == "curves":
+            return _curves(args, data_root)
         if args.command == "datasets":
             return _datasets(args, data_root)
         if args.command == "assets":

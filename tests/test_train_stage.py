@@ -61,6 +61,19 @@ def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
     assert code == 0 and json.loads(out)[0]["state"] == "cached"
     code, out, _ = run_cli(capsys, "--data", str(sample_run), "metrics", "--stage", "train")
     assert code == 0 and "falls_per_min" in out and "reward_interaction" in out
+    curves = ["--data", str(sample_run), "curves", "--run", summary["key"][:10], "--every", "1"]
+    code, out, _ = run_cli(capsys, *curves, "--json")
+    rows = json.loads(out)
+    assert code == 0 and [r["iterations"] for r in rows] == ["0-0", "1-1"]
+    lengths = query(
+        sample_run,
+        "SELECT value FROM train_iterations WHERE key = ? AND name = 'episode_length_s' "
+        "ORDER BY iteration",
+        [summary["key"]],
+    )
+    assert [r["episode_length_s"] for r in rows] == [v for (v,) in lengths]
+    code, _, err = run_cli(capsys, "--data", str(sample_run), "curves", "--run", "zzz")
+    assert code == 2 and "matches no training run" in err
 
 
 @pytest.mark.parametrize(

@@ -13,11 +13,13 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import duckdb
 import torch
 from tqdm import tqdm
 
 from storage.artifacts import put_bytes, read_bytes
 from storage.db import connect, transaction, utcnow
+from tasks.errors import BadInput
 from tasks.runner import StageOutput
 from tasks.train.config import TrainConfig
 from tasks.train.data import load_demonstrations
@@ -36,6 +38,40 @@ SUMMARY = (
     "env_steps_per_s",
 )
 SUMMARY_WINDOW = 10
+
+
+CURVES = (
+    "episode_length_s",
+    "falls_per_min",
+    "reward_motion",
+    "reward_interaction",
+    "reward_total",
+    "motion_accuracy_fake",
+    "interaction0_accuracy_fake",
+)
+
+
+def learning_curves(
+    con: duckdb.DuckDBPyConnection, key: str, *, every: int = 100, names=CURVES
+) -> list[dict]:
+    """Means of the run's per-iteration metrics over blocks of ``every`` iterations, one row per
+    block: {"iterations": "0-99", name: mean, ...}. ``key`` may be a prefix of the run key."""
+    found = con.execute(
+        "SELECT DISTINCT key FROM train_iterations WHERE key LIKE ? || '%'", [key]
+    ).fetchall()
+    if len(found) != 1:
+        problem = "matches no training run" if not found else "matches several runs"
+        raise BadInput(f"--run {key}", f"{problem}; see `ringside metrics --stage train`")
+    rows = con.execute(
+        "SELECT iteration // ? AS block, name, avg(value) FROM train_iterations "
+        "WHERE key = ? AND list_contains(?, name) GROUP BY ALL ORDER BY ALL",
+        [every, found[0][0], list(names)],
+    ).fetchall()
+    blocks: dict[int, dict] = {}
+    for block, name, value in rows:
+        row = blocks.setdefault(block, {"iterations": f"{block * every}-{(block + 1) * every - 1}"})
+        row[name] = value
+    return list(blocks.values())
 
 
 def _newest_checkpoint(db: Path, key: str, dataset_key: str) -> tuple[int, str] | None:
