@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from prefect import task
-from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE
+from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
 from storage.db import connect
@@ -22,14 +22,10 @@ from tasks.dataset.store import candidate_members, load_motion, record_dataset
 from tasks.errors import BadInput
 from tasks.ingest.outputs import IngestOutput
 from tasks.runner import StageResult, run_stage
+from tasks.stage_task import stage_task
 
 
-@task(
-    name="dataset",
-    cache_policy=(INPUTS + TASK_SOURCE) - "force",
-    persist_result=True,
-    task_run_name="dataset-{ingest.video_id:.12}",
-)
+@stage_task("dataset", "dataset-{ingest.video_id:.12}")
 def dataset_task(
     data_root: str,
     ingest: IngestOutput,
@@ -69,11 +65,7 @@ def dataset_task(
     )
 
 
-@task(
-    name="dataset-extra-clips",
-    cache_policy=(INPUTS + TASK_SOURCE) - "force",
-    persist_result=True,
-)
+@stage_task("dataset-extra-clips")
 def extra_clips_task(
     data_root: str, folder: str, files: dict[str, str], video_id: str, key: str, force: bool
 ) -> StageResult:

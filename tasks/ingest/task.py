@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from prefect import task
-from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE
+from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
 from storage.db import connect
@@ -15,6 +15,7 @@ from tasks.ingest.config import AdversaryDeclaration, IngestConfig
 from tasks.ingest.probe import VideoFile, identify
 from tasks.ingest.stage import STAGE, ingest_code, ingest_upstream, ingest_video
 from tasks.runner import StageResult, run_stage
+from tasks.stage_task import stage_task
 
 
 @task(name="identify-video", cache_policy=NO_CACHE)
@@ -23,12 +24,7 @@ def identify_task(path: str) -> VideoFile:
     return identify(Path(path))
 
 
-@task(
-    name="ingest",
-    cache_policy=(INPUTS + TASK_SOURCE) - "force",
-    persist_result=True,
-    task_run_name="ingest-{video.video_id:.12}",
-)
+@stage_task("ingest", "ingest-{video.video_id:.12}")
 def ingest_task(
     data_root: str,
     video: VideoFile,

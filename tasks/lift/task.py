@@ -5,8 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import duckdb
-from prefect import task
-from prefect.cache_policies import INPUTS, TASK_SOURCE
 from prefect.runtime import flow_run
 
 from storage.paths import data_paths
@@ -21,6 +19,7 @@ from tasks.lift.stage import (
     lift_video,
 )
 from tasks.runner import StageResult, run_stage
+from tasks.stage_task import stage_task
 
 
 def load_fighters(
@@ -35,12 +34,7 @@ def load_fighters(
     return fighter_tracks(columns, frames)
 
 
-@task(
-    name="lift",
-    cache_policy=(INPUTS + TASK_SOURCE) - "force",
-    persist_result=True,
-    task_run_name="lift-{ingest.video_id:.12}",
-)
+@stage_task("lift", "lift-{ingest.video_id:.12}")
 def lift_task(
     data_root: str,
     ingest: IngestOutput,

@@ -17,6 +17,7 @@ from tasks.pose.config import PoseConfig
 from tasks.pose.merge import ChunkSpan
 from tasks.pose.stage import STAGE, assemble, pose_code, pose_upstream, process_chunk
 from tasks.runner import StageResult, run_stage
+from tasks.stage_task import stage_task
 
 
 @task(
@@ -58,12 +59,7 @@ def latest_pick(db: Path, video_id: str) -> int | None:
     return None if row is None else int(row[0])
 
 
-@task(
-    name="pose",
-    cache_policy=(INPUTS + TASK_SOURCE) - "force",
-    persist_result=True,
-    task_run_name="pose-{ingest.video_id:.12}",
-)
+@stage_task("pose", "pose-{ingest.video_id:.12}")
 def pose_task(
     data_root: str,
     ingest: IngestOutput,

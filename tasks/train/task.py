@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from prefect import task
-from prefect.cache_policies import INPUTS, TASK_SOURCE
 from prefect.runtime import flow_run
 
 from storage.keys import code_version, stage_key
 from storage.paths import data_paths
 from tasks.runner import StageResult, run_stage
+from tasks.stage_task import stage_task
 from tasks.train.config import TrainConfig
 from tasks.train.run import STAGE, train
 
@@ -21,12 +20,7 @@ def train_key(config: TrainConfig, dataset_key: str) -> str:
     return stage_key(STAGE, config, train_code(), {"dataset": dataset_key})
 
 
-@task(
-    name="train",
-    cache_policy=(INPUTS + TASK_SOURCE) - "force",
-    persist_result=True,
-    task_run_name="train-{dataset_key:.12}",
-)
+@stage_task("train", "train-{dataset_key:.12}")
 def train_task(
     data_root: str, dataset_key: str, config: TrainConfig, key: str, force: bool = False
 ) -> StageResult:
