@@ -208,11 +208,12 @@ def _punch_rows(
     fighters: Mapping[str, FighterMotion],
 ) -> list[tuple]:
     other = ROLES[1 - ROLES.index(role)] if role in ROLES else None
+    present = set(fighters[other].step.tolist()) if other in fighters else set()
     rows = []
     for number, (clip, punch) in enumerate(punches):
         peak_step = clip.start + punch.peak
         local = None
-        if other in fighters and peak_step in set(fighters[other].step.tolist()):
+        if peak_step in present:
             row = fighters[other].rows(np.array([peak_step]))[0]
             them = fighters[other].qpos[row]
             heading = heading_frame(them[3:7])

@@ -177,22 +177,30 @@ class Trainer:
 
     # ------------------------------------------------------------------ rewards
 
-    def rewards(self, r: Rollout) -> dict[str, Tensor]:
-        """Each reward term (T, N, 2) and their scheduled sum (eq 4)."""
-        disc = self.config.discriminator
+    def discriminator_inputs(self, r: Rollout) -> list[Tensor]:
+        """The rollout's transitions as each discriminator takes them: D^M's
+        [o^self_t, o^self_t+1] of both agents (T*N*2, 446), then D^I_i's [o_t, o^self_t+1] of
+        agent i (T*N, 497)."""
         next_self = r.next_obs[..., :SELF_DIM]
+        inputs = [torch.cat([r.obs[..., :SELF_DIM], next_self], -1).reshape(-1, 2 * SELF_DIM)]
+        for agent in range(2):
+            pair = torch.cat([r.obs[:, :, agent], next_self[:, :, agent]], -1)
+            inputs.append(pair.reshape(-1, pair.shape[-1]))
+        return inputs
+
+    def rewards(self, r: Rollout, inputs: list[Tensor]) -> dict[str, Tensor]:
+        """Each reward term (T, N, 2) and their scheduled sum (eq 4); ``inputs`` are
+        `discriminator_inputs`."""
+        disc = self.config.discriminator
         with torch.no_grad():
-            motion_in = torch.cat([r.obs[..., :SELF_DIM], next_self], -1)
-            motion = style_reward_from_config(
-                self.nets.motion(motion_in.reshape(-1, 2 * SELF_DIM)), disc
+            motion = style_reward_from_config(self.nets.motion(inputs[0]), disc)
+            interaction = torch.stack(
+                [
+                    style_reward_from_config(d(x), disc).reshape(r.log_probs.shape[:2])
+                    for d, x in zip(self.nets.interaction, inputs[1:], strict=True)
+                ],
+                dim=-1,
             )
-            interaction = torch.empty_like(r.log_probs)
-            for agent, d in enumerate(self.nets.interaction):
-                pair = torch.cat([r.obs[:, :, agent], next_self[:, :, agent]], -1)
-                logits = d(pair.reshape(-1, pair.shape[-1]))
-                interaction[:, :, agent] = style_reward_from_config(logits, disc).reshape(
-                    pair.shape[:2]
-                )
         terms = {"motion": motion.reshape(r.log_probs.shape), "interaction": interaction}
         task = self.config.reward.control_task
         control = None
@@ -225,14 +233,10 @@ class Trainer:
 
     # ------------------------------------------------------------------ discriminators
 
-    def update_discriminators(self, r: Rollout) -> dict[str, float]:
-        """Replay the policy's transitions and train D^M and each D^I (Algorithm 1, 17-20)."""
+    def update_discriminators(self, fakes: list[Tensor]) -> dict[str, float]:
+        """Replay the policy's transitions (`discriminator_inputs`) and train D^M and each D^I
+        (Algorithm 1, 17-20)."""
         disc = self.config.discriminator
-        next_self = r.next_obs[..., :SELF_DIM]
-        fakes = [torch.cat([r.obs[..., :SELF_DIM], next_self], -1).reshape(-1, 2 * SELF_DIM)]
-        for agent in range(2):
-            pair = torch.cat([r.obs[:, :, agent], next_self[:, :, agent]], -1)
-            fakes.append(pair.reshape(-1, pair.shape[-1]))
         stats: dict[str, float] = {}
         names = ("motion", "interaction0", "interaction1")
         for name, d, opt, buffer, real, fake in zip(
@@ -338,8 +342,9 @@ class Trainer:
             return out
 
         rollout = timed("collect_s", self.collect)
-        terms = timed("rewards_s", self.rewards, rollout)
-        d_stats = timed("discriminators_s", self.update_discriminators, rollout)
+        inputs = self.discriminator_inputs(rollout)
+        terms = timed("rewards_s", self.rewards, rollout, inputs)
+        d_stats = timed("discriminators_s", self.update_discriminators, inputs)
         p_stats = timed("ppo_s", self.update_policy, rollout, terms["total"])
         steps = rollout.terminated.numel()  # environment steps (both agents move in each)
         seconds = sum(timings.values())
