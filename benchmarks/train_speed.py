@@ -16,21 +16,15 @@ import sys
 import time
 from pathlib import Path
 
-import mujoco
 import numpy as np
-import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from models.humanoid.boxer import BoneLengths, boxer_mjcf  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
-from tasks.lift.solve import velocities  # noqa: E402
-from tasks.lift.stage import RATE  # noqa: E402
-from tasks.lift.synthetic import clip_path, load_deepmimic, retarget  # noqa: E402
 from tasks.train.config import TrainConfig  # noqa: E402
-from tasks.train.data import demonstrations_from_reference  # noqa: E402
-from tasks.train.env import ArenaEnv, facing_reference  # noqa: E402
+from tasks.train.data import clip_demonstrations  # noqa: E402
+from tasks.train.env import ArenaEnv  # noqa: E402
 from tasks.train.mappo import Trainer  # noqa: E402
 
 REPEATS = 3
@@ -40,17 +34,12 @@ PHYSICS_STEPS = 100
 def main() -> None:
     assets = data_paths().assets
     pull(assets, dev=True, log=lambda _line: None)
-    torch.set_num_threads(1)
-    bones = (BoneLengths(), BoneLengths())
-    qpos = retarget(load_deepmimic(clip_path(assets, "punch")))
-    model = mujoco.MjModel.from_xml_string(boxer_mjcf(bones[0]))
-    reference = facing_reference(qpos, velocities(model, qpos, RATE))
-    demos = demonstrations_from_reference(reference, bones, key="benchmark")
+    demos = clip_demonstrations(assets, "punch")
     config = TrainConfig()
     n = config.env.num_envs
 
-    with ArenaEnv(config.env, np.random.default_rng(0), bones) as env:
-        env.reset(np.arange(n), reference)
+    with ArenaEnv(config.env, np.random.default_rng(0), demos.bones) as env:
+        env.reset(np.arange(n), demos.reference)
         physics = 0.0
         for _ in range(REPEATS):
             start = time.perf_counter()

@@ -57,7 +57,8 @@ def test_the_training_environment_shares_the_dataset_features():
     assert dataset_stage.self_observation is obs.self_observation
     assert dataset_stage.body_states is obs.body_states
     assert train_env.observation is obs.observation
-    assert train_env.body_state is obs.body_state
+    assert train_env.body_state_from_frames is obs.body_state_from_frames
+    assert train_env.world_frames is obs.world_frames
 
 
 def test_hand_built_standing_pose(model):

@@ -4,16 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 
-import mujoco
 import numpy as np
 import pytest
 import torch
 
-from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import heading_yaw
-from tasks.lift.solve import velocities
-from tasks.lift.stage import RATE
-from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 from tasks.train.config import (
     DiscriminatorConfig,
     NetworkConfig,
@@ -21,8 +17,8 @@ from tasks.train.config import (
     RewardConfig,
     TrainConfig,
 )
-from tasks.train.data import Demonstrations, demonstrations_from_reference
-from tasks.train.env import EnvConfig, facing_reference
+from tasks.train.data import Demonstrations, clip_demonstrations
+from tasks.train.env import EnvConfig
 from tasks.train.mappo import CheckpointMismatch, Trainer
 
 TINY = TrainConfig(
@@ -47,10 +43,7 @@ DEFAULT_BONES = (BoneLengths(), BoneLengths())
 
 def _demos(assets, bones=DEFAULT_BONES) -> Demonstrations:
     """The punch clip performed by two fighters facing each other, as a dataset would hold it."""
-    qpos = retarget(load_deepmimic(clip_path(assets, "punch")))
-    single = mujoco.MjModel.from_xml_string(boxer_mjcf(bones[0]))
-    reference = facing_reference(qpos, velocities(single, qpos, RATE))
-    return demonstrations_from_reference(reference, bones, key="synthetic")
+    return clip_demonstrations(assets, "punch", bones)
 
 
 @pytest.fixture(scope="module")

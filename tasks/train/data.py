@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import duckdb
 import mujoco
@@ -22,7 +23,10 @@ from models.humanoid.observations import SELF_DIM, body_states, observation
 from tasks.dataset.stage import ROLES
 from tasks.dataset.store import dataset_info, load_motion, load_transitions
 from tasks.errors import BadInput
-from tasks.train.env import ReferenceMotions
+from tasks.lift.solve import velocities
+from tasks.lift.stage import RATE
+from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
+from tasks.train.env import ReferenceMotions, facing_reference
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,3 +126,17 @@ def demonstrations_from_reference(
         np.concatenate([o[:-1], o[1:, :SELF_DIM]], 1).astype(np.float32) for o in obs
     )
     return Demonstrations(key, motion.astype(np.float32), interaction, reference, bones)
+
+
+def clip_demonstrations(
+    assets: Path,
+    clip: str = "punch",
+    bones: tuple[BoneLengths, BoneLengths] = (BoneLengths(), BoneLengths()),  # noqa: B008
+) -> Demonstrations:
+    """A DeepMimic sample clip performed by two fighters facing each other
+    (`facing_reference`), as a dataset would hold it: training without footage, for tests and
+    benchmarks. Key "clip:<clip>"."""
+    qpos = retarget(load_deepmimic(clip_path(assets, clip)))
+    model = mujoco.MjModel.from_xml_string(boxer_mjcf(bones[0]))
+    reference = facing_reference(qpos, velocities(model, qpos, RATE))
+    return demonstrations_from_reference(reference, bones, key=f"clip:{clip}")
