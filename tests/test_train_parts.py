@@ -34,6 +34,7 @@ from tasks.train.losses import (
     reward_weights,
     style_reward,
 )
+from tasks.train.mappo import training_device
 from tasks.train.networks import (
     ACTION_DIM,
     INTERACTION_INPUT_DIM,
@@ -493,3 +494,14 @@ def test_other_configs_reject_bad_settings():
         section="train",
     )
     assert config.seed == 3 and config.reward.task_observation_dim == 2
+
+
+def test_the_training_device_is_chosen_or_refused_clearly():
+    with pytest.raises(ValueError, match="train.device must be one of"):
+        TrainConfig(device="tpu")
+    assert training_device("cpu") == torch.device("cpu")
+    expected = "cuda" if torch.cuda.is_available() else "cpu"
+    assert training_device("auto").type == expected
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="torch sees no GPU"):
+            training_device("cuda")

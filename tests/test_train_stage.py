@@ -100,12 +100,13 @@ def test_a_killed_run_resumes_where_it_stopped(sample_run, dataset_key):
 
     with pytest.raises(KeyboardInterrupt):
         train(**common, key="killed", config=TINY, stop=lambda iteration: iteration == 3)
-    # Killed after iteration 3 (index 2) was recorded but before it was checkpointed.
-    saved = query(sample_run, "SELECT max(iteration) FROM train_checkpoints WHERE key = 'killed'")
+    # Killed after the third iteration (index 2), which was not checkpointed: the checkpoint
+    # after two iterations is the run's only one, and its metrics are all that was written.
+    saved = query(sample_run, "SELECT iteration FROM train_checkpoints WHERE key = 'killed'")
     assert saved == [(2,)]
     assert query(
         sample_run, "SELECT max(iteration) FROM train_iterations WHERE key = 'killed'"
-    ) == [(2,)]
+    ) == [(1,)]
     train(**common, key="killed", config=TINY)
 
     def curves(key):
@@ -115,6 +116,14 @@ def test_a_killed_run_resumes_where_it_stopped(sample_run, dataset_key):
             [key],
         )
         return [r for r in rows if r[1] not in TIMING]
+
+    # One checkpoint per run is kept; the older ones' files are gone.
+    assert query(sample_run, "SELECT count(*) FROM train_checkpoints WHERE key = 'whole'") == [(1,)]
+    kept = query(
+        sample_run,
+        "SELECT artifact FROM train_checkpoints UNION SELECT artifact FROM train_policies",
+    )
+    assert sorted(p.name for p in paths.artifacts.rglob("*.pt")) == sorted(a for (a,) in kept)
 
     resumed = curves("killed")
     assert [r[0] for r in resumed if r[1] == "reward_total"] == [0, 1, 2, 3]

@@ -21,6 +21,7 @@ PRESETS: dict[str, tuple[int, ...]] = {
     # measures (2,835 env steps/s end to end on 2 cores against 1,823 for 256,256,128).
     "cpu": (128, 128),
 }
+DEVICES = ("auto", "cpu", "cuda")
 CONTROL_TASKS = ("none", "damage_min", "damage_max", "heading")
 DISCRIMINATOR_LOSSES = ("gail", "lsgan")
 NUM_AGENTS = 2
@@ -289,9 +290,16 @@ class TrainConfig:
     """The whole MAAIP training setup: seed, length and the four parts above."""
 
     seed: int = setting(0, "Seeds network initialisation, sampling and the environments.")
+    device: str = setting(
+        "auto",
+        "Where the networks train: 'auto' (CUDA when torch sees a GPU, else the CPU), 'cpu' or "
+        "'cuda'. The physics always runs on the CPU.",
+    )
     iterations: int = setting(1000, "Training iterations (collect, update D, update pi and V).")
     checkpoint_every: int = setting(
-        25, "Iterations between checkpoints; a killed run resumes from the newest."
+        100,
+        "Iterations between checkpoints (each holds the replay buffers: about 590 MB with the "
+        "defaults); a killed run resumes from the newest and recomputes the iterations since.",
     )
     network: NetworkConfig = field(default_factory=NetworkConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -300,6 +308,8 @@ class TrainConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
 
     def __post_init__(self) -> None:
+        if self.device not in DEVICES:
+            raise ValueError(f"train.device must be one of {list(DEVICES)}, got {self.device!r}")
         if self.iterations < 1:
             raise ValueError(f"train.iterations must be at least 1, got {self.iterations}")
         if self.checkpoint_every < 1:

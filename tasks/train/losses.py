@@ -85,7 +85,7 @@ def _discriminator_loss(
         (grad,) = torch.autograd.grad(logit_real.sum(), z_real, create_graph=True)
         penalty = grad.square().sum(-1).mean()
     else:
-        penalty = torch.zeros((), dtype=fit.dtype)
+        penalty = torch.zeros((), dtype=fit.dtype, device=fit.device)
     weight_norm = d.output_weight.square().sum()
     loss = fit + gp_weight * penalty + logit_reg * weight_norm
     stats = DiscriminatorStats(

@@ -57,6 +57,18 @@ class CheckpointMismatch(ValueError):
     """A checkpoint that does not belong to this run (other humanoid, sizes or dataset)."""
 
 
+def training_device(name: str) -> torch.device:
+    """The torch device for `TrainConfig.device`; a clear error if 'cuda' is asked without one."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError(
+            "train.device is 'cuda' but torch sees no GPU (torch.cuda.is_available() is False); "
+            "use 'auto' or 'cpu'"
+        )
+    return torch.device(name)
+
+
 def _signature(config: TrainConfig, demos: Demonstrations) -> dict:
     """What a checkpoint must agree on to be resumed: the humanoids and the network sizes."""
     return {
@@ -91,8 +103,13 @@ class Trainer:
     def __init__(self, config: TrainConfig, demos: Demonstrations):
         torch.manual_seed(config.seed)
         self.config, self.demos = config, demos
+        self.device = training_device(config.device)
+        # One CPU generator draws every random number (then moved), so a seed means the same
+        # run on either device up to floating point.
         self.generator = torch.Generator().manual_seed(config.seed)
         self.nets = make_networks(config, generator=self.generator)
+        for net in (self.nets.policy, self.nets.value, self.nets.motion, *self.nets.interaction):
+            net.to(self.device)
         ppo, disc = config.ppo, config.discriminator
         self.optimiser = torch.optim.Adam(
             [*self.nets.policy.parameters(), *self.nets.value.parameters()], lr=ppo.learning_rate
@@ -101,9 +118,12 @@ class Trainer:
         self.d_optimisers = [
             torch.optim.Adam(d.parameters(), lr=disc.learning_rate) for d in self.discriminators
         ]
-        self.buffers = [ReplayBuffer(disc.replay_size, d.input_dim) for d in self.discriminators]
-        self.real = [torch.from_numpy(demos.motion)] + [
-            torch.from_numpy(x) for x in demos.interaction
+        self.buffers = [
+            ReplayBuffer(disc.replay_size, d.input_dim, device=self.device)
+            for d in self.discriminators
+        ]
+        self.real = [
+            torch.from_numpy(x).to(self.device) for x in (demos.motion, *demos.interaction)
         ]
         self.env = ArenaEnv(config.env, np.random.default_rng(config.seed), demos.bones)
         # The heading task (§5.4): each agent's target direction on the floor, a world yaw drawn
@@ -135,19 +155,23 @@ class Trainer:
         )
         yaw = heading_yaw(quats)
         relative = self.targets - yaw
-        return torch.from_numpy(
-            np.stack([np.cos(relative), np.sin(relative)], -1).astype(np.float32)
-        )
+        return self._tensor(np.stack([np.cos(relative), np.sin(relative)], -1))
+
+    def _tensor(self, array: np.ndarray) -> Tensor:
+        """A float32 (or bool) tensor of an environment array, on the training device."""
+        if array.dtype != np.bool_:
+            array = array.astype(np.float32)
+        return torch.from_numpy(array).to(self.device)
 
     # ------------------------------------------------------------------ collect
 
     def collect(self) -> Rollout:
         """T policy steps of every environment; finished episodes restart from the demos."""
         n, horizon = self.env.num_envs, self.config.ppo.horizon
-        agents = torch.arange(2).repeat(n)
+        agents = torch.arange(2, device=self.device).repeat(n)
         parts: dict[str, list] = {k: [] for k in Rollout.__dataclass_fields__}
         for _ in range(horizon):
-            obs = torch.from_numpy(self.obs.astype(np.float32))
+            obs = self._tensor(self.obs)
             task = self.task_observation()
             actions, log_probs = self.nets.policy.act(
                 obs.reshape(2 * n, -1),
@@ -155,15 +179,15 @@ class Trainer:
                 task=None if task is None else task.reshape(2 * n, -1),
                 generator=self.generator,
             )
-            result = self.env.step(actions.reshape(n, 2, -1).double().numpy())
+            result = self.env.step(actions.reshape(n, 2, -1).double().cpu().numpy())
             parts["obs"].append(obs)
-            parts["next_obs"].append(torch.from_numpy(result.observation.astype(np.float32)))
+            parts["next_obs"].append(self._tensor(result.observation))
             parts["actions"].append(actions.reshape(n, 2, -1))
             parts["log_probs"].append(log_probs.reshape(n, 2))
-            parts["damage"].append(torch.from_numpy(result.damage.astype(np.float32)))
-            parts["terminated"].append(torch.from_numpy(result.terminated))
-            parts["truncated"].append(torch.from_numpy(result.truncated))
-            parts["fell"].append(torch.from_numpy(result.fell))
+            parts["damage"].append(self._tensor(result.damage))
+            parts["terminated"].append(self._tensor(result.terminated))
+            parts["truncated"].append(self._tensor(result.truncated))
+            parts["fell"].append(self._tensor(result.fell))
             if task is not None:
                 parts["task"].append(task)
                 # Eq 11 rewards the move just made towards the targets it was made for.
@@ -272,7 +296,7 @@ class Trainer:
         ppo = self.config.ppo
         horizon, n, _ = r.log_probs.shape
         other = r.obs.flip(2)  # each agent's opponent's observation: the value's input
-        agent = torch.arange(2).expand(horizon, n, 2)
+        agent = torch.arange(2, device=self.device).expand(horizon, n, 2)
         flat = lambda x: None if x is None else x.reshape(-1, x.shape[-1])  # noqa: E731
         with torch.no_grad():
             values = self.nets.value(flat(r.obs), flat(other), agent.reshape(-1), flat(r.task))
@@ -303,7 +327,7 @@ class Trainer:
         params = [*self.nets.policy.parameters(), *self.nets.value.parameters()]
         last = None
         for _ in range(ppo.epochs):
-            order = torch.randperm(len(batch), generator=self.generator)
+            order = torch.randperm(len(batch), generator=self.generator).to(self.device)
             for start in range(0, len(batch) - ppo.minibatch_size + 1, ppo.minibatch_size):
                 loss, last = ppo_losses(
                     self.nets.policy,
@@ -392,7 +416,8 @@ class Trainer:
             },
             "optimiser": self.optimiser.state_dict(),
             "d_optimisers": [o.state_dict() for o in self.d_optimisers],
-            "buffers": [(b._data.clone(), b._next, b._size) for b in self.buffers],
+            # Only the filled rows: a short run's checkpoint stays small.
+            "buffers": [(b._data[: b._size].clone(), b._next, b._size) for b in self.buffers],
             "torch_generator": self.generator.get_state(),
             "torch_rng": torch.get_rng_state(),
             "env_rng": env.rng.bit_generator.state,
@@ -409,7 +434,7 @@ class Trainer:
 
     def restore(self, blob: bytes) -> None:
         """Continue from a `checkpoint`; CheckpointMismatch if it belongs to another run."""
-        state = torch.load(io.BytesIO(blob), weights_only=False)
+        state = torch.load(io.BytesIO(blob), weights_only=False, map_location="cpu")
         theirs = state.get("signature", {})
         differs = sorted(k for k in self.signature if theirs.get(k) != self.signature[k])
         if differs:
@@ -427,7 +452,7 @@ class Trainer:
         for o, s in zip(self.d_optimisers, state["d_optimisers"], strict=True):
             o.load_state_dict(s)
         for b, (data, nxt, size) in zip(self.buffers, state["buffers"], strict=True):
-            b._data.copy_(data)
+            b._data[: len(data)].copy_(data)
             b._next, b._size = nxt, size
         self.generator.set_state(state["torch_generator"])
         torch.set_rng_state(state["torch_rng"])

@@ -209,9 +209,10 @@ class Policy(nn.Module):
         if deterministic:
             actions = mean
         else:
-            noise = torch.randn(
-                mean.shape, generator=generator, dtype=mean.dtype, device=mean.device
-            )
+            # Drawn on the CPU from the CPU generator whatever the device, so that a seed gives
+            # the same noise on a GPU.
+            noise = torch.randn(mean.shape, generator=generator, dtype=mean.dtype)
+            noise = noise.to(mean.device)
             actions = mean + std * noise
         return actions, _gaussian_log_prob(actions, mean, std)
 
