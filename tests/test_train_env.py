@@ -222,6 +222,24 @@ def test_zero_actions_stand_and_a_shove_knocks_a_fighter_down(stepping):
         assert not result.done[0]
 
 
+@pytest.mark.parametrize("stepping", ["rollout", "threads"])
+def test_a_blown_up_simulation_ends_its_episode_with_finite_numbers(punch, stepping):
+    with _env(num_envs=2, stepping=stepping) as env:
+        env.reset([0, 1], punch, frames=[5, 5])
+        env.datas[1].qvel[:] = 1e12  # far beyond what MuJoCo integrates (mjMAXVAL is 1e10)
+        result = env.step(np.zeros((2, 2, 28)))
+        assert result.unstable.tolist() == [False, True]
+        assert result.terminated.tolist() == [False, True]
+        assert result.fell[1].tolist() == [False, False]  # not counted as a fall
+        assert np.isfinite(result.observation).all() and np.isfinite(result.damage).all()
+        assert not result.observation[1].any() and result.observation[0].any()
+        # MuJoCo did not quietly restart it at the rest pose: the state is left for the reset.
+        assert not np.isfinite(env.datas[1].qpos).all() or np.abs(env.datas[1].qvel).max() > 1e10
+        env.reset([1], punch, frames=[5])
+        result = env.step(np.zeros((2, 2, 28)))
+        assert not result.unstable.any()
+
+
 def test_time_limit_truncates_without_terminating():
     with _env(episode_s=0.2) as env:
         env.reset([0, 1], _standing(env))

@@ -30,6 +30,11 @@ the opponent). A fall of either agent ends the episode for both and is terminal;
 the last observation). Episodes do not restart on their own: the trainer calls `reset` for
 the environments whose `done` is set.
 
+Instability: MuJoCo's automatic reset is off in the arena (mjDSBL_AUTORESET). An environment
+whose positions or velocities are no longer finite or exceed mjMAXVAL after a step is
+`unstable`: its episode ends (terminal) with zeros for observation and damage, and the
+trainer resets it like any other finished environment and counts it.
+
 Batched stepping, two ways (`EnvConfig.stepping`), measured by `benchmarks/physics_speed.py`:
 - "rollout" (default): `mujoco.rollout.Rollout`, MuJoCo's own thread pool. It takes and
   returns states (mjSTATE_FULLPHYSICS) and sensor values, not MjData: contacts come from
@@ -212,6 +217,8 @@ class StepResult:
         truncated: (N,) the episode reached `episode_s` without a fall: bootstrap.
         fell: (N, 2) which agents fell this step.
         damage: (N, 2) newtons each agent received this step (module docstring).
+        unstable: (N,) the simulation blew up (a position or velocity not finite or beyond
+            MuJoCo's mjMAXVAL): terminal, the observation and damage are zeros; reset it.
     """
 
     observation: np.ndarray
@@ -220,6 +227,7 @@ class StepResult:
     truncated: np.ndarray
     fell: np.ndarray
     damage: np.ndarray
+    unstable: np.ndarray
 
     @property
     def done(self) -> np.ndarray:
@@ -478,6 +486,9 @@ class ArenaEnv:
         rollout = config.stepping == "rollout"
         xml = arena_mjcf(bones, timestep=config.timestep, contact_sensors=rollout)
         self.model = mujoco.MjModel.from_xml_string(xml)
+        # An unstable simulation is caught here (`StepResult.unstable`) rather than silently
+        # restarted by MuJoCo at the model's rest state, which would read as a teleport.
+        self.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.index = arena_index(self.model)
         self.datas = [mujoco.MjData(self.model) for _ in range(config.num_envs)]
         for data in self.datas:
@@ -488,6 +499,7 @@ class ArenaEnv:
         self._body_ids = np.stack([agent.body_ids for agent in self.index.agents])  # (2, 15)
         self._frames = np.empty((config.num_envs, self.model.nbody, FRAME_WIDTH))
         self._head_z = np.empty((config.num_envs, NUM_AGENTS))
+        self._stable = np.ones(config.num_envs, dtype=bool)
         self._chunks = [
             c for c in np.array_split(np.arange(config.num_envs), config.threads) if c.size
         ]
@@ -626,10 +638,16 @@ class ArenaEnv:
         for agent in range(NUM_AGENTS):
             ctrl[:, self.index.actuators[agent]] = targets[:, agent]
         damage, floor = self._advance(ctrl, contacts=True)
-        obs = _observations(self._states(self._frames))
-        fell = floor | (self._head_z < self.config.fall_height_m)
+        unstable = ~self._stable
+        with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
+            obs = _observations(self._states(self._frames))
+            fell = (floor | (self._head_z < self.config.fall_height_m)) & self._stable[:, None]
+        if unstable.any():
+            # Zeros, so that no NaN reaches the networks; the episode ends here.
+            obs[unstable] = 0.0
+            damage[unstable] = 0.0
         self.elapsed += 1
-        terminated = fell.any(axis=1)
+        terminated = fell.any(axis=1) | unstable
         truncated = (self.elapsed >= self.config.max_steps) & ~terminated
         return StepResult(
             observation=obs,
@@ -638,6 +656,7 @@ class ArenaEnv:
             truncated=truncated,
             fell=fell,
             damage=damage,
+            unstable=unstable,
         )
 
     def step_physics(self, ctrl: np.ndarray | None = None) -> None:
@@ -693,6 +712,11 @@ class ArenaEnv:
         _refresh(self.model, data)
         world_frames(self.model, data, self._frames[i])
         self._head_z[i] = data.geom_xpos[self.index.head_geoms, 2]
+        # MuJoCo's own test (mj_checkPos / mj_checkVel): not finite or beyond mjMAXVAL.
+        self._stable[i] = bool(
+            np.all(np.abs(data.qpos) < mujoco.mjMAXVAL)
+            and np.all(np.abs(data.qvel) < mujoco.mjMAXVAL)
+        )
 
     def _advance_rollout(
         self, ctrl: np.ndarray, *, contacts: bool

@@ -93,6 +93,7 @@ class Rollout:
     terminated: Tensor  # (T, N)
     truncated: Tensor  # (T, N)
     fell: Tensor  # (T, N, 2)
+    unstable: Tensor  # (T, N) the simulation blew up (terminal, not a fall)
     task: Tensor | None = None  # (T, N, 2, 2) heading targets the actions were chosen for
     next_task: Tensor | None = None  # the same targets seen from the next state
 
@@ -188,6 +189,7 @@ class Trainer:
             parts["terminated"].append(self._tensor(result.terminated))
             parts["truncated"].append(self._tensor(result.truncated))
             parts["fell"].append(self._tensor(result.fell))
+            parts["unstable"].append(self._tensor(result.unstable))
             if task is not None:
                 parts["task"].append(task)
                 # Eq 11 rewards the move just made towards the targets it was made for.
@@ -384,7 +386,8 @@ class Trainer:
             **p_stats,
             **timings,
             "env_steps_per_s": steps / seconds,
-            "falls_per_min": float(rollout.terminated.sum()) / sim_minutes,
+            "falls_per_min": float(rollout.fell.any(-1).sum()) / sim_minutes,
+            "unstable_episodes": float(rollout.unstable.sum()),
             "episodes_ended": float((rollout.terminated | rollout.truncated).sum()),
             "episode_length_s": float(self.env.elapsed.mean()) / self.env.config.policy_hz,
             "damage_received_n": float(rollout.damage.mean()),
