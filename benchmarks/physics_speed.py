@@ -12,8 +12,8 @@ environments, both agents stepped; each policy step is `substeps` physics steps)
   use it: a prototype of the whole step on it ran no faster than "rollout", since the step is
   bound by the observations);
 - the whole `ArenaEnv.step` (targets, physics, contacts, kinematics, observations, falls);
-- the cost of the observations alone per policy step: `body_state` for every environment and
-  agent, then one vectorised `observation` call.
+- the cost of the observations alone per policy step: `world_frames` copied from every
+  environment and one vectorised body-state pass, then one vectorised `observation` call.
 
 Each configuration is timed over 15 steps from a fresh reset, several times, round-robin
 with the others so that load from other processes falls on all alike; the best and the
@@ -144,14 +144,14 @@ def main() -> None:
             f"{np.median(case.rates):7.0f}"
         )
 
-    # Observation cost on the calling thread: body_state per environment and agent, then one
-    # vectorised observation() call for all of them.
+    # Observation cost on the calling thread: world_frames copied per environment and one
+    # vectorised body-state pass (ArenaEnv.body_states), then one observation() call for all.
     default = EnvConfig(num_envs=NUM_ENVS)
     with ArenaEnv(default, rng) as made:
         made.reset(np.arange(NUM_ENVS), reference)
         states = made.body_states()
         timings = {
-            f"body_state ({NUM_ENVS} x 2 calls)": made.body_states,
+            f"body states ({NUM_ENVS} environments)": made.body_states,
             f"observation() on ({NUM_ENVS}, 2)": lambda: observation(states, states[:, ::-1]),
         }
         spent = {}

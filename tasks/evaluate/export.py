@@ -1,0 +1,186 @@
+"""Export a trained fighter as an opponent folder (`tasks.evaluate.opponent` says what is in it).
+
+The policy goes to ONNX with torch's TorchScript-based exporter (`dynamo=False`: the newer
+exporter needs the onnxscript package, which nothing else here uses), as the normaliser and
+the Gaussian's mean of one agent, the batch dimension dynamic. The folder is written beside
+its final place and renamed into it, so a killed export leaves no half folder.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from models.humanoid.arena import arena_mjcf
+from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT
+from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
+from storage.artifacts import read_bytes
+from storage.db import connect
+from tasks.config import build
+from tasks.errors import BadInput
+from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent, file_digest
+from tasks.train.config import TrainConfig
+from tasks.train.env import EnvConfig
+from tasks.train.networks import Policy
+
+ONNX_OPSET = 17
+
+
+@dataclass(frozen=True, eq=False)
+class TrainedPolicy:
+    """A training run's committed shared policy and what it was trained on."""
+
+    run_key: str
+    dataset_key: str
+    iteration: int
+    config: TrainConfig
+    policy: Policy
+    bones: tuple[BoneLengths, BoneLengths]
+    metrics: dict[str, float]
+
+
+def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
+    """The policy a finished training run committed (`train_policies`); ``run`` may be a
+    prefix of the run key. BadInput if it matches no finished run or several."""
+    with connect(db, read_only=True) as con:
+        rows = con.execute(
+            "SELECT p.key, p.video_id, p.iteration, p.artifact, o.config FROM train_policies p "
+            "JOIN stage_outputs o ON o.stage = 'train' AND o.key = p.key "
+            "AND o.video_id = p.video_id WHERE p.key LIKE ? || '%'",
+            [run],
+        ).fetchall()
+        if len(rows) != 1:
+            problem = "matches no finished training run" if not rows else "matches several runs"
+            raise BadInput(f"--run {run}", f"{problem}; see `ringside metrics --stage train`")
+        key, dataset_key, iteration, artifact, config_json = rows[0]
+        metrics = dict(
+            con.execute(
+                "SELECT name, value FROM stage_metrics WHERE stage = 'train' AND key = ?", [key]
+            ).fetchall()
+        )
+    config = build(TrainConfig, json.loads(config_json), section="train")
+    state = torch.load(io.BytesIO(read_bytes(artifacts, artifact)), weights_only=False)
+    policy = Policy(
+        hidden=config.network.hidden_sizes,
+        action_std=config.ppo.action_std,
+        task_dim=config.reward.task_observation_dim,
+        observation_clip=config.network.observation_clip,
+    )
+    policy.load_state_dict(state["networks"]["policy"])
+    policy.eval()
+    bones = tuple(BoneLengths(**b) for b in state["signature"]["bones"])
+    return TrainedPolicy(key, dataset_key, iteration, config, policy, bones, metrics)
+
+
+class _Acting(nn.Module):
+    """One agent's deterministic policy: the mean action of its observation (and task)."""
+
+    def __init__(self, policy: Policy, agent: int):
+        super().__init__()
+        self.policy, self.agent = policy, agent
+
+    def forward(self, observation: torch.Tensor, task: torch.Tensor | None = None):
+        return self.policy(observation, self.agent, task)
+
+
+def policy_onnx(policy: Policy, agent: int) -> bytes:
+    """Agent ``agent``'s mean action as an ONNX model (inputs "observation" [, "task"],
+    output "action", batch dimension dynamic)."""
+    acting = _Acting(policy, agent).eval()
+    inputs = [torch.zeros(1, policy.obs_dim)]
+    names = ["observation"]
+    if policy.task_dim:
+        inputs.append(torch.zeros(1, policy.task_dim))
+        names.append("task")
+    out = io.BytesIO()
+    with warnings.catch_warnings():
+        # The exporter's deprecation notice and the tracer's notes on the policy's own
+        # argument checks (constant for a fixed agent) are not for the user.
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            acting,
+            tuple(inputs),
+            out,
+            dynamo=False,
+            input_names=names,
+            output_names=["action"],
+            dynamic_axes={name: {0: "batch"} for name in [*names, "action"]},
+            opset_version=ONNX_OPSET,
+        )
+    return out.getvalue()
+
+
+def export_opponent(
+    out: Path,
+    *,
+    policy: Policy,
+    agent: int,
+    bones: tuple[BoneLengths, BoneLengths],
+    env: EnvConfig,
+    facts: dict,
+) -> Path:
+    """Write the opponent folder ``out`` (replacing one that is there) and return it.
+
+    Args:
+        out: the folder to write.
+        policy: the trained shared policy.
+        agent: which agent to export (0: the adversary, 1: the other fighter).
+        bones: both fighters' bones (agent 0's, agent 1's).
+        env: the environment the policy was trained in (rates, fall rule).
+        facts: extra manifest entries (keys of the dataset and run, metrics).
+    """
+    if agent not in (0, 1):
+        raise ValueError(f"agent must be 0 or 1, got {agent!r}")
+    out = Path(out)
+    staging = out.with_name(out.name + ".partial")
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    (staging / "policy.onnx").write_bytes(policy_onnx(policy, agent))
+    (staging / "humanoid.xml").write_text(boxer_mjcf(bones[agent]))
+    (staging / "arena.xml").write_text(arena_mjcf(bones, timestep=env.timestep))
+    manifest = {
+        "format": FORMAT,
+        "agent": agent,
+        "role": "adversary" if agent == 0 else "opponent",
+        **facts,
+        "bones": [asdict(b) for b in bones],
+        "env": asdict(env),
+        "observation": {
+            "size": OBSERVATION_DIM,
+            "self_blocks": [list(b) for b in SELF_BLOCKS],
+            "opponent_blocks": [list(b) for b in OPPONENT_BLOCKS],
+            "frame": "the agent's heading frame (MAAIP §4.2); see models/humanoid/observations.py",
+        },
+        "action": {
+            "size": len(HINGE_NAMES),
+            "joints": [{"name": j.name, "dofs": j.dofs} for j in JOINT_LAYOUT],
+            "meaning": "PD targets: exponential maps for 3-DoF joints, angles for hinges",
+            "actuators": list(HINGE_NAMES),
+        },
+        "files": {name: file_digest(staging / name) for name in FILES},
+    }
+    (staging / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
+    if out.exists():
+        shutil.rmtree(out)
+    staging.rename(out)
+    return out
+
+
+def onnx_max_abs_diff(
+    policy: Policy, agent: int, opponent: Opponent, observations: np.ndarray
+) -> float:
+    """The largest difference between torch's and onnxruntime's actions on observations
+    (B, 274) of the agent (the export's parity check)."""
+    obs = np.asarray(observations, dtype=np.float32)
+    with torch.no_grad():
+        expected = policy(torch.from_numpy(obs), agent).numpy()
+    return float(np.abs(opponent.act(obs) - expected).max())
