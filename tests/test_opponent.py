@@ -1,20 +1,26 @@
-"""The exported opponent (tasks.evaluate.export, tasks.evaluate.opponent): ONNX parity with
-torch on recorded observations, the folder's contents, and clear errors for bad folders."""
+"""The exported opponent (tasks.evaluate.export, .opponent, .spar): ONNX parity with torch on
+recorded observations, the folder's contents, clear errors for bad folders, and sparring."""
 
 from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
+from conftest import run_cli
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OBSERVATION_DIM
 from tasks.errors import BadInput
 from tasks.evaluate.export import export_opponent, onnx_max_abs_diff, policy_onnx
 from tasks.evaluate.opponent import file_digest, load_opponent
+from tasks.evaluate.spar import Partner, spar
 from tasks.train.config import (
     DiscriminatorConfig,
     NetworkConfig,
@@ -26,6 +32,8 @@ from tasks.train.env import EnvConfig
 from tasks.train.mappo import Trainer
 from tasks.train.networks import Policy
 
+REPO = Path(__file__).resolve().parent.parent
+ARTIFACTS = REPO / "data" / "test-artifacts" / "spar"
 SMALL = TrainConfig(
     network=NetworkConfig(hidden="32,32"),
     discriminator=DiscriminatorConfig(samples_per_update=64, updates_per_iteration=1),
@@ -126,3 +134,62 @@ def test_bad_opponent_folders_are_refused_with_the_file_named(tmp_path, trained)
         BadInput, match=r"policy.onnx: takes observations of shape \['batch', 100\]"
     ):
         load_opponent(other)
+
+
+# ---------------------------------------------------------------- sparring
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory, trained):
+    """Both fighters of the trained run as opponent folders."""
+    policy, bones, _ = trained
+    root = tmp_path_factory.mktemp("pair")
+    return [_export(root, policy, bones, agent) for agent in (0, 1)]
+
+
+def test_spar_runs_a_minute_against_the_trained_partner_without_torch(pair):
+    # A fresh interpreter, so that nothing else has imported torch: the runtime must not.
+    code = (
+        "import json, sys; from pathlib import Path; from flows.cli import main; "
+        f"rc = main(['spar', '{pair[0]}', '--partner', '{pair[1]}', '--seconds', '60', "
+        "'--json']); assert 'torch' not in sys.modules, 'torch was imported'; sys.exit(rc)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=600
+    )
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.strip().splitlines()
+    result = json.loads(lines[0])
+    assert result["simulated_s"] == 60.0 and result["policy_steps"] == 1800
+    assert result["realtime_factor"] > 0 and result["timings_s"]["physics"] > 0
+    assert lines[-1] == f"realtime_factor: {result['realtime_factor']:.1f} x"
+
+
+def test_spar_renders_a_bout_that_plays(tmp_path, pair):
+    video = tmp_path / "bout.mp4"
+    opponent = load_opponent(pair[0])
+    result = spar(opponent, Partner(None), seconds=2.0, video=video, size=(320, 180))
+    assert result.frames_rendered == 60
+    capture = cv2.VideoCapture(str(video))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame)
+    assert len(frames) == 60 and frames[0].shape == (180, 320, 3)
+    # The fighters are on screen: the middle of the picture differs from its empty edges, and
+    # they move.
+    first, last = frames[0].astype(float), frames[-1].astype(float)
+    assert first[:, 120:200].std() > first[:, :40].std() + 5
+    assert np.abs(first - last).mean() > 0.5
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    for index in (0, 30, 59):
+        cv2.imwrite(str(ARTIFACTS / f"bout_{index:02d}.png"), frames[index])
+
+
+def test_spar_refuses_bad_folders(capsys, tmp_path, pair):
+    code, _, err = run_cli(capsys, "spar", str(tmp_path / "nothing"))
+    assert code == 2 and "no such opponent folder" in err
+    code, _, err = run_cli(capsys, "spar", str(pair[0]), "--partner", str(tmp_path))
+    assert code == 2 and "manifest.json: missing" in err
