@@ -9,6 +9,7 @@ from typing import Any
 
 from tasks.config import apply_overrides, build, defaults_toml, read_toml
 from tasks.dataset.config import DatasetConfig
+from tasks.evaluate.config import EvaluateConfig
 from tasks.ingest.config import IngestConfig
 from tasks.lift.config import LiftStageConfig
 from tasks.pose.config import PoseConfig
@@ -21,6 +22,7 @@ SECTIONS: dict[str, type] = {
     "lift": LiftStageConfig,
     "dataset": DatasetConfig,
     "train": TrainConfig,
+    "evaluate": EvaluateConfig,
 }
 # The stages `video_to_opponent` runs per video; training runs on an assembled dataset.
 STAGES: tuple[str, ...] = ("ingest", "pose", "lift", "dataset")
@@ -44,6 +46,7 @@ class PipelineConfig:
     lift: LiftStageConfig = field(default_factory=LiftStageConfig)
     dataset: DatasetConfig = field(default_factory=DatasetConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
+    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
 
     def as_dict(self) -> dict[str, dict[str, Any]]:
         return {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}

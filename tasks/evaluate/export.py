@@ -26,8 +26,8 @@ from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_
 from storage.artifacts import read_bytes
 from storage.db import connect
 from tasks.config import build
-from tasks.errors import BadInput
 from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent, file_digest
+from tasks.evaluate.store import RunInfo, resolve_run
 from tasks.train.config import TrainConfig
 from tasks.train.env import EnvConfig
 from tasks.train.networks import Policy
@@ -52,23 +52,20 @@ def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
     """The policy a finished training run committed (`train_policies`); ``run`` may be a
     prefix of the run key. BadInput if it matches no finished run or several."""
     with connect(db, read_only=True) as con:
-        rows = con.execute(
-            "SELECT p.key, p.video_id, p.iteration, p.artifact, o.config FROM train_policies p "
-            "JOIN stage_outputs o ON o.stage = 'train' AND o.key = p.key "
-            "AND o.video_id = p.video_id WHERE p.key LIKE ? || '%'",
-            [run],
-        ).fetchall()
-        if len(rows) != 1:
-            problem = "matches no finished training run" if not rows else "matches several runs"
-            raise BadInput(f"--run {run}", f"{problem}; see `ringside metrics --stage train`")
-        key, dataset_key, iteration, artifact, config_json = rows[0]
+        info = resolve_run(con, run)
         metrics = dict(
             con.execute(
-                "SELECT name, value FROM stage_metrics WHERE stage = 'train' AND key = ?", [key]
+                "SELECT name, value FROM stage_metrics WHERE stage = 'train' AND key = ?",
+                [info.run_key],
             ).fetchall()
         )
-    config = build(TrainConfig, json.loads(config_json), section="train")
-    state = torch.load(io.BytesIO(read_bytes(artifacts, artifact)), weights_only=False)
+    return load_trained(artifacts, info, metrics)
+
+
+def load_trained(artifacts: Path, info: RunInfo, metrics: dict[str, float]) -> TrainedPolicy:
+    """The policy of run ``info`` from its artifact, in eval mode."""
+    config = build(TrainConfig, info.config, section="train")
+    state = torch.load(io.BytesIO(read_bytes(artifacts, info.artifact)), weights_only=False)
     policy = Policy(
         hidden=config.network.hidden_sizes,
         action_std=config.ppo.action_std,
@@ -78,7 +75,9 @@ def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
     policy.load_state_dict(state["networks"]["policy"])
     policy.eval()
     bones = tuple(BoneLengths(**b) for b in state["signature"]["bones"])
-    return TrainedPolicy(key, dataset_key, iteration, config, policy, bones, metrics)
+    return TrainedPolicy(
+        info.run_key, info.dataset_key, info.iteration, config, policy, bones, metrics
+    )
 
 
 class _Acting(nn.Module):
@@ -176,11 +175,18 @@ def export_opponent(
 
 
 def onnx_max_abs_diff(
-    policy: Policy, agent: int, opponent: Opponent, observations: np.ndarray
+    policy: Policy,
+    agent: int,
+    opponent: Opponent,
+    observations: np.ndarray,
+    task: np.ndarray | None = None,
 ) -> float:
     """The largest difference between torch's and onnxruntime's actions on observations
-    (B, 274) of the agent (the export's parity check)."""
+    (B, 274) of the agent [and its heading inputs (B, 2)] (the export's parity check)."""
     obs = np.asarray(observations, dtype=np.float32)
+    given = None if task is None else np.asarray(task, dtype=np.float32)
     with torch.no_grad():
-        expected = policy(torch.from_numpy(obs), agent).numpy()
-    return float(np.abs(opponent.act(obs) - expected).max())
+        expected = policy(
+            torch.from_numpy(obs), agent, None if given is None else torch.from_numpy(given)
+        ).numpy()
+    return float(np.abs(opponent.act(obs, given) - expected).max())

@@ -14,6 +14,8 @@ actions: every PD target at the standing pose), the simplest scripted boxer.
 Offscreen rendering uses MuJoCo's renderer through EGL (`MUJOCO_GL=egl`, which `ringside` sets
 before MuJoCo is imported; Mesa's software EGL on a machine without a GPU), from the arena's
 "side" camera, into an H.264 MP4 (`tasks.pose.overlay.H264Writer`) that browsers play.
+`render_bout` renders a recorded bout (the arena's qpos per frame) the same way; the evaluate
+stage uses it for its bout video.
 """
 
 from __future__ import annotations
@@ -123,7 +125,7 @@ def spar(
     steps = max(1, round(seconds * config.policy_hz))
     renderer = writer = None
     if video is not None:
-        renderer, writer = _video(env, video, size, config.policy_hz)
+        renderer, writer = open_video(env.model, video, size, config.policy_hz)
     falls, unstable, damage = [0, 0], 0, np.zeros(2)
     spent = {"policy": 0.0, "physics": 0.0, "render": 0.0}
     frames = 0
@@ -142,8 +144,7 @@ def spar(
             damage += result.damage[0, [slot, 1 - slot]]
             if renderer is not None:
                 tick = time.perf_counter()
-                renderer.update_scene(env.datas[0], camera="side")
-                writer.write(renderer.render()[:, :, ::-1])
+                render_frame(renderer, writer, env.datas[0])
                 frames += 1
                 spent["render"] += time.perf_counter() - tick
             obs = result.observation
@@ -179,8 +180,11 @@ def spar(
     )
 
 
-def _video(env: ArenaEnv, path: Path, size: tuple[int, int], fps: int):
-    """An offscreen renderer of the arena and an H.264 writer for ``path``."""
+def open_video(model, path: Path, size: tuple[int, int], fps: float):
+    """An offscreen renderer of arena ``model`` and an H.264 writer for ``path`` (close both).
+
+    Turns the model's shadows off and widens its offscreen framebuffer to ``size`` (w, h).
+    """
     import mujoco
 
     from tasks.pose.overlay import H264Writer
@@ -194,10 +198,44 @@ def _video(env: ArenaEnv, path: Path, size: tuple[int, int], fps: int):
     width, height = size
     # Shadows cost 90 % of a frame in Mesa's software EGL (measured at 640 x 360: 584 ms with,
     # 58 ms without); the video is for reviewing moves, not lighting.
-    env.model.vis.quality.shadowsize = 0
+    model.vis.quality.shadowsize = 0
     # The offscreen framebuffer must hold the frame (MuJoCo's default is 640 x 480).
-    env.model.vis.global_.offwidth = max(env.model.vis.global_.offwidth, width)
-    env.model.vis.global_.offheight = max(env.model.vis.global_.offheight, height)
-    renderer = mujoco.Renderer(env.model, height, width)
+    model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+    model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+    renderer = mujoco.Renderer(model, height, width)
     path.parent.mkdir(parents=True, exist_ok=True)
     return renderer, H264Writer(path, (width, height), fps)
+
+
+def render_frame(renderer, writer, data) -> None:
+    """One frame of the arena in ``data`` from its "side" camera, appended to the video."""
+    renderer.update_scene(data, camera="side")
+    writer.write(renderer.render()[:, :, ::-1])
+
+
+def render_bout(
+    model,
+    qpos: np.ndarray,
+    path: Path,
+    *,
+    size: tuple[int, int] = (640, 360),
+    fps: float = 30.0,
+) -> int:
+    """Render a recorded bout, the arena's qpos (T, nq) frame by frame, to an H.264 MP4 at
+    ``path``, as `spar` renders a live one; returns the frames written."""
+    import mujoco
+
+    q = np.asarray(qpos, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != model.nq or len(q) == 0 or not np.isfinite(q).all():
+        raise ValueError(f"qpos must be finite with shape (T >= 1, {model.nq}), got {q.shape}")
+    data = mujoco.MjData(model)
+    renderer, writer = open_video(model, Path(path), size, fps)
+    try:
+        for frame in q:
+            data.qpos[:] = frame
+            mujoco.mj_forward(model, data)
+            render_frame(renderer, writer, data)
+    finally:
+        writer.close()
+        renderer.close()
+    return len(q)

@@ -1,0 +1,215 @@
+"""Evaluation bouts: a pair of policies acting on their mean in a batch of arenas, recorded.
+
+MAAIP §5.3 evaluates over 32 randomly initialised episodes of 1200 frames; `simulate` runs such
+a batch in one `ArenaEnv` (the training environment, its physics, observations, damage and fall
+rule), one arena per episode. Every episode starts from a frame of the interaction clips drawn
+with the seed (reference state initialisation, as in training) and runs `frames` policy steps
+unless a fall (or a blown-up simulation) ends it; an ended arena is left out of everything
+after. The actions are each policy's mean (no exploration noise), so a seed gives the same
+bouts every time.
+
+Shape letters: E episodes, T = frames, 2 agents, Q the arena's qpos size (both fighters).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from models.humanoid.boxer import BoneLengths
+from models.humanoid.kinematics import NUM_ACTUATED, heading_yaw
+from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, block_slices
+from tasks.train.env import ArenaEnv, EnvConfig, ReferenceMotions
+from tasks.train.losses import heading_reward
+from tasks.train.networks import Policy
+
+# An agent's policy: (B, 274) observations [and (B, 2) heading task inputs, or None] -> (B, 28).
+Actor = Callable[[np.ndarray, np.ndarray | None], np.ndarray]
+
+_LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
+_ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 2)  # the pelvis's, on the floor
+_RECORDED_STEPS = 16  # steps per episode whose observations are kept (for the ONNX check)
+
+
+@dataclass(frozen=True)
+class HeadingTask:
+    """MAAIP §5.4's target heading, as the run trained with it (`train.reward.heading_*`):
+    each agent gets a target direction on the floor per episode, seen in its own heading frame,
+    and the reward of eq 11 (`tasks.train.losses.heading_reward`) on its root velocity."""
+
+    target_speed: float
+    scale: float
+
+
+@dataclass(frozen=True, eq=False)
+class Bouts:
+    """What `simulate` recorded.
+
+    Attributes:
+        qpos: (E, T + 1, Q) the arena's qpos at the start and after each step; NaN after an
+            episode ended (and at the step that blew one up).
+        frames: (E,) valid rows of ``qpos`` per episode (steps taken + 1, one fewer when the
+            simulation blew up).
+        steps: (E,) policy steps each episode ran.
+        damage: (E, 2) newtons each agent received, summed over the episode (MAAIP §5.3).
+        fell: (E, 2) which agent's fall ended the episode.
+        unstable: (E,) episodes ended by a blown-up simulation.
+        start_frames: (E,) the reference frames the episodes started from.
+        observations: (S, 2, 274) float32 observations the agents acted on, from
+            `_RECORDED_STEPS` steps spread over each episode.
+        tasks: (S, 2, 2) float32 heading inputs given with them, or None without a heading task.
+        task_return: (E, 2) each agent's summed heading reward (eq 11), or None.
+        policy_hz: policy steps per simulated second.
+    """
+
+    qpos: np.ndarray
+    frames: np.ndarray
+    steps: np.ndarray
+    damage: np.ndarray
+    fell: np.ndarray
+    unstable: np.ndarray
+    start_frames: np.ndarray
+    observations: np.ndarray
+    tasks: np.ndarray | None
+    task_return: np.ndarray | None
+    policy_hz: int
+
+    @property
+    def episodes(self) -> int:
+        return len(self.steps)
+
+    @property
+    def minutes(self) -> float:
+        """Simulated minutes over all episodes."""
+        return float(self.steps.sum()) / self.policy_hz / 60.0
+
+    def episode_qpos(self, episode: int) -> np.ndarray:
+        """(frames[episode], Q) the episode's valid qpos rows."""
+        return self.qpos[episode, : self.frames[episode]]
+
+
+def torch_actor(policy: Policy, agent: int) -> Actor:
+    """Agent ``agent``'s deterministic policy: the mean action, from float32 inputs as in
+    training."""
+    if agent not in (0, 1):
+        raise ValueError(f"agent must be 0 or 1, got {agent!r}")
+
+    def act(observation: np.ndarray, task: np.ndarray | None) -> np.ndarray:
+        obs = torch.from_numpy(np.asarray(observation, dtype=np.float32))
+        given = None if task is None else torch.from_numpy(np.asarray(task, dtype=np.float32))
+        with torch.no_grad():
+            return policy(obs, agent, given).double().numpy()
+
+    return act
+
+
+def _heading_inputs(env: ArenaEnv, targets: np.ndarray) -> np.ndarray:
+    """(E, 2, 2) each agent's target direction in its own heading frame (as the trainer gives
+    it: cos and sin of the target yaw minus the agent's yaw)."""
+    quats = np.array(
+        [[data.qpos[agent.qpos][3:7] for agent in env.index.agents] for data in env.datas]
+    )
+    relative = targets - heading_yaw(quats)
+    return np.stack([np.cos(relative), np.sin(relative)], -1)
+
+
+def simulate(
+    actors: tuple[Actor, Actor],
+    *,
+    reference: ReferenceMotions,
+    bones: tuple[BoneLengths, BoneLengths],
+    env_config: EnvConfig,
+    episodes: int,
+    frames: int,
+    seed: int,
+    heading: HeadingTask | None = None,
+) -> Bouts:
+    """Run ``episodes`` evaluation episodes of at most ``frames`` steps; see the module docstring.
+
+    Args:
+        actors: agent 0's and agent 1's policies (e.g. `torch_actor`, an opponent's `act`).
+        reference: interaction frames to start from (`Demonstrations.reference`).
+        bones: both fighters' bones, as trained.
+        env_config: the run's environment (rates, fall rule, stepping); its batch size and
+            episode length are replaced by ``episodes`` and ``frames``.
+        episodes: E, arenas run side by side.
+        frames: T, policy steps per episode unless it ends first.
+        seed: draws the start frames (and the heading targets).
+        heading: the heading task to give the policies (MAAIP §5.4), or None.
+    """
+    for name, value in (("episodes", episodes), ("frames", frames)):
+        if not (isinstance(value, int) and value >= 1):
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    rng = np.random.default_rng(seed)
+    starts = rng.integers(reference.num_frames, size=episodes)
+    targets = rng.uniform(-math.pi, math.pi, (episodes, 2)) if heading is not None else None
+    config = replace(env_config, num_envs=episodes, episode_s=frames / env_config.policy_hz)
+    stride = max(1, frames // _RECORDED_STEPS)
+    with ArenaEnv(config, np.random.default_rng(seed), bones) as env:
+        nq = env.model.nq
+        qpos = np.full((episodes, frames + 1, nq), np.nan)
+        steps = np.zeros(episodes, dtype=np.int64)
+        length = np.zeros(episodes, dtype=np.int64)
+        damage = np.zeros((episodes, 2))
+        fell = np.zeros((episodes, 2), dtype=bool)
+        unstable = np.zeros(episodes, dtype=bool)
+        task_return = np.zeros((episodes, 2)) if heading is not None else None
+        kept_obs, kept_tasks = [], []
+        obs = env.reset(np.arange(episodes), reference, frames=starts)
+        for i, data in enumerate(env.datas):
+            qpos[i, 0] = data.qpos
+        length[:] = 1
+        alive = np.ones(episodes, dtype=bool)
+        for t in range(frames):
+            live = np.flatnonzero(alive)
+            task = None if targets is None else _heading_inputs(env, targets)
+            actions = np.zeros((episodes, 2, NUM_ACTUATED))
+            for agent, actor in enumerate(actors):
+                given = None if task is None else task[live, agent]
+                actions[live, agent] = actor(obs[live, agent], given)
+            if t % stride == 0:
+                kept_obs.append(obs[live].astype(np.float32))
+                if task is not None:
+                    kept_tasks.append(task[live].astype(np.float32))
+            result = env.step(actions)
+            damage[live] += result.damage[live]
+            steps[live] += 1
+            if heading is not None:
+                after = _heading_inputs(env, targets)[live].reshape(-1, 2)
+                velocity = result.observation[live][..., _ROOT_VELOCITY].reshape(-1, 2)
+                reward = heading_reward(
+                    torch.from_numpy(after),
+                    torch.from_numpy(velocity),
+                    target_speed=heading.target_speed,
+                    scale=heading.scale,
+                )
+                task_return[live] += reward.numpy().reshape(-1, 2)
+            for i in live:
+                if not result.unstable[i]:
+                    qpos[i, t + 1] = env.datas[i].qpos
+                    length[i] += 1
+            ended = live[result.done[live]]
+            fell[ended] = result.fell[ended]
+            unstable[ended] = result.unstable[ended]
+            alive[ended] = False
+            obs = result.observation
+            if not alive.any():
+                break
+    observations = np.concatenate(kept_obs) if kept_obs else np.zeros((0, 2, OBSERVATION_DIM))
+    return Bouts(
+        qpos=qpos,
+        frames=length,
+        steps=steps,
+        damage=damage,
+        fell=fell,
+        unstable=unstable,
+        start_frames=starts,
+        observations=observations,
+        tasks=np.concatenate(kept_tasks) if kept_tasks else None,
+        task_return=task_return,
+        policy_hz=env_config.policy_hz,
+    )

@@ -1,0 +1,329 @@
+"""The evaluate stage: judge a trained pair of policies and hand over the adversary.
+
+Given a finished training run (`load_inputs` reads it, its dataset's start frames and the
+adversary's real statistics), `evaluate` computes, with fixed seeds so that a rerun gives the
+same tables:
+
+1. Bouts (`tasks.evaluate.bouts.simulate`): `evaluate.episodes` episodes of
+   `evaluate.episode_frames` steps of the trained pair (agent 0 the adversary's policy, agent 1
+   its partner's), and as many of the untrained pair (the run's networks as its seed
+   initialised them, before any training).
+2. Damage (MAAIP Table 1): mean damage received and dealt per episode by each agent, for this
+   run and for every other finished run on the dataset that minimises or maximises damage,
+   each labelled by its `train.reward.control_task` ('none' is imitation only).
+3. Heading (MAAIP Table 2): the normalised heading return of every heading run on the dataset
+   (this one included, if it is one), with or without the single motion prior; when there is
+   none, a note says so and the table stays empty.
+4. Style and boxing metrics (`tasks.evaluate.metrics`) of three simulated fighters: the
+   trained adversary ('adversary'), the untrained policy's agent 0 ('untrained') and the
+   trained partner ('opponent'), each against the adversary's real statistics.
+5. The adversary's opponent folder (`export_opponent`: ONNX policy, MJCF, manifest) with
+   onnxruntime's parity against torch on observations recorded in the bouts, and the first
+   `evaluate.video_seconds` of the trained episodes, played one after another, rendered to MP4
+   (`spar.render_bout`); all files go to the artifact store.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+
+from models.humanoid.arena import arena_mjcf
+from storage.artifacts import put_bytes
+from storage.db import connect
+from tasks.config import build
+from tasks.dataset.config import DatasetConfig, PunchConfig
+from tasks.dataset.statistics import FighterStatistics
+from tasks.dataset.store import dataset_info
+from tasks.evaluate.bouts import Bouts, HeadingTask, simulate, torch_actor
+from tasks.evaluate.config import EvaluateConfig
+from tasks.evaluate.export import (
+    TrainedPolicy,
+    export_opponent,
+    load_trained,
+    onnx_max_abs_diff,
+)
+from tasks.evaluate.metrics import boxing_metrics, label_fighter, style_rows, style_score
+from tasks.evaluate.opponent import FILES, MANIFEST, load_opponent
+from tasks.evaluate.spar import render_bout
+from tasks.evaluate.store import DAMAGE_TASKS, STAGE, real_statistics, resolve_run
+from tasks.runner import StageOutput
+from tasks.train.config import TrainConfig
+from tasks.train.data import load_demonstrations
+from tasks.train.env import ReferenceMotions
+from tasks.train.networks import Policy, make_networks
+
+__all__ = ["STAGE", "EvaluateInputs", "evaluate", "load_inputs"]
+
+# The three simulated fighters compared with the adversary: (bouts, agent).
+POLICIES = {"adversary": ("trained", 0), "untrained": ("untrained", 0), "opponent": ("trained", 1)}
+
+
+@dataclass(frozen=True, eq=False)
+class EvaluateInputs:
+    """Everything the evaluation reads.
+
+    Attributes:
+        run: the evaluated run's policy, settings and bones.
+        reference: the dataset's interaction frames, to start episodes from.
+        real: the adversary's statistics over the dataset's footage.
+        punch: the dataset's punch labelling settings.
+        compared: other finished runs on the dataset (damage_min/max, heading).
+    """
+
+    run: TrainedPolicy
+    reference: ReferenceMotions
+    real: FighterStatistics
+    punch: PunchConfig
+    compared: tuple[TrainedPolicy, ...] = ()
+
+
+def _metrics_of(con, run_key: str) -> dict[str, float]:
+    return dict(
+        con.execute(
+            "SELECT name, value FROM stage_metrics WHERE stage = 'train' AND key = ?", [run_key]
+        ).fetchall()
+    )
+
+
+def load_inputs(
+    db: Path, artifacts: Path, run_key: str, compared: tuple[str, ...] = ()
+) -> EvaluateInputs:
+    """Read run ``run_key``, the runs ``compared`` with it and its dataset."""
+    with connect(db, read_only=True) as con:
+        info = resolve_run(con, run_key)
+        others = [resolve_run(con, key) for key in compared]
+        metrics = {i.run_key: _metrics_of(con, i.run_key) for i in (info, *others)}
+        demos = load_demonstrations(con, info.dataset_key)
+        real = real_statistics(con, info.dataset_key)
+        dataset = build(
+            DatasetConfig, dataset_info(con, info.dataset_key).config, section="dataset"
+        )
+    return EvaluateInputs(
+        run=load_trained(artifacts, info, metrics[info.run_key]),
+        reference=demos.reference,
+        real=real,
+        punch=dataset.punch,
+        compared=tuple(load_trained(artifacts, i, metrics[i.run_key]) for i in others),
+    )
+
+
+def untrained_policy(config: TrainConfig) -> Policy:
+    """The run's policy before training: its networks as the run's seed initialised them
+    (`Trainer` seeds one generator with `train.seed` and makes the networks from it)."""
+    networks = make_networks(config, generator=torch.Generator().manual_seed(config.seed))
+    return networks.policy.eval()
+
+
+def heading_task(config: TrainConfig) -> HeadingTask | None:
+    reward = config.reward
+    if reward.control_task != "heading":
+        return None
+    return HeadingTask(target_speed=reward.heading_speed, scale=reward.heading_scale)
+
+
+def _bouts(
+    policy: Policy,
+    run: TrainedPolicy,
+    reference: ReferenceMotions,
+    *,
+    episodes: int,
+    frames: int,
+    seed: int,
+) -> Bouts:
+    return simulate(
+        (torch_actor(policy, 0), torch_actor(policy, 1)),
+        reference=reference,
+        bones=run.bones,
+        env_config=run.config.env,
+        episodes=episodes,
+        frames=frames,
+        seed=seed,
+        heading=heading_task(run.config),
+    )
+
+
+def _damage_rows(head: tuple[str, str], run: TrainedPolicy, bouts: Bouts, frames: int) -> list:
+    return [
+        (
+            *head,
+            run.run_key,
+            run.config.reward.control_task,
+            agent,
+            float(bouts.damage[:, agent].mean()),
+            float(bouts.damage[:, 1 - agent].mean()),
+            bouts.episodes,
+            frames,
+        )
+        for agent in (0, 1)
+    ]
+
+
+def _export(
+    run: TrainedPolicy, bouts: Bouts, artifacts: Path, folder: Path
+) -> tuple[float, list[tuple[str, str]]]:
+    """Export the adversary, check onnxruntime against torch on the bouts' observations of
+    agent 0, store the files; (max abs difference, [(name, artifact)])."""
+    facts = {
+        "dataset_key": run.dataset_key,
+        "run_key": run.run_key,
+        "iteration": run.iteration,
+        "metrics": run.metrics,
+    }
+    out = export_opponent(
+        folder, policy=run.policy, agent=0, bones=run.bones, env=run.config.env, facts=facts
+    )
+    opponent = load_opponent(out)
+    tasks = None if bouts.tasks is None else bouts.tasks[:, 0]
+    diff = onnx_max_abs_diff(run.policy, 0, opponent, bouts.observations[:, 0], tasks)
+    stored = [
+        (f"opponent/{name}", put_bytes(artifacts, (out / name).read_bytes(), Path(name).suffix))
+        for name in (*FILES, MANIFEST)
+    ]
+    return diff, stored
+
+
+def _video(
+    run: TrainedPolicy, bouts: Bouts, seconds: float, artifacts: Path, folder: Path
+) -> tuple[str, str, int] | None:
+    """The trained bouts' episodes one after another, their first ``seconds``, as an MP4."""
+    count = round(seconds * bouts.policy_hz)
+    if count < 1:
+        return None
+    played = np.concatenate([bouts.episode_qpos(e) for e in range(bouts.episodes)])[:count]
+    model = mujoco.MjModel.from_xml_string(arena_mjcf(run.bones, timestep=run.config.env.timestep))
+    path = folder / "bout.mp4"
+    written = render_bout(model, played, path, fps=bouts.policy_hz)
+    return "bout.mp4", put_bytes(artifacts, path.read_bytes(), ".mp4"), written
+
+
+def evaluate(
+    inputs: EvaluateInputs, config: EvaluateConfig, *, key: str, artifacts: Path
+) -> StageOutput:
+    """The evaluate stage's rows and metrics for run ``inputs.run`` (module docstring); the
+    exported files and the video go to the artifact store at ``artifacts``."""
+    run = inputs.run
+    head = (key, run.run_key)
+    size = {"episodes": config.episodes, "frames": config.episode_frames, "seed": config.seed}
+    bouts = {
+        "trained": _bouts(run.policy, run, inputs.reference, **size),
+        "untrained": _bouts(untrained_policy(run.config), run, inputs.reference, **size),
+    }
+    model = mujoco.MjModel.from_xml_string(arena_mjcf(run.bones, timestep=run.config.env.timestep))
+    style, boxing, scores, fighters = [], [], {}, {}
+    for policy, (which, agent) in POLICIES.items():
+        fighter = label_fighter(
+            bouts[which], agent, model=model, bones=run.bones[agent], punch=inputs.punch
+        )
+        fighters[policy] = fighter
+        rows = style_rows(fighter.statistics, inputs.real)
+        scores[policy] = style_score(rows)
+        style += [
+            (*head, policy, r.statistic, r.kind, r.simulated, r.real, r.distance) for r in rows
+        ]
+        measured = boxing_metrics(
+            fighter,
+            bouts[which],
+            opponent_bones=run.bones[1 - agent],
+            radius_m=config.punch_target_radius_m,
+        )
+        boxing += [(*head, policy, name, value) for name, value in measured.items()]
+        if policy == "adversary":
+            adversary_boxing = measured
+
+    notes = []
+    damage = _damage_rows(head, run, bouts["trained"], config.episode_frames)
+    damage_runs = [c for c in inputs.compared if c.config.reward.control_task in DAMAGE_TASKS]
+    for other in damage_runs:
+        damage += _damage_rows(
+            head,
+            other,
+            _bouts(other.policy, other, inputs.reference, **size),
+            config.episode_frames,
+        )
+    if not damage_runs:
+        notes.append(
+            f"damage table: only this run ({run.config.reward.control_task}); no finished "
+            f"damage_min or damage_max run on dataset {run.dataset_key[:12]} to compare"
+        )
+    heading_runs = [r for r in (run, *inputs.compared) if heading_task(r.config) is not None]
+    heading = []
+    for other in heading_runs:
+        played = _bouts(
+            other.policy,
+            other,
+            inputs.reference,
+            episodes=config.heading_episodes,
+            frames=config.heading_frames,
+            seed=config.seed,
+        )
+        for agent in (0, 1):
+            # Normalised by the episode's full length: a fall forfeits the rest (reward 0).
+            value = float((played.task_return[:, agent] / config.heading_frames).mean())
+            heading.append(
+                (
+                    *head,
+                    other.run_key,
+                    other.config.reward.w_motion > 0,
+                    agent,
+                    value,
+                    config.heading_episodes,
+                    config.heading_frames,
+                )
+            )
+    if not heading_runs:
+        notes.append(
+            f"heading table: not available, no finished heading run on dataset "
+            f"{run.dataset_key[:12]} (MAAIP Table 2 compares heading runs with and without the "
+            "single motion prior)"
+        )
+
+    trained = bouts["trained"]
+    with tempfile.TemporaryDirectory(prefix="ringside-evaluate-") as tmp:
+        diff, stored = _export(run, trained, artifacts, Path(tmp) / "opponent")
+        video = _video(run, trained, config.video_seconds, artifacts, Path(tmp))
+    media = [(*head, name, artifact) for name, artifact in stored]
+    if video is not None:
+        media.append((*head, video[0], video[1]))
+
+    unstable = int(trained.unstable.sum())
+    if unstable:
+        notes.append(f"{unstable} of {trained.episodes} trained episodes blew up (unstable)")
+    metrics = {
+        "onnx_max_abs_diff": diff,
+        "style_score": scores["adversary"],
+        "style_score_untrained": scores["untrained"],
+        "style_score_opponent": scores["opponent"],
+        # As training counts them: episodes ended by a fall per simulated minute.
+        "falls_per_min": float(trained.fell.any(axis=1).sum()) / trained.minutes,
+        "falls_per_min_untrained": float(bouts["untrained"].fell.any(axis=1).sum())
+        / bouts["untrained"].minutes,
+        "episode_length_s": float(trained.steps.mean()) / trained.policy_hz,
+        "damage_received_n": float(trained.damage[:, 0].mean()),
+        "damage_dealt_n": float(trained.damage[:, 1].mean()),
+        "unstable_episodes": float(unstable),
+        "video_frames": float(video[2]) if video is not None else 0.0,
+    }
+    for name in ("punch_accuracy_pct", "foot_skating_cm_per_frame", "time_in_guard_pct"):
+        if name in adversary_boxing:
+            metrics[name] = adversary_boxing[name]
+    for row in heading:
+        if row[2] == run.run_key:
+            metrics[f"heading_return_{row[4]}"] = row[5]
+    return StageOutput(
+        rows={
+            "evaluate_damage": damage,
+            "evaluate_heading": heading,
+            "evaluate_style": style,
+            "evaluate_boxing": boxing,
+            "evaluate_artifacts": media,
+        },
+        metrics={k: float(v) for k, v in metrics.items() if math.isfinite(v)},
+        notes=tuple(notes),
+    )

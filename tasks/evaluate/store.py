@@ -1,0 +1,127 @@
+"""What the evaluate stage reads from the database: training runs, the adversary's real
+statistics, and its own tables for showing. No torch here, so the flow can check its input fast.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import duckdb
+import numpy as np
+
+from tasks.dataset.statistics import DISTRIBUTIONS, FighterStatistics, combine
+from tasks.dataset.store import dataset_info
+from tasks.errors import BadInput
+
+STAGE = "evaluate"
+# The tables the stage fills, in the order they are shown.
+TABLES = (
+    "evaluate_damage",
+    "evaluate_heading",
+    "evaluate_style",
+    "evaluate_boxing",
+    "evaluate_artifacts",
+)
+# Control tasks whose runs join the damage table (MAAIP Table 1) beside the evaluated run's.
+DAMAGE_TASKS = ("damage_min", "damage_max")
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """A finished training run: its key, its dataset's, its final iteration and policy (an
+    artifact), its settings (the `train` section)."""
+
+    run_key: str
+    dataset_key: str
+    iteration: int
+    artifact: str
+    config: dict
+
+    @property
+    def control_task(self) -> str:
+        return self.config.get("reward", {}).get("control_task", "none")
+
+
+def _finished(con: duckdb.DuckDBPyConnection, where: str, params: list) -> list[RunInfo]:
+    rows = con.execute(
+        "SELECT p.key, p.video_id, p.iteration, p.artifact, o.config FROM train_policies p "
+        "JOIN stage_outputs o ON o.stage = 'train' AND o.key = p.key "
+        f"AND o.video_id = p.video_id WHERE {where} ORDER BY o.created_at, p.key",
+        params,
+    ).fetchall()
+    return [RunInfo(*row[:4], json.loads(row[4])) for row in rows]
+
+
+def resolve_run(con: duckdb.DuckDBPyConnection, run: str) -> RunInfo:
+    """The finished training run whose key starts with ``run``; BadInput if none or several."""
+    found = _finished(con, "p.key LIKE ? || '%'", [run])
+    if len(found) != 1:
+        problem = "matches no finished training run" if not found else "matches several runs"
+        raise BadInput(f"--run {run}", f"{problem}; see `ringside metrics --stage train`")
+    return found[0]
+
+
+def compared_runs(con: duckdb.DuckDBPyConnection, run: RunInfo) -> list[RunInfo]:
+    """Other finished runs on ``run``'s dataset that the tables compare with it: damage
+    minimising and maximising runs (Table 1) and heading runs (Table 2), oldest first."""
+    return [
+        other
+        for other in _finished(con, "p.video_id = ? AND p.key != ?", [run.dataset_key, run.run_key])
+        if other.control_task in (*DAMAGE_TASKS, "heading")
+    ]
+
+
+def real_statistics(
+    con: duckdb.DuckDBPyConnection, dataset_key: str, role: str = "adversary"
+) -> FighterStatistics:
+    """The ``role``'s statistics over dataset ``dataset_key``'s footage: each member video's
+    `dataset_statistics` and `dataset_distributions`, combined (`statistics.combine`)."""
+    info = dataset_info(con, dataset_key)
+    parts = []
+    for video_id, key in info.members:
+        scalars = dict(
+            con.execute(
+                "SELECT name, value FROM dataset_statistics WHERE key = ? AND video_id = ? "
+                "AND role = ?",
+                [key, video_id, role],
+            ).fetchall()
+        )
+        if not scalars:
+            continue
+        samples = dict(
+            con.execute(
+                "SELECT name, samples FROM dataset_distributions WHERE key = ? AND video_id = ? "
+                "AND role = ?",
+                [key, video_id, role],
+            ).fetchall()
+        )
+        distributions = {
+            name: np.asarray(samples.get(name, []), dtype=np.float64) for name in DISTRIBUTIONS
+        }
+        parts.append(FighterStatistics(scalars=scalars, distributions=distributions))
+    if not parts:
+        raise BadInput(
+            f"dataset {dataset_key}",
+            f"holds no statistics of the {role}: nothing to compare the simulated style with",
+        )
+    return combine(parts)
+
+
+def evaluation_tables(
+    con: duckdb.DuckDBPyConnection, key: str, run_key: str
+) -> dict[str, list[dict]]:
+    """The rows of every evaluate table for evaluation ``key`` of run ``run_key``, as dicts
+    (table name without its 'evaluate_' prefix -> rows)."""
+    out = {}
+    for table in TABLES:
+        cursor = con.execute(
+            f"SELECT * EXCLUDE (key, video_id) FROM {table} WHERE key = ? AND video_id = ? "
+            "ORDER BY ALL",
+            [key, run_key],
+        )
+        names = [d[0] for d in cursor.description]
+        out[table.removeprefix("evaluate_")] = [
+            dict(zip(names, row, strict=True)) for row in cursor.fetchall()
+        ]
+    return out

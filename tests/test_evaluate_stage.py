@@ -1,0 +1,210 @@
+"""The evaluate stage on a tiny training run of the demo's dataset: the CLI fills every table,
+caches, reruns to the same numbers, stores a loadable opponent and a playable bout, and fails
+fast on a run that does not exist."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from conftest import query, run_cli
+
+from storage.artifacts import artifact_path, read_bytes
+from storage.paths import data_paths
+from tasks.evaluate.metrics import RATES, SHARES, STYLE_DISTRIBUTIONS
+from tasks.evaluate.opponent import load_opponent
+from tasks.evaluate.stage import POLICIES
+
+TINY_TRAIN = [
+    "--train-network-hidden",
+    "16,16",
+    "--train-env-num-envs",
+    "4",
+    "--train-ppo-horizon",
+    "4",
+    "--train-ppo-minibatch-size",
+    "16",
+    "--train-ppo-epochs",
+    "1",
+    "--train-discriminator-samples-per-update",
+    "16",
+    "--train-discriminator-updates-per-iteration",
+    "1",
+    "--train-iterations",
+    "2",
+]
+TINY_EVALUATE = [
+    "--evaluate-episodes",
+    "4",
+    "--evaluate-episode-frames",
+    "60",
+    "--evaluate-video-seconds",
+    "1",
+]
+REQUIRED = ("onnx_max_abs_diff", "style_score", "style_score_untrained", "falls_per_min")
+
+
+def _evaluate(capsys, data: Path, run: str, *flags: str) -> dict:
+    argv = ["--data", str(data), "evaluate", "--run", run, *TINY_EVALUATE, *flags, "--json"]
+    code, out, err = run_cli(capsys, *argv)
+    assert code == 0, err
+    return json.loads(out)
+
+
+@pytest.fixture(scope="module")
+def run_key(sample_run) -> str:
+    """A tiny training run (2 iterations) on the demo's dataset; the same one as
+    tests/test_train_stage.py trains, so cached when that ran first."""
+    from flows.cli import main
+
+    dataset_key = query(sample_run, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1")
+    argv = ["--data", str(sample_run), "train", "--dataset", dataset_key[0][0], *TINY_TRAIN]
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main([*argv, "--json"]) == 0
+    return json.loads(out.getvalue())[0]["key"]
+
+
+def test_evaluate_fills_every_table_caches_and_reruns_identically(capsys, sample_run, run_key):
+    first = _evaluate(capsys, sample_run, run_key[:10])
+    summary, metrics, tables = first["summary"], first["metrics"], first["tables"]
+    assert summary["stage"] == "evaluate" and summary["state"] == "done"
+    assert summary["video_id"] == run_key
+
+    for name in REQUIRED:
+        assert name in metrics and math.isfinite(metrics[name]), name
+    assert metrics["onnx_max_abs_diff"] < 1e-5
+    for name in ("style_score", "style_score_untrained", "style_score_opponent"):
+        assert 0.0 <= metrics[name] <= 1.0
+
+    # Table 1: this run (imitation only) with each agent's damage.
+    mine = [r for r in tables["damage"] if r["run_key"] == run_key]
+    assert [(r["control_task"], r["agent"]) for r in mine] == [("none", 0), ("none", 1)]
+    d0, d1 = mine
+    assert d0["received_n"] == d1["dealt_n"] and d0["dealt_n"] == d1["received_n"]
+    assert (d0["episodes"], d0["frames"]) == (4, 60)
+    # Table 2 without a heading run on the dataset: empty, and a note says so.
+    if not _finished_runs(sample_run, "heading"):
+        assert tables["heading"] == []
+        assert any(note.startswith("heading table: not available") for note in summary["notes"])
+
+    statistics = {*RATES, *SHARES, *STYLE_DISTRIBUTIONS}
+    for policy in POLICIES:
+        rows = [r for r in tables["style"] if r["policy"] == policy]
+        assert {r["statistic"] for r in rows} == statistics
+        assert all(0.0 <= r["distance"] <= 1.0 for r in rows)
+        score = metrics["style_score" + ("" if policy == "adversary" else f"_{policy}")]
+        assert score == pytest.approx(np.mean([r["distance"] for r in rows]))
+        boxing = {r["metric"]: r["value"] for r in tables["boxing"] if r["policy"] == policy}
+        for name in ("falls_per_min", "foot_skating_cm_per_frame", "time_in_guard_pct"):
+            assert math.isfinite(boxing[name]), (policy, name)
+    # The real values are the adversary's statistics from the dataset stage.
+    real = dict(
+        query(
+            sample_run,
+            "SELECT s.name, s.value FROM dataset_statistics s JOIN dataset_members m "
+            "ON s.key = m.key AND s.video_id = m.video_id WHERE s.role = 'adversary'",
+        )
+    )
+    for r in tables["style"]:
+        if r["kind"] != "distribution":
+            assert r["real"] == pytest.approx(real[r["statistic"]])
+
+    # The opponent folder comes back from the artifact store and loads with onnxruntime.
+    paths = data_paths(sample_run)
+    stored = {r["name"]: r["artifact"] for r in tables["artifacts"]}
+    folder = sample_run.parent / "opponent-from-store"
+    folder.mkdir(exist_ok=True)
+    for name, artifact in stored.items():
+        if name.startswith("opponent/"):
+            (folder / name.removeprefix("opponent/")).write_bytes(
+                read_bytes(paths.artifacts, artifact)
+            )
+    opponent = load_opponent(folder)
+    assert opponent.agent == 0 and opponent.manifest["run_key"] == run_key
+    # The bout plays: up to 1 s at 30 Hz (the episodes may be shorter in all), in frames that
+    # are pictures rather than one flat colour.
+    video = cv2.VideoCapture(str(artifact_path(paths.artifacts, stored["bout.mp4"])))
+    frames = []
+    while True:
+        ok, frame = video.read()
+        if not ok:
+            break
+        frames.append(frame)
+    assert 1 < len(frames) == metrics["video_frames"] <= 30
+    assert frames[0].shape == (360, 640, 3) and frames[0].std() > 10 and frames[-1].std() > 10
+
+    again = _evaluate(capsys, sample_run, run_key[:10])
+    assert again["summary"]["state"] == "cached" and again["summary"]["key"] == summary["key"]
+
+    rerun = _evaluate(capsys, sample_run, run_key[:10], "--rerun")
+    assert rerun["summary"]["state"] == "done"
+    # Fixed seeds: the same numbers to the last bit (JSON text compares NaN with NaN too).
+    assert json.dumps(rerun["tables"]) == json.dumps(tables)
+    assert rerun["metrics"] == metrics
+
+    code, out, _ = run_cli(capsys, "--data", str(sample_run), "metrics", "--stage", "evaluate")
+    assert code == 0 and "style_score_untrained" in out and "onnx_max_abs_diff" in out
+    code, out, _ = run_cli(
+        capsys, "--data", str(sample_run), "evaluate", "--run", run_key, *TINY_EVALUATE
+    )
+    assert code == 0 and "damage per episode" in out and "style_score (lower is closer)" in out
+
+
+def _finished_runs(data: Path, control_task: str) -> list[str]:
+    rows = query(
+        data,
+        "SELECT p.key FROM train_policies p JOIN stage_outputs o ON o.stage = 'train' "
+        "AND o.key = p.key WHERE json_extract_string(o.config, '$.reward.control_task') = ?",
+        [control_task],
+    )
+    return [key for (key,) in rows]
+
+
+def test_damage_and_heading_runs_join_the_tables(capsys, sample_run, run_key):
+    """A damage-minimising and a heading run on the same dataset: the evaluation of the first
+    run is no longer the cached one, Table 1 gains the damage_min row and Table 2 appears."""
+    before = _evaluate(capsys, sample_run, run_key)["summary"]["key"]
+    dataset_key = query(sample_run, "SELECT video_id FROM train_policies WHERE key = ?", [run_key])
+    base = ["--data", str(sample_run), "train", "--dataset", dataset_key[0][0], *TINY_TRAIN]
+    for task in ("damage_min", "heading"):
+        flags = ["--train-reward-control-task", task, "--train-reward-w-control", "0.5"]
+        code, _, err = run_cli(capsys, *base, *flags)
+        assert code == 0, err
+    heading_runs = _finished_runs(sample_run, "heading")
+    damage_runs = _finished_runs(sample_run, "damage_min")
+    short = ["--evaluate-heading-episodes", "2", "--evaluate-heading-frames", "30"]
+    after = _evaluate(capsys, sample_run, run_key, *short)
+    assert after["summary"]["state"] == "done" and after["summary"]["key"] != before
+    tables = after["tables"]
+    labelled = {(r["run_key"], r["control_task"]) for r in tables["damage"]}
+    assert {(run_key, "none"), *((k, "damage_min") for k in damage_runs)} == labelled
+    assert {(r["run_key"], r["agent"]) for r in tables["heading"]} == {
+        (k, a) for k in heading_runs for a in (0, 1)
+    }
+    for row in tables["heading"]:
+        assert row["motion_prior"] is True and (row["episodes"], row["frames"]) == (2, 30)
+        assert 0.0 <= row["normalized_return"] <= 1.0
+    assert not any(n.startswith("heading table") for n in after["summary"]["notes"])
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--run", "zzz"], "--run zzz: matches no finished training run"),
+        (["--run", "0", "--evaluate-episodes", "0"], "evaluate.episodes must be an integer >= 1"),
+    ],
+)
+def test_bad_evaluation_input_fails_fast(capsys, sample_run, flags, message):
+    before = query(sample_run, "SELECT count(*) FROM stage_outputs WHERE stage = 'evaluate'")
+    code, _, err = run_cli(capsys, "--data", str(sample_run), "evaluate", *flags)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert (
+        query(sample_run, "SELECT count(*) FROM stage_outputs WHERE stage = 'evaluate'") == before
+    )
