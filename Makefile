@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test setup assets lint bench clean
+.PHONY: demo test setup browser assets lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -12,7 +12,20 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[dev]'
 	touch $(STAMP)
 
-setup: $(STAMP)
+setup: $(STAMP) browser
+
+# The dashboard's browser tests drive Debian's chromium, never a browser downloaded by Playwright.
+browser:
+	@if [ -x /usr/bin/chromium ]; then \
+		:; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+		echo "installing Debian's chromium for the dashboard's browser tests:"; \
+		echo "apt-get update && apt-get install -y --no-install-recommends chromium"; \
+		apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium; \
+	else \
+		echo "note: no /usr/bin/chromium, so the dashboard's browser test will be skipped;"; \
+		echo "as root: apt-get install --no-install-recommends chromium"; \
+	fi
 
 assets: $(STAMP)
 	$(BIN)/ringside assets pull
@@ -20,7 +33,7 @@ assets: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/ringside demo
 
-test: $(STAMP) lint
+test: $(STAMP) browser lint
 	$(BIN)/ringside assets pull --dev
 	$(BIN)/python -m pytest
 

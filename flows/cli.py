@@ -1,4 +1,4 @@
-"""The ``ringside`` command: process, status, rerun, metrics, assets, demo.
+"""The ``ringside`` command: process, status, rerun, metrics, assets, dashboard, demo.
 
 Prefect reads its settings when it is first imported, so ``main`` points Prefect at the data
 directory before anything imports it.
@@ -10,7 +10,9 @@ import argparse
 import dataclasses
 import json
 import os
+import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +31,9 @@ def prepare_environment(data_root: Path, *, verbose: bool) -> None:
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
     # FFmpeg's own complaints ("moov atom not found") would bury our one-line errors.
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    # MuJoCo picks its offscreen GL backend when first imported: EGL renders without a screen
+    # (Mesa's software EGL on a machine without a GPU).
+    os.environ.setdefault("MUJOCO_GL", "egl")
     if not verbose:
         # Flow and task logs still reach the Prefect API and UI; the terminal shows our summary.
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "CRITICAL")
@@ -120,8 +125,51 @@ def build_parser() -> argparse.ArgumentParser:
     curves.add_argument("--every", type=int, default=100, metavar="N", help="iterations per row")
     curves.add_argument("--json", action="store_true")
 
+    export = commands.add_parser(
+        "export", help="write a trained fighter as an opponent folder (ONNX policy + humanoid)"
+    )
+    export.add_argument(
+        "--run", required=True, metavar="KEY", help="training key (a prefix will do)"
+    )
+    export.add_argument(
+        "--agent",
+        choices=["adversary", "opponent"],
+        default="adversary",
+        help="which of the run's two fighters (default: the adversary)",
+    )
+    export.add_argument(
+        "--out", type=Path, help="folder to write (default: DATA/opponents/<run>-<agent>)"
+    )
+    export.add_argument("--json", action="store_true")
+
+    spar = commands.add_parser(
+        "spar", help="run an exported opponent against a partner in MuJoCo (onnxruntime only)"
+    )
+    spar.add_argument("opponent", type=Path, help="an opponent folder (`ringside export`)")
+    spar.add_argument(
+        "--partner",
+        default="still",
+        metavar="FOLDER|still",
+        help="another opponent folder, or 'still' (a boxer holding its rest pose; default)",
+    )
+    spar.add_argument("--seconds", type=float, default=60.0, help="simulated seconds (60)")
+    spar.add_argument("--video", type=Path, help="render the bout to this MP4 (H.264)")
+    spar.add_argument("--pace", action="store_true", help="no faster than real time")
+    spar.add_argument("--json", action="store_true")
+
+    evaluate = commands.add_parser(
+        "evaluate",
+        help="judge a training run: damage, style and boxing tables, ONNX export, a rendered bout",
+    )
+    evaluate.add_argument(
+        "--run", required=True, metavar="KEY", help="training key (a prefix will do)"
+    )
+    evaluate.add_argument("--rerun", action="store_true", help="evaluate again, cached or not")
+    evaluate.add_argument("--json", action="store_true")
+    _config_flags(evaluate)
+
     metrics = commands.add_parser("metrics", help="each stage's metrics per video or dataset")
-    metrics.add_argument("--stage", choices=[*STAGES, "train"])
+    metrics.add_argument("--stage", choices=[*STAGES, "train", "evaluate"])
     metrics.add_argument("--json", action="store_true")
 
     datasets = commands.add_parser(
@@ -154,6 +202,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--square", required=True, type=float, metavar="M", help="side of one square in metres"
     )
     calibrate.add_argument("-o", "--output", required=True, type=Path, metavar="FILE")
+
+    dashboard = commands.add_parser(
+        "dashboard", help="serve the analysts' dashboard (Streamlit) on this data directory"
+    )
+    dashboard.add_argument("--port", type=int, default=8501, metavar="N", help="default 8501")
+    dashboard.add_argument(
+        "--host",
+        default="127.0.0.1",
+        metavar="ADDRESS",
+        help="address to listen on (default 127.0.0.1; 0.0.0.0 serves other machines too)",
+    )
+    dashboard.add_argument(
+        "--no-browser", action="store_true", help="do not open the dashboard in a browser"
+    )
 
     demo = commands.add_parser("demo", help="pull the assets and process the bundled sample")
     demo.add_argument("--json", action="store_true")
@@ -239,31 +301,16 @@ def _status(args, data_root: Path) -> int:
     from flows.config import STAGES
     from storage.db import connect
     from storage.paths import data_paths
-    from storage.records import latest_runs
+    from storage.records import stage_states
 
     db = data_paths(data_root).db
     rows: list[dict[str, Any]] = []
     if db.exists():
         with connect(db, read_only=True) as con:
-            videos = [
-                r[0]
-                for r in con.execute(
-                    "SELECT video_id FROM videos ORDER BY registered_at"
-                ).fetchall()
-            ]
-            runs = {(r["video_id"], r["stage"]): r for r in latest_runs(con)}
-        for video_id in videos:
-            for stage in STAGES:
-                run = runs.get((video_id, stage))
-                rows.append(
-                    {
-                        "video_id": video_id,
-                        "stage": stage,
-                        "key": run["key"] if run else None,
-                        "state": run["state"] if run else "missing",
-                        "error": run["error"] if run else None,
-                    }
-                )
+            states = stage_states(con, STAGES)
+        # The JSON's documented fields; the dashboard shows the timings too.
+        fields = ("video_id", "stage", "key", "state", "error")
+        rows = [{name: r[name] for name in fields} for r in states]
     if args.json:
         print(json.dumps(rows))
     else:
@@ -386,6 +433,174 @@ def _curves(args, data_root: Path) -> int:
     return 0
 
 
+def _export(args, data_root: Path) -> int:
+    from storage.paths import data_paths
+    from tasks.evaluate.export import export_opponent, trained_policy
+
+    paths = data_paths(data_root)
+    trained = trained_policy(paths.db, paths.artifacts, args.run)
+    agent = 0 if args.agent == "adversary" else 1
+    out = args.out or data_root / "opponents" / f"{trained.run_key[:12]}-{args.agent}"
+    facts = {
+        "dataset_key": trained.dataset_key,
+        "run_key": trained.run_key,
+        "iteration": trained.iteration,
+        "metrics": trained.metrics,
+    }
+    folder = export_opponent(
+        out,
+        policy=trained.policy,
+        agent=agent,
+        bones=trained.bones,
+        env=trained.config.env,
+        facts=facts,
+    )
+    if args.json:
+        print(json.dumps({"folder": str(folder), **facts}))
+    else:
+        print(
+            f"{args.agent} of run {trained.run_key[:12]} (iteration {trained.iteration}): {folder}"
+        )
+    return 0
+
+
+def _spar(args) -> int:
+    from tqdm import tqdm
+
+    from tasks.evaluate.opponent import load_opponent
+    from tasks.evaluate.spar import STILL, Partner, spar
+
+    opponent = load_opponent(args.opponent)
+    partner = Partner(None if args.partner == STILL else load_opponent(Path(args.partner)))
+    with tqdm(
+        total=round(args.seconds),
+        unit="s",
+        desc="spar",
+        disable=args.json or not sys.stderr.isatty(),
+        bar_format="{l_bar}{bar}| {n:.0f}/{total} simulated s [{elapsed}<{remaining}]",
+    ) as bar:
+        result = spar(
+            opponent,
+            partner,
+            seconds=args.seconds,
+            video=args.video,
+            pace=args.pace,
+            progress=lambda t: bar.update(t - bar.n),
+        )
+    if args.json:
+        print(json.dumps(result.as_dict()))
+    else:
+        spent = result.timings_s
+        total = sum(spent.values()) or 1.0
+        print(
+            f"{result.simulated_s:.0f} simulated s against {partner.name} in {result.wall_s:.1f} s"
+            f"; falls: opponent {result.falls[0]}, partner {result.falls[1]}; damage received: "
+            f"opponent {result.damage_received_n[0]:.0f} N, partner "
+            f"{result.damage_received_n[1]:.0f} N"
+        )
+        print("time: " + ", ".join(f"{k} {v / total:.0%}" for k, v in spent.items()))
+        if result.video:
+            print(f"video: {result.video} ({result.frames_rendered} frames)")
+    print(f"realtime_factor: {result.realtime_factor:.1f} x")
+    return 0
+
+
+def _pivot(rows: list[dict], row_key: str, column_key: str, cell) -> list[dict]:
+    """Long rows as one row per ``row_key`` with a column per ``column_key``, in first-seen
+    order; ``cell(row)`` is what a cell shows."""
+    out: dict[str, dict] = {}
+    for r in rows:
+        out.setdefault(r[row_key], {row_key: r[row_key]})[r[column_key]] = cell(r)
+    return list(out.values())
+
+
+def _evaluate(args, data_root: Path) -> int:
+    from flows.config import load_config
+    from storage.db import connect
+    from storage.paths import data_paths
+    from tasks.errors import BadInput
+    from tasks.evaluate.stage import POLICIES
+    from tasks.evaluate.store import evaluation_tables, resolve_run
+
+    config = load_config(args.config, _overrides(args))
+    db = data_paths(data_root).db
+    if not db.exists():
+        raise BadInput(str(db), "no database yet: process some footage and train first")
+    with connect(db, read_only=True) as con:  # fail fast, before Prefect starts
+        resolve_run(con, args.run)
+    from flows.evaluate import evaluate_flow
+
+    summary = evaluate_flow(str(data_root), args.run, config.as_dict(), args.rerun)
+    with connect(db, read_only=True) as con:
+        tables = evaluation_tables(con, summary.key, summary.video_id)
+        metrics = dict(
+            con.execute(
+                "SELECT name, value FROM stage_metrics WHERE stage = 'evaluate' AND key = ? "
+                "AND video_id = ? ORDER BY name",
+                [summary.key, summary.video_id],
+            ).fetchall()
+        )
+    if args.json:
+        print(
+            json.dumps(
+                {"summary": dataclasses.asdict(summary), "metrics": metrics, "tables": tables}
+            )
+        )
+        return 0
+    _print_summary([summary], data_root, False)
+
+    def number(value) -> str:
+        return "" if value is None else f"{value:.4g}"
+
+    print("\ndamage per episode, N (MAAIP Table 1)")
+    _print_table(
+        [
+            {
+                **r,
+                "run_key": r["run_key"][:12],
+                "received_n": number(r["received_n"]),
+                "dealt_n": number(r["dealt_n"]),
+            }
+            for r in tables["damage"]
+        ],
+        ["run_key", "control_task", "agent", "received_n", "dealt_n", "episodes", "frames"],
+    )
+    if tables["heading"]:
+        print("\nnormalised heading return (MAAIP Table 2)")
+        _print_table(
+            [
+                {
+                    **r,
+                    "run_key": r["run_key"][:12],
+                    "normalized_return": number(r["normalized_return"]),
+                }
+                for r in tables["heading"]
+            ],
+            ["run_key", "motion_prior", "agent", "normalized_return", "episodes", "frames"],
+        )
+    policies = list(POLICIES)
+    print("\nstyle: simulated value (distance to the adversary's real one, 0-1)")
+    style = _pivot(
+        tables["style"],
+        "statistic",
+        "policy",
+        lambda r: f"{number(r['simulated'])} ({r['distance']:.2f})",
+    )
+    real = {r["statistic"]: number(r["real"]) for r in tables["style"]}
+    _print_table(
+        [{**r, "real": real[r["statistic"]]} for r in style], ["statistic", "real", *policies]
+    )
+    names = {p: "style_score" + ("" if p == "adversary" else f"_{p}") for p in policies}
+    scores = ", ".join(f"{p} {number(metrics.get(names[p]))}" for p in policies)
+    print(f"style_score (lower is closer): {scores}")
+    print("\nboxing (MSc thesis §6.1)")
+    boxing = _pivot(tables["boxing"], "metric", "policy", lambda r: number(r["value"]))
+    _print_table([{p: "" for p in policies} | r for r in boxing], ["metric", *policies])
+    print("\nartifacts")
+    _print_table(tables["artifacts"], ["name", "artifact"])
+    return 0
+
+
 def _datasets(args, data_root: Path) -> int:
     from storage.db import connect
     from storage.paths import data_paths
@@ -444,6 +659,88 @@ def _calibrate(args) -> int:
     return 0
 
 
+def dashboard_command(data_root: Path, *, host: str, port: int) -> list[str]:
+    """The command line that serves the dashboard of ``data_root`` with Streamlit: headless (it
+    opens no browser and asks no questions), without Streamlit's usage statistics."""
+    from dashboards import app
+
+    return [
+        sys.executable,
+        "-m",
+        "streamlit",
+        "run",
+        app.__file__,
+        "--server.headless",
+        "true",
+        "--server.address",
+        host,
+        "--server.port",
+        str(port),
+        "--browser.gatherUsageStats",
+        "false",
+        # No "Deploy" button: this dashboard is served from the analysts' own machines.
+        "--client.toolbarMode",
+        "minimal",
+        "--",
+        "--data",
+        str(data_root),
+    ]
+
+
+def wait_until_serving(url: str, server: subprocess.Popen, timeout_s: float = 60.0) -> bool:
+    """Whether the dashboard at ``url`` answers its health check before ``timeout_s``."""
+    import urllib.error
+    import urllib.request
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and server.poll() is None:
+        try:
+            with urllib.request.urlopen(f"{url}/_stcore/health", timeout=2) as answer:
+                return answer.status == 200
+        except (urllib.error.URLError, OSError):
+            time.sleep(0.2)
+    return False
+
+
+def _dashboard(args, data_root: Path) -> int:
+    import signal
+    import webbrowser
+
+    if not 0 < args.port < 65536:
+        raise ValueError(f"--port must be between 1 and 65535, got {args.port}")
+    shown_host = "localhost" if args.host in ("127.0.0.1", "0.0.0.0") else args.host
+    url = f"http://{shown_host}:{args.port}"
+    # Without a display, webbrowser would start a text browser in this very terminal.
+    graphical = sys.platform in ("darwin", "win32") or any(
+        os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY")
+    )
+
+    def stop(_signum, _frame):
+        raise KeyboardInterrupt
+
+    # A SIGTERM (a service manager, a test) stops the server as Ctrl-C does, not orphaning it.
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        server = subprocess.Popen(dashboard_command(data_root, host=args.host, port=args.port))
+        print(f"dashboard of {data_root} at {url} (Ctrl-C stops it)", flush=True)
+        try:
+            if not args.no_browser and graphical and wait_until_serving(url, server):
+                webbrowser.open(url)
+            return server.wait()
+        except KeyboardInterrupt:
+            # Ctrl-C reached Streamlit too (same process group); a SIGTERM reached only us.
+            server.send_signal(signal.SIGINT)
+            try:
+                server.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                server.kill()
+                server.wait()
+            print("dashboard stopped", file=sys.stderr)
+            return 0
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def _demo(args, data_root: Path) -> int:
     from storage.assets import SAMPLE_VIDEO
     from storage.paths import data_paths
@@ -495,6 +792,12 @@ def main(argv: list[str] | None = None) -> int:
             return _train(args, data_root)
         if args.command == "curves":
             return _curves(args, data_root)
+        if args.command == "export":
+            return _export(args, data_root)
+        if args.command == "evaluate":
+            return _evaluate(args, data_root)
+        if args.command == "spar":
+            return _spar(args)
         if args.command == "datasets":
             return _datasets(args, data_root)
         if args.command == "assets":
@@ -507,6 +810,8 @@ def main(argv: list[str] | None = None) -> int:
 
             print(defaults_text(), end="")
             return 0
+        if args.command == "dashboard":
+            return _dashboard(args, data_root)
         if args.command == "demo":
             return _demo(args, data_root)
     except (BadInput, ValueError, FileNotFoundError) as error:

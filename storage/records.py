@@ -200,6 +200,44 @@ def latest_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
     return [dict(zip(names, row, strict=True)) for row in rows]
 
 
+STATE_FIELDS = ("video_id", "stage", "key", "state", "error", "ran_at", "seconds")
+
+
+def stage_states(con: duckdb.DuckDBPyConnection, stages: Sequence[str]) -> list[dict[str, Any]]:
+    """One row per registered video (oldest first) and stage in ``stages``, in that order: the
+    newest run's key, state (done, cached, failed, or missing when no run left an output), error,
+    when it ran (``ran_at``) and the seconds its output took to compute (None when failed or
+    missing: a cached run took the seconds of the run that computed it)."""
+    videos = [
+        row[0]
+        for row in con.execute("SELECT video_id FROM videos ORDER BY registered_at").fetchall()
+    ]
+    runs = {(r["video_id"], r["stage"]): r for r in latest_runs(con)}
+    seconds = {
+        (stage, video_id, key): value
+        for stage, video_id, key, value in con.execute(
+            "SELECT stage, video_id, key, seconds FROM stage_outputs"
+        ).fetchall()
+    }
+    rows = []
+    for video_id in videos:
+        for stage in stages:
+            run = runs.get((video_id, stage))
+            if run is None:
+                missing = {"video_id": video_id, "stage": stage, "state": "missing"}
+                rows.append({**dict.fromkeys(STATE_FIELDS), **missing})
+                continue
+            took = None if run["state"] == "failed" else seconds.get((stage, video_id, run["key"]))
+            rows.append(
+                {
+                    **{name: run[name] for name in ("video_id", "stage", "key", "state", "error")},
+                    "ran_at": run["created_at"],
+                    "seconds": took,
+                }
+            )
+    return rows
+
+
 def latest_metrics(con: duckdb.DuckDBPyConnection, stage: str | None = None) -> list[dict]:
     """Metrics of the newest committed output per video and stage."""
     rows = con.execute(

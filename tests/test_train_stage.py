@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 from conftest import query, run_cli
 
 from storage.paths import data_paths
+from tasks.evaluate.opponent import load_opponent
 from tasks.train.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
 from tasks.train.env import EnvConfig
 from tasks.train.run import train
@@ -74,6 +76,18 @@ def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
     assert [r["episode_length_s"] for r in rows] == [v for (v,) in lengths]
     code, _, err = run_cli(capsys, "--data", str(sample_run), "curves", "--run", "zzz")
     assert code == 2 and "matches no training run" in err
+
+    # The run's adversary as an opponent folder that onnxruntime loads.
+    export = ["--data", str(sample_run), "export", "--run", summary["key"][:10], "--json"]
+    code, out, err = run_cli(capsys, *export)
+    assert code == 0, err
+    made = json.loads(out)
+    opponent = load_opponent(Path(made["folder"]))
+    assert made["run_key"] == summary["key"] and made["iteration"] == 2
+    assert opponent.agent == 0 and opponent.manifest["dataset_key"] == dataset_key
+    assert "falls_per_min" in opponent.manifest["metrics"]
+    code, _, err = run_cli(capsys, "--data", str(sample_run), "export", "--run", "zzz")
+    assert code == 2 and "matches no finished training run" in err
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,472 @@
+"""The analysts' dashboard, a Streamlit app: `ringside dashboard` serves it.
+
+Pages: Overview (every video's stages), Stages (one stage's metrics across videos), Dataset (the
+adversary's statistics) and Training (learning curves). Each render opens its own short
+read-only connection, reads everything the page shows and closes it before drawing, so the
+pipeline can write between two renders. A page whose tables are empty says which command
+fills them.
+
+By hand: ``streamlit run dashboards/app.py -- --data DIR`` (default ``$RINGSIDE_DATA`` or
+``./data``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from datetime import datetime
+from pathlib import Path
+from typing import Any, TypeVar
+
+import altair as alt
+import duckdb
+import pandas as pd
+import streamlit as st
+
+from dashboards import queries
+from flows.config import STAGES
+from storage.db import DatabaseBusy, connect
+from storage.paths import data_paths
+from tasks.dataset.labels import HANDS, KINDS
+from tasks.dataset.statistics import DISTRIBUTIONS, SCALARS
+
+# A page waits this long for the pipeline to let go of the database, then says so: a writer
+# holds it for seconds at most, and an analyst should not stare at a blank page meanwhile.
+LOCK_WAIT_S = 10.0
+STATE_COLOURS = {
+    "done": "#d4f0da",
+    "cached": "#dde9fa",
+    "failed": "#f8d3d2",
+    "missing": "#eeeeee",
+}
+# The statistics shown as headline numbers on the Dataset page, with their labels.
+HEADLINES = {
+    "punches_per_min": "Punches / min",
+    "distance_mean_m": "Distance (m)",
+    "guard_height_mean_m": "Guard height (m)",
+    "orthodox_share": "Orthodox share",
+    "steps_per_min": "Steps / min",
+    "minutes": "Footage (min)",
+}
+# The Dataset page's histograms: distribution (see DISTRIBUTIONS) -> title.
+HISTOGRAMS = {
+    "distance_m": "Distance to the opponent, per frame (m)",
+    "guard_height_m": "Wrists above the nose, per frame (m)",
+    "punch_duration_s": "Punch duration (s)",
+    "step_length_m": "Step length (m)",
+}
+# The Training page's charts: title -> curves drawn together.
+CURVE_CHARTS: dict[str, dict[str, str]] = {
+    "Episode length (s)": {"episode_length_s": "episode length"},
+    "Discriminator rewards": {
+        "reward_motion": "motion prior",
+        "reward_interaction": "interaction prior",
+        "reward_total": "weighted total",
+    },
+    "Falls per minute": {"falls_per_min": "falls per minute"},
+    "Discriminators' accuracy on the policy's motion": {
+        "motion_accuracy_fake": "motion prior",
+        "interaction0_accuracy_fake": "interaction prior, agent 0",
+    },
+}
+# Distributions that are one number seen from either fighter, drawn once.
+SAME_FOR_BOTH = {"distance_m"}
+# Chart axes' numbers (d3-format): 4 significant digits without trailing zeros, so that 80 is
+# not "8e+1" and an all-zero axis not "0.000000".
+AXIS_FORMAT = ".4~g"
+# Each fighter's colour in every chart: the corners of a boxing ring.
+FIGHTER_COLOURS = alt.Scale(domain=["adversary", "opponent"], range=["#c8102e", "#1f5fbf"])
+# The Training page's headline numbers: the newest block's means of these.
+TILES = {
+    "episode_length_s": "Episode length (s)",
+    "reward_motion": "Motion reward",
+    "reward_interaction": "Interaction reward",
+    "falls_per_min": "Falls per minute",
+}
+# What the Stages page compares, for the stages whose outputs are not per video.
+COMPARED = {"train": "datasets", "evaluate": "training runs"}
+# What an empty page tells the analyst to run.
+PROCESS_HINT = "run `ringside process VIDEO --adversary NAME` (or `ringside demo`)"
+TRAIN_HINT = "run `ringside train --dataset KEY` (`ringside datasets` lists the keys)"
+HINTS = {
+    "train": TRAIN_HINT,
+    "evaluate": "run `ringside evaluate --run KEY` (the Training page lists the runs)",
+}
+# The last line every page writes: the browser tests wait for it to know the page is drawn.
+READ_AT = "Data read at"
+
+T = TypeVar("T")
+
+
+def format_value(value: float | None) -> str:
+    """How the dashboard writes every number: 4 significant digits, a dash for none."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    return f"{value:.4g}"
+
+
+def data_root(argv: Sequence[str]) -> Path:
+    """The data directory: ``--data DIR`` among the script's arguments, else
+    ``$RINGSIDE_DATA``, else ``./data``."""
+    # Streamlit passes the script its own arguments; anything else there (pytest's, when a test
+    # runs a page) is not ours to refuse.
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    parser.add_argument("--data", type=Path)
+    known, _ = parser.parse_known_args(list(argv))
+    return data_paths(known.data).root
+
+
+def database() -> Path:
+    return data_paths(data_root(sys.argv[1:])).db
+
+
+def read(read_with: Callable[[duckdb.DuckDBPyConnection], T]) -> T | None:
+    """``read_with``'s result on a fresh read-only connection, closed before the page draws; None
+    after telling the analyst why there is nothing to read."""
+    db = database()
+    if not db.exists():
+        st.info(f"No database yet in `{db.parent}`: {PROCESS_HINT}.")
+        return None
+    try:
+        with connect(db, read_only=True, wait_s=LOCK_WAIT_S) as con:
+            return read_with(con)
+    except DatabaseBusy:
+        st.warning(
+            f"The pipeline has held the database for over {LOCK_WAIT_S:.0f} s; "
+            "press Reload in a moment."
+        )
+        return None
+
+
+def finish_page() -> None:
+    st.caption(f"{READ_AT} {datetime.now():%H:%M:%S} from `{database()}`.")
+
+
+def choose(label: str, options: Sequence[str], param: str, **kwargs: Any) -> str:
+    """A select box whose choice is also in the page's URL (``?param=value``), so a view can be
+    linked to and reloaded."""
+    wanted = st.query_params.get(param)
+    index = list(options).index(wanted) if wanted in options else 0
+    choice = st.selectbox(label, options, index=index, **kwargs)
+    st.query_params[param] = choice
+    return choice
+
+
+def plural(count: int, noun: str) -> str:
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
+def video_labels(videos: Sequence[Mapping[str, Any]]) -> dict[str, str]:
+    """Video id -> "file name · short id", how the dashboard names a video."""
+    return {
+        v[
+            "video_id"
+        ]: f"{Path(v['path']).name if v['path'] else '?'} · {queries.short(v['video_id'])}"
+        for v in videos
+    }
+
+
+def dataset_labels(sets: Sequence[Mapping[str, Any]]) -> dict[str, str]:
+    """Dataset key -> "dataset short key · adversary", how the dashboard names a dataset."""
+    return {d["dataset_key"]: f"{queries.short(d['dataset_key'])} · {d['adversary']}" for d in sets}
+
+
+def output_labels(
+    stage: str,
+    outputs: Sequence[str],
+    videos: Sequence[Mapping[str, Any]],
+    sets: Sequence[Mapping[str, Any]],
+) -> dict[str, str]:
+    """Each output id of ``stage`` -> its column label on the Stages page: a video as
+    `video_labels` names it, for train a dataset as `dataset_labels` does, else the short id."""
+    known = dataset_labels(sets) if stage == "train" else video_labels(videos)
+    return {output: known.get(output, queries.short(output)) for output in outputs}
+
+
+def numbers_table(frame: pd.DataFrame) -> Any:
+    """``frame`` with its numeric columns written as `format_value` writes them."""
+    return frame.style.format(format_value, subset=list(frame.select_dtypes("number").columns))
+
+
+def overview_page() -> None:
+    st.title("Overview")
+    found = read(lambda con: (queries.videos(con), queries.stage_overview(con)))
+    if found is None:
+        return
+    videos, states = found
+    if not videos:
+        st.info(f"No video yet: {PROCESS_HINT}.")
+        finish_page()
+        return
+    labels = video_labels(videos)
+    adversary = {v["video_id"]: v["adversary"] or "" for v in videos}
+    matrix = queries.state_matrix(states)
+    matrix.insert(0, "adversary", [adversary[v] for v in matrix.index])
+    matrix.index = [labels[v] for v in matrix.index]
+    st.subheader("Each video's stages")
+    st.table(
+        matrix.style.map(lambda s: f"background-color: {STATE_COLOURS.get(s, '')}", list(STAGES))
+    )
+    st.caption(
+        "done: computed by its newest run; cached: its newest run reused an output; failed: see "
+        "below; missing: not run yet."
+    )
+    st.subheader("Newest run of each stage")
+    runs = pd.DataFrame(
+        {
+            "video": [labels[r["video_id"]] for r in states],
+            "stage": [r["stage"] for r in states],
+            "state": [r["state"] for r in states],
+            "key": [queries.short(r["key"]) for r in states],
+            "ran at": [f"{r['ran_at']:%Y-%m-%d %H:%M:%S}" if r["ran_at"] else "" for r in states],
+            "computed in (s)": [format_value(r["seconds"]) for r in states],
+            "why it failed": [r["error"] or "" for r in states],
+        }
+    )
+    if not runs["why it failed"].any():
+        runs = runs.drop(columns="why it failed")
+    st.table(runs, hide_index=True)
+    finish_page()
+
+
+def stage_page() -> None:
+    st.title("Stages")
+    stage = choose("Stage", queries.METRIC_STAGES, "stage")
+    found = read(
+        lambda con: (
+            queries.stage_metrics(con, stage),
+            queries.videos(con),
+            queries.datasets(con),
+        )
+    )
+    if found is None:
+        return
+    rows, videos, sets = found
+    if stage == "dataset" and sets:
+        st.subheader("Assembled datasets")
+        shown = pd.DataFrame(sets)
+        shown["created_at"] = shown["created_at"].map(lambda t: f"{t:%Y-%m-%d %H:%M:%S}")
+        st.table(shown, hide_index=True)
+    if not rows:
+        hint = HINTS.get(stage, PROCESS_HINT)
+        st.info(f"No {stage} output yet: {hint}.")
+        finish_page()
+        return
+    table = queries.metrics_table(rows)
+    table = table.rename(columns=output_labels(stage, list(table.columns), videos, sets))
+    st.subheader(f"Metric to compare across {COMPARED.get(stage, 'videos')}")
+    metric = choose("Metric", list(table.index), "metric", label_visibility="collapsed")
+    bars = pd.DataFrame({"output": table.columns, "value": table.loc[metric].to_numpy()})
+    chart = (
+        alt.Chart(bars)
+        .mark_bar()
+        .encode(
+            y=alt.Y("output:N", title=None, sort=None, axis=alt.Axis(labelLimit=400)),
+            x=alt.X("value:Q", title=metric, axis=alt.Axis(format=AXIS_FORMAT)),
+            tooltip=["output", "value"],
+        )
+    )
+    st.altair_chart(chart, width="stretch")
+    st.subheader(f"Every {stage} metric of each newest output")
+    st.caption("The numbers `ringside metrics --stage " + stage + "` prints.")
+    st.table(numbers_table(table))
+    finish_page()
+
+
+def grouped_bars(frame: pd.DataFrame, title: str) -> alt.Chart:
+    """Bars of ``frame`` (one row per category, one column per fighter) side by side."""
+    long = frame.rename_axis("category").reset_index().melt("category", var_name="fighter")
+    return (
+        alt.Chart(long, title=title)
+        .mark_bar()
+        .encode(
+            x=alt.X("category:N", title=None, sort=list(frame.index), axis=alt.Axis(labelAngle=0)),
+            xOffset="fighter:N",
+            y=alt.Y("value:Q", title="per minute"),
+            color=alt.Color("fighter:N", scale=FIGHTER_COLOURS),
+            tooltip=["fighter", "category", "value"],
+        )
+    )
+
+
+def histogram(samples: Mapping[str, Any], name: str) -> alt.Chart:
+    """Each fighter's distribution ``name`` (see `DISTRIBUTIONS`), overlaid."""
+    long = pd.DataFrame(
+        [(role, float(v)) for role, values in samples.items() for v in values],
+        columns=["fighter", name],
+    )
+    return (
+        alt.Chart(long, title=HISTOGRAMS[name])
+        .mark_bar(opacity=0.55)
+        .encode(
+            x=alt.X(f"{name}:Q", bin=alt.Bin(maxbins=30), title=None),
+            y=alt.Y("count():Q", stack=None, title="count"),
+            color=alt.Color("fighter:N", scale=FIGHTER_COLOURS),
+            tooltip=[alt.Tooltip("count():Q", title="count")],
+        )
+    )
+
+
+def dataset_page() -> None:
+    st.title("Dataset")
+    sets = read(queries.datasets)
+    if sets is None:
+        return
+    if not sets:
+        st.info(f"No dataset yet: {PROCESS_HINT}; the dataset stage assembles one per adversary.")
+        finish_page()
+        return
+    labels = dataset_labels(sets)
+    about = {d["dataset_key"]: d for d in sets}
+    key = choose("Dataset", [d["dataset_key"] for d in sets], "dataset", format_func=labels.get)
+    chosen = about[key]
+    found = read(lambda con: (queries.dataset_statistics(con, key), queries.videos(con)))
+    if found is None:
+        return
+    stats, videos = found
+    st.caption(
+        f"Adversary **{chosen['adversary']}**: {plural(chosen['videos'], 'video')}, "
+        f"{chosen['transitions']} transitions. Statistics over all its videos, rates and "
+        "per-frame means weighted by each video's minutes."
+    )
+    if "adversary" not in stats.combined:
+        st.info("This dataset holds no statistics of the adversary (no clip of them long enough).")
+        finish_page()
+        return
+    fighters = {role: s.scalars for role, s in stats.combined.items()}
+    adversary = fighters["adversary"]
+    for column, (name, label) in zip(st.columns(len(HEADLINES)), HEADLINES.items(), strict=True):
+        column.metric(label, format_value(adversary.get(name)), help=SCALARS[name])
+
+    per_minute = pd.DataFrame(fighters).reindex([f"punches_per_min_{c}" for c in (*HANDS, *KINDS)])
+    per_minute.index = [name.removeprefix("punches_per_min_") for name in per_minute.index]
+    left, right = st.columns(2)
+    left.altair_chart(grouped_bars(per_minute.loc[list(HANDS)], "Punches per minute by hand"))
+    right.altair_chart(grouped_bars(per_minute.loc[list(KINDS)], "Punches per minute by kind"))
+
+    spread = [
+        name
+        for name in DISTRIBUTIONS
+        if any(len(s.distributions[name]) for s in stats.combined.values())
+    ]
+    for column, name in zip(st.columns(2) * len(spread), spread, strict=False):
+        samples = {role: s.distributions[name] for role, s in stats.combined.items()}
+        if name in SAME_FOR_BOTH:
+            samples = {"adversary": samples["adversary"]}
+        column.altair_chart(histogram(samples, name))
+
+    st.subheader("Every statistic")
+    table = pd.DataFrame(fighters).reindex(
+        [n for n in SCALARS if any(n in f for f in fighters.values())]
+    )
+    table.insert(0, "meaning", [SCALARS[n] for n in table.index])
+    st.table(numbers_table(table))
+
+    st.subheader("The adversary in each video")
+    mine = stats.per_video[stats.per_video["role"] == "adversary"]
+    per_video = mine.pivot(index="name", columns="video_id", values="value")
+    per_video = per_video.rename(columns=video_labels(videos))
+    st.table(numbers_table(per_video.reindex([n for n in SCALARS if n in per_video.index])))
+    finish_page()
+
+
+def training_page() -> None:
+    st.title("Training")
+    runs = read(queries.training_runs)
+    if runs is None:
+        return
+    if not runs:
+        st.info(f"No training run yet: {TRAIN_HINT}.")
+        finish_page()
+        return
+    st.subheader("Runs")
+    st.table(
+        pd.DataFrame(
+            {
+                "run": [queries.short(r["key"]) for r in runs],
+                "dataset": [queries.short(r["dataset_key"]) for r in runs],
+                "adversary": [r["adversary"] or "" for r in runs],
+                "iterations": [r["iterations"] for r in runs],
+                "last saved": [
+                    f"{r['saved_at']:%Y-%m-%d %H:%M:%S}" if r["saved_at"] else "" for r in runs
+                ],
+                "state": ["finished" if r["finished"] else "running or stopped" for r in runs],
+            }
+        ),
+        hide_index=True,
+    )
+    about = {r["key"]: r for r in runs}
+    key = choose("Run", list(about), "run", format_func=queries.short)
+    run = about[key]
+    every = st.number_input(
+        "Iterations per point",
+        min_value=1,
+        value=queries.default_every(run["iterations"]),
+        help="Each point is the mean over this many iterations.",
+    )
+    rows = read(lambda con: queries.curves(con, key, every=int(every)))
+    if rows is None:
+        return
+    frame = queries.curves_frame(rows)
+    last = rows[-1]
+    st.subheader(f"Newest point: means over iterations {last['iterations']}")
+    for column, (name, label) in zip(st.columns(len(TILES)), TILES.items(), strict=True):
+        column.metric(label, format_value(last.get(name)))
+    for column, (title, names) in zip(st.columns(2) * 2, CURVE_CHARTS.items(), strict=True):
+        column.altair_chart(curve_chart(frame, title, names))
+    finish_page()
+
+
+def curve_chart(frame: pd.DataFrame, title: str, names: Mapping[str, str]) -> alt.Chart:
+    """The curves ``names`` (column -> legend label) of ``frame`` against the iteration."""
+    present = {name: label for name, label in names.items() if name in frame.columns}
+    long = (
+        frame[list(present)]
+        .rename(columns=present)
+        .reset_index()
+        .melt("iteration", var_name="curve")
+    )
+    return (
+        alt.Chart(long, title=title)
+        .mark_line(point=len(frame) < 30)
+        .encode(
+            x=alt.X("iteration:Q", axis=alt.Axis(format="d", tickMinStep=1)),
+            y=alt.Y("value:Q", title=None, axis=alt.Axis(format=AXIS_FORMAT)),
+            color=alt.Color(
+                "curve:N",
+                sort=list(present.values()),
+                legend=alt.Legend(orient="bottom", title=None, labelLimit=400),
+            ),
+            tooltip=["curve", "iteration", "value"],
+        )
+    )
+
+
+# URL path -> (title, page), in the sidebar's order; the first is the home page.
+PAGES: dict[str, tuple[str, Callable[[], None]]] = {
+    "overview": ("Overview", overview_page),
+    "stages": ("Stages", stage_page),
+    "dataset": ("Dataset", dataset_page),
+    "training": ("Training", training_page),
+}
+
+
+def main() -> None:
+    st.set_page_config(page_title="Ringside", layout="wide")
+    home = next(iter(PAGES))
+    page = st.navigation(
+        [
+            st.Page(draw, title=title, url_path=path, default=path == home)
+            for path, (title, draw) in PAGES.items()
+        ]
+    )
+    st.sidebar.caption(f"Data: `{data_root(sys.argv[1:])}`")
+    # Pages read the database on each render; the button is one without touching a widget.
+    st.sidebar.button("Reload", help="Read the database again")
+    page.run()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,338 @@
+"""The analysts' dashboard: its queries against what the CLI prints, every page in headless
+Chromium on the sample's data, and every page of an empty data directory.
+
+The browser test saves a full-page screenshot of each page under
+``data/test-artifacts/dashboard/`` (git-ignored), to be looked at by eye.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import REPO, query, run_cli
+from test_train_stage import TINY_FLAGS
+
+from dashboards import queries
+from dashboards.app import (
+    HEADLINES,
+    PAGES,
+    READ_AT,
+    TILES,
+    format_value,
+    output_labels,
+    video_labels,
+)
+from flows.cli import build_parser, main, wait_until_serving
+from flows.config import STAGES
+from storage.db import connect
+from storage.paths import data_paths
+
+CHROMIUM = Path("/usr/bin/chromium")
+SCREENSHOTS = REPO / "data" / "test-artifacts" / "dashboard"
+# A page is drawn once Streamlit has written the page's last line, every chart has its canvas
+# and the page's height has stopped changing between two polls.
+SETTLED = """() => {
+  const main = document.querySelector('[data-testid="stMain"]');
+  const charts = [...document.querySelectorAll('[data-testid="stVegaLiteChart"]')];
+  const drawn = charts.every(chart => chart.querySelector('canvas, svg'));
+  const height = main ? main.scrollHeight : 0;
+  const steady = window.__ringsideHeight === height;
+  window.__ringsideHeight = height;
+  return drawn && steady && height;
+}"""
+# Every table of the page: tables -> rows -> cell texts.
+TABLES = """() => [...document.querySelectorAll('[data-testid="stTable"] table')].map(
+  table => [...table.rows].map(row => [...row.cells].map(cell => cell.innerText.trim())))"""
+# Every headline number of the page: [label, value].
+TILE_TEXTS = """() => [...document.querySelectorAll('[data-testid="stMetric"]')].map(m => [
+  m.querySelector('[data-testid="stMetricLabel"]').innerText.trim(),
+  m.querySelector('[data-testid="stMetricValue"]').innerText.trim()])"""
+
+
+@pytest.fixture(scope="module")
+def trained(sample_run: Path) -> tuple[Path, str]:
+    """The sample's data directory with a tiny training run on its first dataset (three
+    iterations: not the two `test_train_stage` trains, so both tests find their run new)."""
+    (dataset_key,) = query(
+        sample_run, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1"
+    )[0]
+    argv = ["--data", str(sample_run), "train", "--dataset", dataset_key, *TINY_FLAGS]
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+        code = main([*argv, "--train-iterations", "3"])
+    assert code == 0, said.getvalue()
+    return sample_run, dataset_key
+
+
+def _cli_json(capsys, data: Path, *argv: str) -> list[dict]:
+    code, out, err = run_cli(capsys, "--data", str(data), *argv, "--json")
+    assert code == 0, err
+    return json.loads(out)
+
+
+def _read(data: Path, read_with):
+    with connect(data_paths(data).db, read_only=True) as con:
+        return read_with(con)
+
+
+def _newest_run(data: Path, dataset_key: str) -> dict:
+    runs = _read(data, queries.training_runs)
+    return next(r for r in runs if r["dataset_key"] == dataset_key and r["iterations"] == 3)
+
+
+def test_the_stages_page_knows_the_stages_the_cli_does():
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    (stage,) = [a for a in commands.choices["metrics"]._actions if a.dest == "stage"]
+    assert tuple(stage.choices) == queries.METRIC_STAGES
+
+
+def test_metrics_are_the_ones_the_cli_prints(capsys, trained):
+    data, _ = trained
+    for stage in queries.METRIC_STAGES:
+        printed = _cli_json(capsys, data, "metrics", "--stage", stage)
+        if stage in (*STAGES, "train"):  # the sample went through these; not evaluation
+            assert printed, f"the sample has no {stage} metrics"
+        table = queries.metrics_table(
+            _read(data, lambda con, s=stage: queries.stage_metrics(con, s))
+        )
+        shown = {
+            (output, name): value
+            for output, column in table.items()
+            for name, value in column.items()
+            if not math.isnan(value)
+        }
+        assert shown == {(r["video_id"], r["name"]): r["value"] for r in printed}, stage
+
+
+def test_overview_shows_the_sample_with_every_stage_done(capsys, trained, sample_video):
+    data, _ = trained
+    videos, states = _read(data, lambda con: (queries.videos(con), queries.stage_overview(con)))
+    fields = ("video_id", "stage", "key", "state", "error")
+    assert [{f: r[f] for f in fields} for r in states] == _cli_json(capsys, data, "status")
+    (sample,) = [v for v in videos if v["path"] == str(sample_video)]
+    assert sample["adversary"] == "A"
+    matrix = queries.state_matrix(states)
+    assert list(matrix.columns) == list(STAGES)
+    assert set(matrix.loc[sample["video_id"]]) <= {"done", "cached"}
+    done = [r for r in states if r["video_id"] == sample["video_id"]]
+    assert all(r["seconds"] > 0 and r["ran_at"] is not None for r in done)
+
+
+def test_learning_curves_are_the_ones_the_cli_prints(capsys, trained):
+    data, dataset_key = trained
+    run = _newest_run(data, dataset_key)
+    assert run["finished"] and run["adversary"] == "A"
+    every = queries.default_every(run["iterations"])
+    printed = _cli_json(capsys, data, "curves", "--run", run["key"], "--every", str(every))
+    rows = _read(data, lambda con: queries.curves(con, run["key"], every=every))
+    assert rows == printed
+    frame = queries.curves_frame(rows)
+    assert list(frame.index) == list(range(0, run["iterations"], every))
+
+
+def test_statistics_of_several_videos_weigh_each_by_its_minutes():
+    scalars = [
+        ("a", "adversary", "minutes", 1.0),
+        ("a", "adversary", "punches_per_min", 10.0),
+        ("b", "adversary", "minutes", 3.0),
+        ("b", "adversary", "punches_per_min", 2.0),
+        ("b", "opponent", "minutes", 3.0),
+    ]
+    samples = [
+        ("a", "adversary", "punch_duration_s", [0.2, 0.4]),
+        ("b", "adversary", "punch_duration_s", [0.6]),
+    ]
+    combined = queries.combine_videos(scalars, samples)
+    assert set(combined) == {"adversary", "opponent"}
+    adversary = combined["adversary"].scalars
+    assert adversary["minutes"] == 4.0
+    assert adversary["punches_per_min"] == pytest.approx((10 * 1 + 2 * 3) / 4)
+    # A per-punch mean weighs punches, not minutes.
+    assert adversary["punch_duration_mean_s"] == pytest.approx(0.4)
+    assert list(combined["adversary"].distributions["punch_duration_s"]) == [0.2, 0.4, 0.6]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _cell(tables: list, row_name: str, column: str) -> str:
+    """The text of the cell in row ``row_name`` (its first cell) and column ``column`` (a header
+    cell) of the first table that has both."""
+    for rows in tables:
+        header = next((row for row in rows if column in row), None)
+        found = [row for row in rows if row and row[0] == row_name]
+        if header is not None and found:
+            return found[0][header.index(column)]
+    raise AssertionError(f"no table has row {row_name!r} and column {column!r}")
+
+
+def _open(page, url: str, shot: str) -> str:
+    """Open ``url``, wait until the page is drawn, save its screenshot; the page's text."""
+    page.set_viewport_size({"width": 1400, "height": 900})
+    page.goto(url)
+    # The first render of a fresh server imports the pipeline's modules: allow for it.
+    page.get_by_text(READ_AT).wait_for(timeout=120_000)
+    height = page.wait_for_function(SETTLED, polling=250, timeout=60_000).json_value()
+    # Streamlit scrolls inside its main block, so a full-page screenshot needs a tall window.
+    page.set_viewport_size({"width": 1400, "height": int(height)})
+    page.screenshot(path=str(SCREENSHOTS / f"{shot}.png"), full_page=True)
+    text = page.inner_text("body")
+    assert "Traceback" not in text and "Error" not in text, f"{shot}: {text[:2000]}"
+    assert page.locator('[data-testid="stException"]').count() == 0, shot
+    return text
+
+
+@pytest.mark.skipif(
+    not CHROMIUM.exists(), reason=f"Debian's chromium is not installed ({CHROMIUM}): `make setup`"
+)
+def test_every_page_in_a_browser(capsys, trained):
+    from playwright.sync_api import sync_playwright
+
+    data, dataset_key = trained
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    metrics = {
+        stage: _cli_json(capsys, data, "metrics", "--stage", stage)
+        for stage in queries.METRIC_STAGES
+    }
+    videos, sets = _read(data, lambda con: (queries.videos(con), queries.datasets(con)))
+    run = _newest_run(data, dataset_key)
+    every = queries.default_every(run["iterations"])
+    newest = _cli_json(capsys, data, "curves", "--run", run["key"], "--every", str(every))[-1]
+    members = query(
+        data, "SELECT video_id, key FROM dataset_members WHERE dataset_key = ?", [dataset_key]
+    )
+    assert len(members) == 1, "the sample's dataset joins one video"
+    adversary = dict(
+        query(
+            data,
+            "SELECT name, value FROM dataset_statistics WHERE video_id = ? AND key = ? "
+            "AND role = 'adversary'",
+            list(members[0]),
+        )
+    )
+
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}"
+    command = ["-m", "flows.cli", "--data", str(data), "dashboard", "--port", str(port)]
+    server = subprocess.Popen(
+        [sys.executable, *command, "--no-browser"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        assert wait_until_serving(url, server, timeout_s=90), "the dashboard never answered"
+        with sync_playwright() as playwright:
+            browser = playwright.chromium.launch(
+                executable_path=str(CHROMIUM), args=["--no-sandbox"]
+            )
+            page = browser.new_page()
+
+            _open(page, f"{url}/", "overview")
+            labels = video_labels(videos)
+            for state in _read(data, queries.stage_overview):
+                label = labels[state["video_id"]]
+                assert _cell(page.evaluate(TABLES), label, state["stage"]) == state["state"]
+
+            for stage, printed in metrics.items():
+                text = _open(page, f"{url}/stages?stage={stage}", f"stage-{stage}")
+                if not printed:
+                    assert f"No {stage} output yet" in text
+                names = output_labels(stage, [r["video_id"] for r in printed], videos, sets)
+                tables = page.evaluate(TABLES)
+                for row in printed:
+                    cell = _cell(tables, row["name"], names[row["video_id"]])
+                    assert cell == format_value(row["value"]), (stage, row)
+
+            _open(page, f"{url}/dataset?dataset={dataset_key}", "dataset")
+            tiles = dict(page.evaluate(TILE_TEXTS))
+            for name, label in HEADLINES.items():
+                assert tiles[label] == format_value(adversary.get(name)), name
+
+            text = _open(page, f"{url}/training?run={run['key']}", "training")
+            assert queries.short(run["key"]) in text
+            tiles = dict(page.evaluate(TILE_TEXTS))
+            for name, label in TILES.items():
+                assert tiles[label] == format_value(newest[name]), name
+            browser.close()
+    finally:
+        # As Ctrl-C would; the command must take Streamlit down with it.
+        server.send_signal(signal.SIGTERM)
+        try:
+            out, _ = server.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+            out, _ = server.communicate()
+            pytest.fail(f"the dashboard did not stop on SIGTERM:\n{out}")
+    assert server.returncode == 0, out
+    assert "dashboard stopped" in out and f"http://localhost:{port}" in out
+    with socket.socket() as s:  # nothing listens any more
+        assert s.connect_ex(("127.0.0.1", port)) != 0
+
+
+def _render(path: str) -> None:
+    """One dashboard page as a script of its own (AppTest runs a function's body)."""
+    from dashboards.app import PAGES
+
+    PAGES[path][1]()
+
+
+@pytest.mark.parametrize(
+    ("path", "message"),
+    [
+        ("overview", "No video yet"),
+        ("stages", "No ingest output yet"),
+        ("dataset", "No dataset yet"),
+        ("training", "No training run yet: run `ringside train --dataset KEY`"),
+    ],
+)
+def test_pages_of_an_empty_data_directory(tmp_path, monkeypatch, path, message):
+    from streamlit.testing.v1 import AppTest
+
+    assert path in PAGES
+    monkeypatch.setenv("RINGSIDE_DATA", str(tmp_path))
+    app = AppTest.from_function(_render, args=(path,), default_timeout=60)
+    assert [i.value for i in app.run().info] == [
+        f"No database yet in `{tmp_path}`: run `ringside process VIDEO --adversary NAME` "
+        "(or `ringside demo`)."
+    ]
+    with connect(data_paths(tmp_path).db):
+        pass  # a fresh database: every table there, all of them empty
+    app = AppTest.from_function(_render, args=(path,), default_timeout=60).run()
+    assert not app.exception, app.exception
+    (info,) = app.info
+    assert info.value.startswith(message), info.value
+    assert not app.error and not app.warning
+
+
+def test_a_failed_stage_shows_why_on_the_overview(tmp_path, monkeypatch):
+    from streamlit.testing.v1 import AppTest
+
+    from storage.records import record_run, register_video
+
+    why = "pose: no fighters found in /footage/empty.mp4"
+    with connect(data_paths(tmp_path).db) as con:
+        register_video(con, "f" * 64, 1234, "/footage/empty.mp4")
+        record_run(con, "run-1", "f" * 64, "pose", "k" * 24, "failed", why)
+    monkeypatch.setenv("RINGSIDE_DATA", str(tmp_path))
+    app = AppTest.from_function(_render, args=("overview",), default_timeout=60).run()
+    assert not app.exception, app.exception
+    matrix, runs = (table.value for table in app.table)
+    states = ["failed" if stage == "pose" else "missing" for stage in STAGES]
+    assert list(matrix.loc[f"empty.mp4 · {'f' * 12}", list(STAGES)]) == states
+    assert list(runs["why it failed"]) == [why if s == "failed" else "" for s in states]
