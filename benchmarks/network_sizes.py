@@ -16,12 +16,15 @@ not measured here). The last line is that size's throughput,
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as `ringside` sets it (flows/cli.py)
 
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402

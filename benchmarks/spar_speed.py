@@ -19,6 +19,8 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as `ringside` sets it (flows/cli.py)
+
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.evaluate.export import export_opponent  # noqa: E402

@@ -12,6 +12,7 @@ Prints both and, last, ``train_vs_physics: R x`` (end to end over raw physics).
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -19,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as `ringside` sets it (flows/cli.py)
 
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
