@@ -41,6 +41,25 @@ def sample_video(assets: Path) -> Path:
     return assets / SAMPLE_VIDEO
 
 
+# `ringside train` flags for a run of tiny networks and batches (seconds, not minutes).
+TINY_TRAIN_FLAGS = [
+    "--train-network-hidden",
+    "16,16",
+    "--train-env-num-envs",
+    "4",
+    "--train-ppo-horizon",
+    "4",
+    "--train-ppo-minibatch-size",
+    "16",
+    "--train-ppo-epochs",
+    "1",
+    "--train-discriminator-samples-per-update",
+    "16",
+    "--train-discriminator-updates-per-iteration",
+    "1",
+]
+
+
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
     """Run the ``ringside`` command in this process: (exit code, stdout, stderr)."""
     from flows.cli import main

@@ -20,8 +20,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import REPO, query, run_cli
-from test_train_stage import TINY_FLAGS
+from conftest import REPO, TINY_TRAIN_FLAGS, query, run_cli
 
 from dashboards import queries
 from dashboards.app import (
@@ -67,7 +66,7 @@ def trained(sample_run: Path) -> tuple[Path, str]:
     (dataset_key,) = query(
         sample_run, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1"
     )[0]
-    argv = ["--data", str(sample_run), "train", "--dataset", dataset_key, *TINY_FLAGS]
+    argv = ["--data", str(sample_run), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS]
     said = io.StringIO()
     with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
         code = main([*argv, "--train-iterations", "3"])

@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import query, run_cli
+from conftest import TINY_TRAIN_FLAGS, query, run_cli
 
 from storage.artifacts import artifact_path, read_bytes
 from storage.paths import data_paths
@@ -21,24 +21,7 @@ from tasks.evaluate.metrics import RATES, SHARES, STYLE_DISTRIBUTIONS
 from tasks.evaluate.opponent import load_opponent
 from tasks.evaluate.stage import POLICIES
 
-TINY_TRAIN = [
-    "--train-network-hidden",
-    "16,16",
-    "--train-env-num-envs",
-    "4",
-    "--train-ppo-horizon",
-    "4",
-    "--train-ppo-minibatch-size",
-    "16",
-    "--train-ppo-epochs",
-    "1",
-    "--train-discriminator-samples-per-update",
-    "16",
-    "--train-discriminator-updates-per-iteration",
-    "1",
-    "--train-iterations",
-    "2",
-]
+TINY_TRAIN = [*TINY_TRAIN_FLAGS, "--train-iterations", "2"]
 TINY_EVALUATE = [
     "--evaluate-episodes",
     "4",

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from conftest import query, run_cli
+from conftest import TINY_TRAIN_FLAGS, query, run_cli
 
 from storage.paths import data_paths
 from tasks.evaluate.opponent import load_opponent
@@ -14,22 +14,6 @@ from tasks.train.config import DiscriminatorConfig, NetworkConfig, PPOConfig, Tr
 from tasks.train.env import EnvConfig
 from tasks.train.run import train
 
-TINY_FLAGS = [
-    "--train-network-hidden",
-    "16,16",
-    "--train-env-num-envs",
-    "4",
-    "--train-ppo-horizon",
-    "4",
-    "--train-ppo-minibatch-size",
-    "16",
-    "--train-ppo-epochs",
-    "1",
-    "--train-discriminator-samples-per-update",
-    "16",
-    "--train-discriminator-updates-per-iteration",
-    "1",
-]
 TINY = TrainConfig(
     iterations=4,
     checkpoint_every=2,
@@ -47,7 +31,7 @@ def dataset_key(sample_run) -> str:
 
 
 def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
-    base = ["--data", str(sample_run), "train", "--dataset", dataset_key, *TINY_FLAGS]
+    base = ["--data", str(sample_run), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS]
     code, out, err = run_cli(capsys, *base, "--train-iterations", "2", "--json")
     assert code == 0, err
     (summary,) = json.loads(out)
