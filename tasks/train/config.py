@@ -18,7 +18,7 @@ PRESETS: dict[str, tuple[int, ...]] = {
     # MAAIP §4.4: 3 hidden layers of 1024, 1024, 512 ReLU units.
     "paper": (1024, 1024, 512),
     # For training without a GPU: the fastest of the sizes `benchmarks/network_sizes.py`
-    # measures (2,835 env steps/s end to end on 2 cores against 1,823 for 256,256,128).
+    # measures (2,554 env steps/s end to end on 2 cores against 1,617 for 256,256,128).
     "cpu": (128, 128),
 }
 DEVICES = ("auto", "cpu", "cuda")

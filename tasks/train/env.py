@@ -48,12 +48,13 @@ Batched stepping, two ways (`EnvConfig.stepping`), measured by `benchmarks/physi
   `mj_step`, which releases the GIL; after every substep a worker reads the contacts from
   `MjData.contact` (`mj_contactForce`), and after the chunk it refreshes the kinematics and
   reads the body states. Bit-identical to stepping the environments one by one.
-Measured on 2 shared cores, N = 64, 60 Hz x 2: the whole step runs at about 3200-4000
-environment steps/s with "rollout" and 2900-3300 with "threads" (raw physics alone: 10-14k
-and 10-12k): "rollout" steps its environments back to back in C, while "threads" reads the
-contacts from Python between substeps. Either way the step is bound by the observations:
-`body_state` per agent and environment costs about as much as the physics (6-7 ms of
-~14 ms per step for 64 environments) and holds the GIL, so a second thread adds little.
+Measured by `benchmarks/physics_speed.py` on 2 cores, N = 64, 60 Hz x 2: the whole step runs
+at about 7,500 environment steps/s with "rollout" and 5,800 with "threads" (raw physics alone:
+14-15k with either): "rollout" steps its environments back to back in C, while "threads" reads
+the contacts from Python between substeps. The observations are gathered once per environment
+(`world_frames`, a few array copies) and computed for all environments and both agents in one
+vectorised pass: 1.1 ms per step for 64 environments, 15 % of the raw physics (computing
+`body_state` per environment and agent cost 72 %).
 
 Shape letters: N environments, M reference frames, 2 agents.
 """
