@@ -439,28 +439,18 @@ def _curves(args, data_root: Path) -> int:
 
 def _export(args, data_root: Path) -> int:
     from storage.paths import data_paths
-    from tasks.evaluate.export import export_opponent, trained_policy
+    from tasks.evaluate.export import trained_policy
 
     paths = data_paths(data_root)
     trained = trained_policy(paths.db, paths.artifacts, args.run)
-    agent = 0 if args.agent == "adversary" else 1
     out = args.out or data_root / "opponents" / f"{trained.run_key[:12]}-{args.agent}"
-    facts = {
-        "dataset_key": trained.dataset_key,
-        "run_key": trained.run_key,
-        "iteration": trained.iteration,
-        "metrics": trained.metrics,
-    }
-    folder = export_opponent(
-        out,
-        policy=trained.policy,
-        agent=agent,
-        bones=trained.bones,
-        env=trained.config.env,
-        facts=facts,
-    )
+    folder = trained.export(0 if args.agent == "adversary" else 1, out)
     if args.json:
-        print(json.dumps({"folder": str(folder), **facts}))
+        print(
+            json.dumps(
+                {"folder": str(folder), **json.loads((folder / "manifest.json").read_text())}
+            )
+        )
     else:
         print(
             f"{args.agent} of run {trained.run_key[:12]} (iteration {trained.iteration}): {folder}"

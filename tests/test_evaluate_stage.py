@@ -42,8 +42,7 @@ def _evaluate(capsys, data: Path, run: str, *flags: str) -> dict:
 
 @pytest.fixture(scope="module")
 def run_key(sample_run) -> str:
-    """A tiny training run (2 iterations) on the demo's dataset; the same one as
-    tests/test_train_stage.py trains, so cached when that ran first."""
+    """A tiny training run (2 iterations) on the demo's dataset."""
     from flows.cli import main
 
     dataset_key = query(sample_run, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1")

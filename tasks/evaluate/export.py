@@ -47,6 +47,24 @@ class TrainedPolicy:
     bones: tuple[BoneLengths, BoneLengths]
     metrics: dict[str, float]
 
+    def export(self, agent: int, out: Path) -> Path:
+        """One of its fighters as an opponent folder (`export_opponent`), the manifest naming
+        the dataset, the run, its iteration and metrics."""
+        facts = {
+            "dataset_key": self.dataset_key,
+            "run_key": self.run_key,
+            "iteration": self.iteration,
+            "metrics": self.metrics,
+        }
+        return export_opponent(
+            out,
+            policy=self.policy,
+            agent=agent,
+            bones=self.bones,
+            env=self.config.env,
+            facts=facts,
+        )
+
 
 def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
     """The policy a finished training run committed (`train_policies`); ``run`` may be a

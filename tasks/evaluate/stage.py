@@ -45,7 +45,6 @@ from tasks.evaluate.bouts import Bouts, HeadingTask, simulate, torch_actor
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.export import (
     TrainedPolicy,
-    export_opponent,
     load_trained,
     onnx_max_abs_diff,
 )
@@ -170,15 +169,7 @@ def _export(
 ) -> tuple[float, list[tuple[str, str]]]:
     """Export the adversary, check onnxruntime against torch on the bouts' observations of
     agent 0, store the files; (max abs difference, [(name, artifact)])."""
-    facts = {
-        "dataset_key": run.dataset_key,
-        "run_key": run.run_key,
-        "iteration": run.iteration,
-        "metrics": run.metrics,
-    }
-    out = export_opponent(
-        folder, policy=run.policy, agent=0, bones=run.bones, env=run.config.env, facts=facts
-    )
+    out = run.export(0, folder)
     opponent = load_opponent(out)
     tasks = None if bouts.tasks is None else bouts.tasks[:, 0]
     diff = onnx_max_abs_diff(run.policy, 0, opponent, bouts.observations[:, 0], tasks)
