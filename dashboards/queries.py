@@ -15,13 +15,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import duckdb
-import numpy as np
 import pandas as pd
 
 from flows.config import SECTIONS, STAGES
 from storage.records import latest_metrics, stage_states
-from tasks.dataset.statistics import FighterStatistics, combine
-from tasks.dataset.store import list_datasets
+from tasks.dataset.statistics import FighterStatistics
+from tasks.dataset.store import list_datasets, member_statistics
 from tasks.train.run import learning_curves
 
 # Every stage, in pipeline order (a stage has its config section once it exists): the ones
@@ -112,43 +111,9 @@ class DatasetStatistics:
 
 def dataset_statistics(con: duckdb.DuckDBPyConnection, dataset_key: str) -> DatasetStatistics:
     """Each fighter's statistics in the member videos of dataset ``dataset_key``, and combined."""
-    scalars = con.execute(
-        """
-        SELECT s.video_id, s.role, s.name, s.value FROM dataset_statistics s
-        JOIN dataset_members m ON m.key = s.key AND m.video_id = s.video_id
-        WHERE m.dataset_key = ? ORDER BY ALL
-        """,
-        [dataset_key],
-    ).fetchall()
-    samples = con.execute(
-        """
-        SELECT d.video_id, d.role, d.name, d.samples FROM dataset_distributions d
-        JOIN dataset_members m ON m.key = d.key AND m.video_id = d.video_id
-        WHERE m.dataset_key = ? ORDER BY ALL
-        """,
-        [dataset_key],
-    ).fetchall()
-    per_video = pd.DataFrame(scalars, columns=["video_id", "role", "name", "value"])
-    return DatasetStatistics(per_video, combine_videos(scalars, samples))
-
-
-def combine_videos(
-    scalars: Sequence[tuple[str, str, str, float]],
-    samples: Sequence[tuple[str, str, str, Sequence[float]]],
-) -> dict[str, FighterStatistics]:
-    """Role -> its statistics over every video, from (video_id, role, name, value) scalar rows
-    and (video_id, role, name, samples) distribution rows."""
-    numbers: dict[tuple[str, str], dict[str, float]] = {}
-    for video_id, role, name, value in scalars:
-        numbers.setdefault((video_id, role), {})[name] = value
-    distributions: dict[tuple[str, str], dict[str, np.ndarray]] = {}
-    for video_id, role, name, values in samples:
-        distributions.setdefault((video_id, role), {})[name] = np.asarray(values, dtype=float)
-    by_role: dict[str, list[FighterStatistics]] = {}
-    for (video_id, role), values in numbers.items():
-        piece = FighterStatistics(values, distributions.get((video_id, role), {}))
-        by_role.setdefault(role, []).append(piece)
-    return {role: combine(pieces) for role, pieces in by_role.items()}
+    rows, combined = member_statistics(con, dataset_key)
+    per_video = pd.DataFrame(rows, columns=["video_id", "role", "name", "value"])
+    return DatasetStatistics(per_video, combined)
 
 
 def training_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:

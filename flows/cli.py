@@ -512,6 +512,7 @@ def _evaluate(args, data_root: Path) -> int:
     from flows.config import load_config
     from storage.db import connect
     from storage.paths import data_paths
+    from storage.records import output_metrics
     from tasks.errors import BadInput
     from tasks.evaluate.stage import POLICIES
     from tasks.evaluate.store import evaluation_tables, resolve_run
@@ -527,13 +528,7 @@ def _evaluate(args, data_root: Path) -> int:
     summary = evaluate_flow(str(data_root), args.run, config.as_dict(), args.rerun)
     with connect(db, read_only=True) as con:
         tables = evaluation_tables(con, summary.key, summary.video_id)
-        metrics = dict(
-            con.execute(
-                "SELECT name, value FROM stage_metrics WHERE stage = 'evaluate' AND key = ? "
-                "AND video_id = ? ORDER BY name",
-                [summary.key, summary.video_id],
-            ).fetchall()
-        )
+        metrics = output_metrics(con, "evaluate", summary.video_id, summary.key)
     if args.json:
         print(
             json.dumps(

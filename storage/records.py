@@ -257,6 +257,18 @@ def latest_metrics(con: duckdb.DuckDBPyConnection, stage: str | None = None) -> 
     return [dict(zip(names, row, strict=True)) for row in rows]
 
 
+def output_metrics(
+    con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key: str
+) -> dict[str, float]:
+    """The metrics of one committed output, by name (in name order)."""
+    rows = con.execute(
+        "SELECT name, value FROM stage_metrics WHERE stage = ? AND video_id = ? AND key = ? "
+        "ORDER BY name",
+        [stage, video_id, key],
+    ).fetchall()
+    return dict(rows)
+
+
 def output_config(con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key: str) -> dict:
     row = con.execute(
         "SELECT config FROM stage_outputs WHERE stage = ? AND video_id = ? AND key = ?",

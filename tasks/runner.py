@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from storage.db import connect
-from storage.records import Columns, OutputRecord, write_output
+from storage.records import Columns, OutputRecord, output_metrics, write_output
 
 
 @dataclass(frozen=True)
@@ -50,11 +50,8 @@ def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | No
         ).fetchone()
         if row is None:
             return None
-        metrics = con.execute(
-            "SELECT name, value FROM stage_metrics WHERE stage = ? AND video_id = ? AND key = ?",
-            [stage, video_id, key],
-        ).fetchall()
-    return StageResult(stage, video_id, key, row[0], row[1], dict(metrics), tuple(row[2]))
+        metrics = output_metrics(con, stage, video_id, key)
+    return StageResult(stage, video_id, key, row[0], row[1], metrics, tuple(row[2]))
 
 
 def run_stage(

@@ -36,6 +36,7 @@ from flows.cli import build_parser, main, wait_until_serving
 from flows.config import STAGES
 from storage.db import connect
 from storage.paths import data_paths
+from tasks.dataset.statistics import combine_videos
 
 CHROMIUM = Path("/usr/bin/chromium")
 SCREENSHOTS = REPO / "data" / "test-artifacts" / "dashboard"
@@ -152,7 +153,7 @@ def test_statistics_of_several_videos_weigh_each_by_its_minutes():
         ("a", "adversary", "punch_duration_s", [0.2, 0.4]),
         ("b", "adversary", "punch_duration_s", [0.6]),
     ]
-    combined = queries.combine_videos(scalars, samples)
+    combined = combine_videos(scalars, samples)
     assert set(combined) == {"adversary", "opponent"}
     adversary = combined["adversary"].scalars
     assert adversary["minutes"] == 4.0

@@ -17,9 +17,10 @@ from conftest import run_cli
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OBSERVATION_DIM
+from storage.files import sha256_file
 from tasks.errors import BadInput
 from tasks.evaluate.export import export_opponent, onnx_max_abs_diff, policy_onnx
-from tasks.evaluate.opponent import file_digest, load_opponent
+from tasks.evaluate.opponent import load_opponent
 from tasks.evaluate.spar import Partner, spar
 from tasks.train.config import (
     DiscriminatorConfig,
@@ -128,7 +129,7 @@ def test_bad_opponent_folders_are_refused_with_the_file_named(tmp_path, trained)
     small = Policy(hidden=(8,), action_std=0.1, obs_dim=100)
     (other / "policy.onnx").write_bytes(policy_onnx(small, 0))
     manifest = json.loads((other / "manifest.json").read_text())
-    manifest["files"]["policy.onnx"] = file_digest(other / "policy.onnx")
+    manifest["files"]["policy.onnx"] = sha256_file(other / "policy.onnx")
     (other / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(
         BadInput, match=r"policy.onnx: takes observations of shape \['batch', 100\]"

@@ -216,3 +216,23 @@ def combine(
         if len(distributions[name]):
             scalars[scalar] = float(np.mean(distributions[name]))
     return FighterStatistics(scalars=scalars, distributions=distributions)
+
+
+def combine_videos(
+    scalars: Sequence[tuple[str, str, str, float]],
+    samples: Sequence[tuple[str, str, str, Sequence[float]]],
+) -> dict[str, FighterStatistics]:
+    """Role -> its statistics over every video (`combine`, in the rows' video order), from
+    (video_id, role, name, value) scalar rows and (video_id, role, name, samples) distribution
+    rows, as `dataset_statistics` and `dataset_distributions` hold them."""
+    numbers: dict[tuple[str, str], dict[str, float]] = {}
+    for video_id, role, name, value in scalars:
+        numbers.setdefault((video_id, role), {})[name] = value
+    distributions: dict[tuple[str, str], dict[str, np.ndarray]] = {}
+    for video_id, role, name, values in samples:
+        distributions.setdefault((video_id, role), {})[name] = np.asarray(values, dtype=float)
+    by_role: dict[str, list[FighterStatistics]] = {}
+    for (video_id, role), values in numbers.items():
+        piece = FighterStatistics(values, distributions.get((video_id, role), {}))
+        by_role.setdefault(role, []).append(piece)
+    return {role: combine(pieces) for role, pieces in by_role.items()}

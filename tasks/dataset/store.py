@@ -21,6 +21,7 @@ from storage.db import transaction, utcnow
 from storage.keys import digest, stable_json
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.stage import AGENTS, STAGE, FighterMotion
+from tasks.dataset.statistics import FighterStatistics, combine_videos
 from tasks.errors import BadInput
 
 
@@ -147,6 +148,31 @@ def dataset_info(con: duckdb.DuckDBPyConnection, dataset_key: str) -> DatasetInf
         [dataset_key],
     ).fetchall()
     return DatasetInfo(dataset_key, row[0], json.loads(row[1]), row[2], tuple(members))
+
+
+def member_statistics(
+    con: duckdb.DuckDBPyConnection, dataset_key: str
+) -> tuple[list[tuple[str, str, str, float]], dict[str, FighterStatistics]]:
+    """Dataset ``dataset_key``'s fighter statistics: every member video's scalar rows
+    (video_id, role, name, value), and per role its statistics over all of them combined
+    (`statistics.combine_videos`). Both empty for a dataset with no statistics."""
+    scalars = con.execute(
+        """
+        SELECT s.video_id, s.role, s.name, s.value FROM dataset_statistics s
+        JOIN dataset_members m ON m.key = s.key AND m.video_id = s.video_id
+        WHERE m.dataset_key = ? ORDER BY ALL
+        """,
+        [dataset_key],
+    ).fetchall()
+    samples = con.execute(
+        """
+        SELECT d.video_id, d.role, d.name, d.samples FROM dataset_distributions d
+        JOIN dataset_members m ON m.key = d.key AND m.video_id = d.video_id
+        WHERE m.dataset_key = ? ORDER BY ALL
+        """,
+        [dataset_key],
+    ).fetchall()
+    return scalars, combine_videos(scalars, samples)
 
 
 def list_datasets(con: duckdb.DuckDBPyConnection) -> list[dict]:

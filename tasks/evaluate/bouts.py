@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from models.humanoid.boxer import BoneLengths
-from models.humanoid.kinematics import NUM_ACTUATED, heading_yaw
+from models.humanoid.kinematics import NUM_ACTUATED
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, block_slices
 from tasks.train.env import ArenaEnv, EnvConfig, ReferenceMotions
 from tasks.train.losses import heading_reward
@@ -107,16 +107,6 @@ def torch_actor(policy: Policy, agent: int) -> Actor:
     return act
 
 
-def _heading_inputs(env: ArenaEnv, targets: np.ndarray) -> np.ndarray:
-    """(E, 2, 2) each agent's target direction in its own heading frame (as the trainer gives
-    it: cos and sin of the target yaw minus the agent's yaw)."""
-    quats = np.array(
-        [[data.qpos[agent.qpos][3:7] for agent in env.index.agents] for data in env.datas]
-    )
-    relative = targets - heading_yaw(quats)
-    return np.stack([np.cos(relative), np.sin(relative)], -1)
-
-
 def simulate(
     actors: tuple[Actor, Actor],
     *,
@@ -166,7 +156,7 @@ def simulate(
         alive = np.ones(episodes, dtype=bool)
         for t in range(frames):
             live = np.flatnonzero(alive)
-            task = None if targets is None else _heading_inputs(env, targets)
+            task = None if targets is None else env.heading_inputs(targets)
             actions = np.zeros((episodes, 2, NUM_ACTUATED))
             for agent, actor in enumerate(actors):
                 given = None if task is None else task[live, agent]
@@ -179,7 +169,7 @@ def simulate(
             damage[live] += result.damage[live]
             steps[live] += 1
             if heading is not None:
-                after = _heading_inputs(env, targets)[live].reshape(-1, 2)
+                after = env.heading_inputs(targets)[live].reshape(-1, 2)
                 velocity = result.observation[live][..., _ROOT_VELOCITY].reshape(-1, 2)
                 reward = heading_reward(
                     torch.from_numpy(after),

@@ -25,8 +25,10 @@ from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
 from storage.artifacts import read_bytes
 from storage.db import connect
+from storage.files import sha256_file
+from storage.records import output_metrics
 from tasks.config import build
-from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent, file_digest
+from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent
 from tasks.evaluate.store import RunInfo, resolve_run
 from tasks.train.config import TrainConfig
 from tasks.train.env import EnvConfig
@@ -71,12 +73,7 @@ def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
     prefix of the run key. BadInput if it matches no finished run or several."""
     with connect(db, read_only=True) as con:
         info = resolve_run(con, run)
-        metrics = dict(
-            con.execute(
-                "SELECT name, value FROM stage_metrics WHERE stage = 'train' AND key = ?",
-                [info.run_key],
-            ).fetchall()
-        )
+        metrics = output_metrics(con, "train", info.dataset_key, info.run_key)
     return load_trained(artifacts, info, metrics)
 
 
@@ -183,7 +180,7 @@ def export_opponent(
             "meaning": "PD targets: exponential maps for 3-DoF joints, angles for hinges",
             "actuators": list(HINGE_NAMES),
         },
-        "files": {name: file_digest(staging / name) for name in FILES},
+        "files": {name: sha256_file(staging / name) for name in FILES},
     }
     (staging / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
     if out.exists():

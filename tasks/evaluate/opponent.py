@@ -19,7 +19,6 @@ neither torch nor a GPU.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,15 +29,12 @@ import onnxruntime
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NUM_ACTUATED
 from models.humanoid.observations import OBSERVATION_DIM
+from storage.files import sha256_file
 from tasks.errors import BadInput
 
 FORMAT = 1
 FILES = ("policy.onnx", "humanoid.xml", "arena.xml")
 MANIFEST = "manifest.json"
-
-
-def file_digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,7 +95,7 @@ def load_opponent(folder: Path) -> Opponent:
             raise BadInput(str(path), "missing from the opponent folder")
         if name not in digests:
             raise BadInput(str(manifest_path), f"lists no SHA-256 for {name}")
-        if file_digest(path) != digests[name]:
+        if sha256_file(path) != digests[name]:
             raise BadInput(
                 str(path), "does not match the manifest's SHA-256 (changed or from another export)"
             )

@@ -37,6 +37,7 @@ import torch
 from models.humanoid.arena import arena_mjcf
 from storage.artifacts import put_bytes
 from storage.db import connect
+from storage.records import output_metrics
 from tasks.config import build
 from tasks.dataset.config import DatasetConfig, PunchConfig
 from tasks.dataset.statistics import FighterStatistics
@@ -83,14 +84,6 @@ class EvaluateInputs:
     compared: tuple[TrainedPolicy, ...] = ()
 
 
-def _metrics_of(con, run_key: str) -> dict[str, float]:
-    return dict(
-        con.execute(
-            "SELECT name, value FROM stage_metrics WHERE stage = 'train' AND key = ?", [run_key]
-        ).fetchall()
-    )
-
-
 def load_inputs(
     db: Path, artifacts: Path, run_key: str, compared: tuple[str, ...] = ()
 ) -> EvaluateInputs:
@@ -98,7 +91,10 @@ def load_inputs(
     with connect(db, read_only=True) as con:
         info = resolve_run(con, run_key)
         others = [resolve_run(con, key) for key in compared]
-        metrics = {i.run_key: _metrics_of(con, i.run_key) for i in (info, *others)}
+        metrics = {
+            i.run_key: output_metrics(con, "train", i.dataset_key, i.run_key)
+            for i in (info, *others)
+        }
         demos = load_demonstrations(con, info.dataset_key)
         real = real_statistics(con, info.dataset_key)
         dataset = build(
@@ -181,14 +177,14 @@ def _export(
 
 
 def _video(
-    run: TrainedPolicy, bouts: Bouts, seconds: float, artifacts: Path, folder: Path
+    model: mujoco.MjModel, bouts: Bouts, seconds: float, artifacts: Path, folder: Path
 ) -> tuple[str, str, int] | None:
-    """The trained bouts' episodes one after another, their first ``seconds``, as an MP4."""
+    """The bouts' episodes in arena ``model`` one after another, their first ``seconds``, as
+    an MP4."""
     count = round(seconds * bouts.policy_hz)
     if count < 1:
         return None
     played = np.concatenate([bouts.episode_qpos(e) for e in range(bouts.episodes)])[:count]
-    model = mujoco.MjModel.from_xml_string(arena_mjcf(run.bones, timestep=run.config.env.timestep))
     path = folder / "bout.mp4"
     written = render_bout(model, played, path, fps=bouts.policy_hz)
     return "bout.mp4", put_bytes(artifacts, path.read_bytes(), ".mp4"), written
@@ -278,7 +274,7 @@ def evaluate(
     trained = bouts["trained"]
     with tempfile.TemporaryDirectory(prefix="ringside-evaluate-") as tmp:
         diff, stored = _export(run, trained, artifacts, Path(tmp) / "opponent")
-        video = _video(run, trained, config.video_seconds, artifacts, Path(tmp))
+        video = _video(model, trained, config.video_seconds, artifacts, Path(tmp))
     media = [(*head, name, artifact) for name, artifact in stored]
     if video is not None:
         media.append((*head, video[0], video[1]))

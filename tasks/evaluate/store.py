@@ -8,10 +8,9 @@ import json
 from dataclasses import dataclass
 
 import duckdb
-import numpy as np
 
-from tasks.dataset.statistics import DISTRIBUTIONS, FighterStatistics, combine
-from tasks.dataset.store import dataset_info
+from tasks.dataset.statistics import FighterStatistics
+from tasks.dataset.store import member_statistics
 from tasks.errors import BadInput
 
 STAGE = "evaluate"
@@ -75,37 +74,14 @@ def compared_runs(con: duckdb.DuckDBPyConnection, run: RunInfo) -> list[RunInfo]
 def real_statistics(
     con: duckdb.DuckDBPyConnection, dataset_key: str, role: str = "adversary"
 ) -> FighterStatistics:
-    """The ``role``'s statistics over dataset ``dataset_key``'s footage: each member video's
-    `dataset_statistics` and `dataset_distributions`, combined (`statistics.combine`)."""
-    info = dataset_info(con, dataset_key)
-    parts = []
-    for video_id, key in info.members:
-        scalars = dict(
-            con.execute(
-                "SELECT name, value FROM dataset_statistics WHERE key = ? AND video_id = ? "
-                "AND role = ?",
-                [key, video_id, role],
-            ).fetchall()
-        )
-        if not scalars:
-            continue
-        samples = dict(
-            con.execute(
-                "SELECT name, samples FROM dataset_distributions WHERE key = ? AND video_id = ? "
-                "AND role = ?",
-                [key, video_id, role],
-            ).fetchall()
-        )
-        distributions = {
-            name: np.asarray(samples.get(name, []), dtype=np.float64) for name in DISTRIBUTIONS
-        }
-        parts.append(FighterStatistics(scalars=scalars, distributions=distributions))
-    if not parts:
+    """The ``role``'s statistics over dataset ``dataset_key``'s footage (`member_statistics`)."""
+    _, combined = member_statistics(con, dataset_key)
+    if role not in combined:
         raise BadInput(
             f"dataset {dataset_key}",
             f"holds no statistics of the {role}: nothing to compare the simulated style with",
         )
-    return combine(parts)
+    return combined[role]
 
 
 def evaluation_tables(

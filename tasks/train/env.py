@@ -88,6 +88,7 @@ from models.humanoid.kinematics import (
     action_to_joint_targets,
     axis_angle_matrix,
     heading_frame,
+    heading_yaw,
     matrix_to_quat,
     quat_to_matrix,
 )
@@ -612,6 +613,19 @@ class ArenaEnv:
         """(n, 2, 274) observations of the given environments (all by default): agent k sees
         itself and agent 1 - k (`models.humanoid.observations.observation`)."""
         return _observations(self.body_states(env_ids))
+
+    def heading_inputs(self, targets: np.ndarray) -> np.ndarray:
+        """(N, 2, 2) the task input of MAAIP §5.4's heading task: each agent's target direction
+        on the floor, ``targets`` (N, 2) world yaws, in its own heading frame (the cosine and
+        sine of the target yaw minus the agent's)."""
+        quats = np.array(
+            [
+                [data.qpos[agent.qpos][ROOT_QUAT] for agent in self.index.agents]
+                for data in self.datas
+            ]
+        )
+        relative = np.asarray(targets) - heading_yaw(quats)
+        return np.stack([np.cos(relative), np.sin(relative)], -1)
 
     # ---------------------------------------------------------------- step
 

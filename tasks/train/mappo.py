@@ -29,7 +29,6 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from models.humanoid.kinematics import heading_yaw
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, SELF_DIM, block_slices
 from tasks.train.config import TrainConfig
 from tasks.train.data import Demonstrations
@@ -148,15 +147,7 @@ class Trainer:
         """(N, 2, 2) each agent's target direction in its own heading frame, or None."""
         if not self.heading:
             return None
-        quats = np.array(
-            [
-                [data.qpos[agent.qpos][3:7] for agent in self.env.index.agents]
-                for data in self.env.datas
-            ]
-        )
-        yaw = heading_yaw(quats)
-        relative = self.targets - yaw
-        return self._tensor(np.stack([np.cos(relative), np.sin(relative)], -1))
+        return self._tensor(self.env.heading_inputs(self.targets))
 
     def _tensor(self, array: np.ndarray) -> Tensor:
         """A float32 (or bool) tensor of an environment array, on the training device."""
