@@ -2,7 +2,8 @@
 
 The pose stage's own functions first make its 2D keypoints and world landmarks (not timed);
 then the whole lift of the video (camera and floor from the fighters, lift to 3D, humanoid fit,
-MuJoCo cleanup against the floor and the other fighter, playback page) is timed, best of 3.
+MuJoCo cleanup against the floor and the other fighter, review video of both humanoids) is
+timed, best of 3.
 Prints the split of the first run and, last, ``lift_fps: N fps``: frames per second per
 fighter (frames lifted, summed over the fighters, over the seconds).
 """

@@ -26,13 +26,13 @@ from tasks.dataset.store import (
     UnknownDataset,
     count_transitions,
     dataset_info,
-    load_motion,
     load_transitions,
     record_dataset,
 )
 from tasks.errors import BadInput
+from tasks.lift.motion import RATE
 from tasks.lift.solve import detect_contacts, velocities
-from tasks.lift.stage import RATE
+from tasks.lift.store import load_motion
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 
 BONES = BoneLengths()

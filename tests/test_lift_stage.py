@@ -3,19 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
-import json
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import query, run_cli
+from test_lift_series import colour_pixels, read_video
 
 from storage.artifacts import artifact_path
+from storage.db import connect
 from tasks.errors import BadInput
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.stage import FighterTrack, lift_video
+from tasks.lift.store import lift_series
 from tasks.lift.synthetic import evaluate_lift, make_case
 
 
@@ -84,22 +84,48 @@ def test_sample_after_cleanup(sample_run: Path):
     assert 1.0 < height < 3.5 and 0 < pitch < 80
 
 
-def test_playback_page(sample_run: Path, tmp_path: Path):
-    name = query(
-        sample_run,
-        "SELECT artifact FROM lift_media WHERE kind = 'playback' AND key = ?",
-        [latest_key(sample_run)],
-    )[0][0]
-    page = artifact_path(sample_run / "artifacts", name).read_text()
-    data = json.loads(page.split("const D = ", 1)[1].split(";\n", 1)[0])
-    assert data["frames"] == 50 and data["fps"] == 30 and len(data["fighters"]) == 2
-    assert len(data["fighters"][0]["joints"][0]) == 33
-    node = shutil.which("node")
-    if node is None:
-        pytest.skip("node is not installed: the page's script is not syntax-checked")
-    script = tmp_path / "page.js"
-    script.write_text(page.split("<script>", 1)[1].split("</script>", 1)[0])
-    subprocess.run([node, "--check", str(script)], check=True)
+def test_review_video(sample_run: Path):
+    """Both humanoids, one frame per 30 Hz step, as H.264 that browsers play."""
+    key = latest_key(sample_run)
+    (name,) = query(
+        sample_run, "SELECT artifact FROM lift_media WHERE kind = 'video' AND key = ?", [key]
+    )[0]
+    assert name.endswith(".mp4")
+    fourcc, frames = read_video(artifact_path(sample_run / "artifacts", name))
+    steps = query(sample_run, "SELECT max(step) + 1 FROM lift_motion WHERE key = ?", [key])[0][0]
+    assert fourcc in ("avc1", "h264") and len(frames) == steps == 50
+    for frame in frames[::10]:
+        red, blue = colour_pixels(frame)
+        assert red > 100 and blue > 100  # the adversary's and the opponent's trunk and gloves
+    assert query(sample_run, "SELECT DISTINCT kind FROM lift_media WHERE key = ?", [key]) == [
+        ("video",)
+    ]
+
+
+def test_series_agree_with_the_summary(sample_run: Path):
+    """The dashboard's per-step series aggregate to the stage's metrics, up to the resampling
+    from the video's 60 fps to the 30 Hz grid."""
+    key = latest_key(sample_run)
+    m = lift_metrics(sample_run)
+    with connect(sample_run / "ringside.duckdb", read_only=True) as con:
+        (video_id,) = con.execute(
+            "SELECT video_id FROM stage_outputs WHERE stage = 'lift' AND key = ?", [key]
+        ).fetchone()
+        series = lift_series(con, key, video_id)
+    assert series.time_s.shape == (50,) and set(series.fighters) == {"adversary", "opponent"}
+    assert np.nanmean(series.fighter_distance_m) == pytest.approx(
+        m["fighter_distance_mean_m"], abs=0.02
+    )
+    for role, mine in series.fighters.items():
+        sunk_mm = mine.floor_penetration_m * 1000
+        assert sunk_mm.max() <= m[f"{role}_floor_penetration_max_mm"] + 1.0
+        assert sunk_mm.mean() == pytest.approx(m[f"{role}_floor_penetration_mean_mm"], abs=1.0)
+        slide = mine.contact_slide_m_s
+        summary_m_s = m[f"{role}_contact_slide_cm_per_frame"] / 100 * 60  # the sample's 60 fps
+        if np.isfinite(slide).any():
+            assert np.nanmean(slide) == pytest.approx(summary_m_s, abs=0.01)
+        else:  # no foot in contact: nothing skates
+            assert summary_m_s == 0
 
 
 def test_bad_calibration_is_one_line_and_writes_nothing(sample_run, sample_video, tmp_path, capsys):

@@ -40,7 +40,8 @@ CREATE TABLE lift_bones (
     PRIMARY KEY (key, video_id, role, bone)
 );
 
--- lift: the 3D playback page of both humanoids, as an artifact.
+-- lift: review media of both humanoids, as artifacts: kind 'video' is an H.264 MP4 of their
+-- cleaned motion, one frame per 30 Hz step.
 CREATE TABLE lift_media (
     key       VARCHAR NOT NULL,
     video_id  VARCHAR NOT NULL,

@@ -37,8 +37,9 @@ from tasks.dataset.config import DatasetConfig
 from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
 from tasks.errors import BadInput
+from tasks.lift.motion import RATE, FighterMotion
 from tasks.lift.solve import velocities
-from tasks.lift.stage import RATE, ROLES
+from tasks.lift.stage import ROLES
 from tasks.lift.synthetic import load_deepmimic, retarget
 from tasks.runner import StageOutput
 
@@ -59,22 +60,6 @@ def dataset_upstream(lift_key: str) -> dict:
 
 def dataset_key(config: DatasetConfig, lift_key: str) -> str:
     return stage_key(STAGE, config, dataset_code(), dataset_upstream(lift_key))
-
-
-@dataclass(frozen=True, eq=False)
-class FighterMotion:
-    """One fighter's lifted motion: N steps of the 30 Hz grid (step k at k / 30 s)."""
-
-    step: np.ndarray  # (N,) int, increasing
-    qpos: np.ndarray  # (N, 35)
-    qvel: np.ndarray  # (N, 34)
-    joints: np.ndarray  # (N, 33, 3) BlazePose-order keypoints, world metres
-    contacts: np.ndarray  # (N, 2) bool, left and right foot
-    bones: BoneLengths
-
-    def rows(self, steps: np.ndarray) -> np.ndarray:
-        """Row indices of ``steps`` (which must all be present)."""
-        return np.searchsorted(self.step, steps)
 
 
 @dataclass(frozen=True)

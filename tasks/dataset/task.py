@@ -18,9 +18,10 @@ from tasks.dataset.stage import (
     dataset_upstream,
     extra_clip_output,
 )
-from tasks.dataset.store import candidate_members, load_motion, record_dataset
+from tasks.dataset.store import candidate_members, record_dataset
 from tasks.errors import BadInput
 from tasks.ingest.outputs import IngestOutput
+from tasks.lift.store import load_motion
 from tasks.runner import StageResult, run_stage
 from tasks.stage_task import stage_task
 

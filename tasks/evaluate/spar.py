@@ -11,16 +11,12 @@ Partners (`Partner`): another opponent folder (e.g. the opponent's trained partn
 `ringside export --agent opponent`), or "still", a boxer that holds its rest pose (zero
 actions: every PD target at the standing pose), the simplest scripted boxer.
 
-Offscreen rendering uses MuJoCo's renderer through EGL (`MUJOCO_GL=egl`, which `ringside` sets
-before MuJoCo is imported; Mesa's software EGL on a machine without a GPU), from the arena's
-"side" camera, into an H.264 MP4 (`tasks.pose.overlay.H264Writer`) that browsers play.
-`render_bout` renders a recorded bout (the arena's qpos per frame) the same way; the evaluate
-stage uses it for its bout video.
+Offscreen rendering (`tasks.lift.video`: MuJoCo's renderer through EGL, into an H.264 MP4 that
+browsers play) shows the bout from the arena's "side" camera.
 """
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
@@ -30,6 +26,7 @@ import numpy as np
 
 from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV
 from tasks.evaluate.opponent import Opponent
+from tasks.lift.video import open_video, render_frame
 from tasks.train.env import ArenaEnv, EnvConfig, ReferenceMotions
 
 STILL = "still"
@@ -178,64 +175,3 @@ def spar(
         video=None if video is None else str(video),
         timings_s=spent,
     )
-
-
-def open_video(model, path: Path, size: tuple[int, int], fps: float):
-    """An offscreen renderer of arena ``model`` and an H.264 writer for ``path`` (close both).
-
-    Turns the model's shadows off and widens its offscreen framebuffer to ``size`` (w, h).
-    """
-    import mujoco
-
-    from tasks.pose.overlay import H264Writer
-
-    if os.environ.get("MUJOCO_GL", "").lower() not in ("egl", "osmesa"):
-        raise RuntimeError(
-            "rendering without a screen needs MUJOCO_GL=egl (or osmesa) set before MuJoCo is "
-            f"imported; it is {os.environ.get('MUJOCO_GL')!r}"
-        )
-
-    width, height = size
-    # Shadows cost 90 % of a frame in Mesa's software EGL (measured at 640 x 360: 584 ms with,
-    # 58 ms without); the video is for reviewing moves, not lighting.
-    model.vis.quality.shadowsize = 0
-    # The offscreen framebuffer must hold the frame (MuJoCo's default is 640 x 480).
-    model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
-    model.vis.global_.offheight = max(model.vis.global_.offheight, height)
-    renderer = mujoco.Renderer(model, height, width)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return renderer, H264Writer(path, (width, height), fps)
-
-
-def render_frame(renderer, writer, data) -> None:
-    """One frame of the arena in ``data`` from its "side" camera, appended to the video."""
-    renderer.update_scene(data, camera="side")
-    writer.write(renderer.render()[:, :, ::-1])
-
-
-def render_bout(
-    model,
-    qpos: np.ndarray,
-    path: Path,
-    *,
-    size: tuple[int, int] = (640, 360),
-    fps: float = 30.0,
-) -> int:
-    """Render a recorded bout, the arena's qpos (T, nq) frame by frame, to an H.264 MP4 at
-    ``path``, as `spar` renders a live one; returns the frames written."""
-    import mujoco
-
-    q = np.asarray(qpos, dtype=np.float64)
-    if q.ndim != 2 or q.shape[1] != model.nq or len(q) == 0 or not np.isfinite(q).all():
-        raise ValueError(f"qpos must be finite with shape (T >= 1, {model.nq}), got {q.shape}")
-    data = mujoco.MjData(model)
-    renderer, writer = open_video(model, Path(path), size, fps)
-    try:
-        for frame in q:
-            data.qpos[:] = frame
-            mujoco.mj_forward(model, data)
-            render_frame(renderer, writer, data)
-    finally:
-        writer.close()
-        renderer.close()
-    return len(q)

@@ -20,7 +20,7 @@ same tables:
 5. The adversary's opponent folder (`export_opponent`: ONNX policy, MJCF, manifest) with
    onnxruntime's parity against torch on observations recorded in the bouts, and the first
    `evaluate.video_seconds` of the trained episodes, played one after another, rendered to MP4
-   (`spar.render_bout`); all files go to the artifact store.
+   (`tasks.lift.video.render_bout`); all files go to the artifact store.
 """
 
 from __future__ import annotations
@@ -51,8 +51,8 @@ from tasks.evaluate.export import (
 )
 from tasks.evaluate.metrics import boxing_metrics, label_fighter, style_rows, style_score
 from tasks.evaluate.opponent import FILES, MANIFEST, load_opponent
-from tasks.evaluate.spar import render_bout
 from tasks.evaluate.store import DAMAGE_TASKS, STAGE, real_statistics, resolve_run
+from tasks.lift.video import render_bout
 from tasks.runner import StageOutput
 from tasks.train.config import TrainConfig
 from tasks.train.data import load_demonstrations

@@ -1200,6 +1200,17 @@ def lowest_points(poses: GeomPoses) -> np.ndarray:
     return np.where(box, z + corner_z.min(-1), low)
 
 
+def floor_depth(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
+    """How deep the boxer sinks into the floor (z = 0) in each frame: (T,) metres, the deepest
+    geom's lowest point below the floor, 0 where every geom is at or above it.
+
+    Args:
+        model: a model holding one boxer (prefix "").
+        qpos: (T, 35).
+    """
+    return np.maximum(-lowest_points(geom_poses(model, qpos)).min(1), 0.0)
+
+
 def _foot_lowest(poses: GeomPoses) -> np.ndarray:
     """(T, 2) lowest point of the left and right foot boxes."""
     return lowest_points(poses)[:, list(poses.foot)]
@@ -1553,7 +1564,7 @@ def lift_above_floor(model: mujoco.MjModel, qpos: np.ndarray, half: int) -> np.n
     """Raise the root by the least smooth amount (`_max_then_mean`) that puts every geom's
     lowest point at or above the floor in every frame."""
     out = qpos.copy()
-    depth = np.maximum(-lowest_points(geom_poses(model, out)).min(1), 0.0)
+    depth = floor_depth(model, out)
     if depth.max() > 0:
         out[:, 2] += _max_then_mean(depth, half)
     return out
@@ -1573,7 +1584,7 @@ def velocities(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarra
     return qvel
 
 
-def _sole_points(skeleton: Skeleton, qpos: np.ndarray) -> np.ndarray:
+def sole_positions(skeleton: Skeleton, qpos: np.ndarray) -> np.ndarray:
     """(T, 2, 3) midpoint of each foot's heel and toe sites (left, right)."""
     _, _, _, sites = skeleton.forward(*qpos_to_pose(qpos))
     return np.stack(
@@ -1585,13 +1596,20 @@ def _sole_points(skeleton: Skeleton, qpos: np.ndarray) -> np.ndarray:
     )
 
 
-def _skating_cm_per_frame(soles: np.ndarray, contacts: np.ndarray) -> float:
-    """Mean horizontal slide (cm per frame) of feet in contact in two consecutive frames."""
+def contact_slide(soles: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """How far each foot slides along the floor while in contact, frame to frame.
+
+    Args:
+        soles: (T, 2, 3) sole points of the left and right foot (`sole_positions`), metres.
+        contacts: (T, 2) bool, each foot in contact.
+
+    Returns:
+        (T - 1, 2) horizontal distance in metres from frame t to t + 1 of each foot in
+        contact in both frames; NaN for the others (a foot in the air does not skate).
+    """
     both = contacts[1:] & contacts[:-1]
-    if not both.any():
-        return 0.0
     slide = np.linalg.norm(soles[1:, :, :2] - soles[:-1, :, :2], axis=-1)
-    return float(slide[both].mean() * 100)
+    return np.where(both, slide, np.nan)
 
 
 def _motion_metrics(
@@ -1602,13 +1620,15 @@ def _motion_metrics(
     fps: float,
 ) -> dict[str, float]:
     """The plausibility numbers `Cleaned.metrics` reports for one motion."""
-    floor = np.maximum(-lowest_points(geom_poses(model, qpos)).min(1), 0.0)
     points = keypoint_positions(model, qpos)
-    soles = _sole_points(skeleton, qpos)
+    soles = sole_positions(skeleton, qpos)
+    slide = contact_slide(soles, contacts)
     return {
-        "floor_penetration_mm": float(floor.max() * 1000),
+        "floor_penetration_mm": float(floor_depth(model, qpos).max() * 1000),
         "foot_skating_cm_per_frame": (foot_skating_cm_per_frame(soles) if len(qpos) >= 2 else 0.0),
-        "contact_slide_cm_per_frame": _skating_cm_per_frame(soles, contacts),
+        "contact_slide_cm_per_frame": (
+            float(np.nanmean(slide) * 100) if np.isfinite(slide).any() else 0.0
+        ),
         "jitter_m_s2": jitter_m_s2(points, fps) if len(qpos) >= 3 else 0.0,
     }
 
@@ -1678,7 +1698,7 @@ def cleanup(
     out = smooth_qpos(q, config.smooth_sigma_frames, skeleton.ranges)
     out[:, 7:] = np.clip(out[:, 7:], skeleton.ranges[:, 0], skeleton.ranges[:, 1])
     poses = geom_poses(model, out)
-    soles = _sole_points(skeleton, out)
+    soles = sole_positions(skeleton, out)
     speed = horizontal_speed(soles, fps)
     seen = (_foot_lowest(poses) < config.contact_height_m) & (speed < config.contact_speed_m_s)
     used = clean_runs(c | seen, config.contact_min_frames)

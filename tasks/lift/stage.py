@@ -3,13 +3,15 @@
 Per shot: the camera and floor come from the fighters' own bodies (:func:`ground_fighters`),
 each fighter is lifted to 3D joints (:func:`lift_fighter`), fitted with a humanoid scaled to
 its measured bones (:func:`fit_humanoid`) and cleaned up in MuJoCo against the floor and the
-other fighter (:func:`cleanup`).
+other fighter (:func:`cleanup`). The cleaned motion is stored on the 30 Hz grid
+(:func:`resample`) and rendered, both humanoids together, to the review video (:func:`render_lift`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,30 +20,28 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, single_scene_mjcf
+from models.humanoid.kinematics import NQ, NV
 from storage.artifacts import put_bytes
 from storage.keys import code_version, stage_key
 from tasks.errors import BadInput
 from tasks.lift.camera import Camera, fov_intrinsics, ground_fighters, read_calibration
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.metrics import bone_length_std_mm
-from tasks.lift.playback import playback_html
+from tasks.lift.motion import RATE, FighterMotion, resample
+from tasks.lift.series import fighter_distance
 from tasks.lift.solve import (
     Cleaned,
     cleanup,
     cleanup_pair,
     fit_humanoid,
-    geom_poses,
+    floor_depth,
     lift_fighter,
-    lowest_points,
-    velocities,
 )
+from tasks.lift.video import render_lift
 from tasks.runner import StageOutput
 
 STAGE = "lift"
 ROLES = ("adversary", "opponent")
-NQ, NV = 35, 34
-# The rate every motion is stored at, whatever the video's: the simulation's policy rate.
-RATE = 30.0
 
 
 def lift_code() -> str:
@@ -236,7 +236,7 @@ def lift_video(
                 float(np.nanmean(np.linalg.norm(cleaned.points - lifted.points, axis=-1)) * 1000)
             )
             model = mujoco.MjModel.from_xml_string(single_scene_mjcf(lifted.bones))
-            sunk = np.maximum(-lowest_points(geom_poses(model, cleaned.qpos)).min(1), 0.0)
+            sunk = floor_depth(model, cleaned.qpos)
             cleanup_metrics[role].append(
                 {**cleaned.metrics, "floor_penetration_mean_mm": float(sunk.mean() * 1000)}
             )
@@ -250,22 +250,14 @@ def lift_video(
     metrics = _metrics(qpos, cleanup_metrics, lifted_std, change_mm)
     motion = {
         role: resample(
-            qpos[role],
-            joints[role],
-            contacts[role],
-            fps=fps,
-            rate=RATE,
-            model=mujoco.MjModel.from_xml_string(single_scene_mjcf(bones[role][1])),
+            qpos[role], joints[role], contacts[role], fps=fps, rate=RATE, bones=bones[role][1]
         )
         for role in bones
     }
-    steps = 1 + max(int(m.step.max()) for m in motion.values() if len(m.step))
-    page_joints = {}
-    for role, m in motion.items():
-        dense = np.full((steps, 33, 3), np.nan)
-        dense[m.step] = m.joints
-        page_joints[role] = dense
-    page = playback_html(page_joints, fps=RATE, title=f"Ringside lift {video_id[:12]}")
+    with tempfile.TemporaryDirectory(prefix="ringside-lift-") as tmp:
+        video = Path(tmp) / "lift.mp4"
+        render_lift(motion, video)
+        video_artifact = put_bytes(artifacts, video.read_bytes(), ".mp4")
     rows = {
         "lift_cameras": [
             (
@@ -287,7 +279,7 @@ def lift_video(
             for role, (_, lengths) in bones.items()
             for name, value in dataclasses.asdict(lengths).items()
         ],
-        "lift_media": [(key, video_id, "playback", put_bytes(artifacts, page.encode(), ".html"))],
+        "lift_media": [(key, video_id, "video", video_artifact)],
     }
     return StageOutput(rows, metrics)
 
@@ -298,58 +290,7 @@ def _pitch_deg(camera: Camera) -> float:
     return float(math.degrees(math.asin(-np.clip(forward_world[2], -1, 1))))
 
 
-@dataclass(frozen=True, eq=False)
-class Motion:
-    """One fighter's motion on the 30 Hz grid: N steps, step k at k / 30 s into the video."""
-
-    step: np.ndarray  # (N,) int
-    qpos: np.ndarray  # (N, 35)
-    qvel: np.ndarray  # (N, 34)
-    joints: np.ndarray  # (N, 33, 3)
-    contacts: np.ndarray  # (N, 2) bool
-
-
-def resample(
-    qpos: np.ndarray,
-    joints: np.ndarray,
-    contacts: np.ndarray,
-    *,
-    fps: float,
-    rate: float,
-    model: mujoco.MjModel,
-) -> Motion:
-    """A motion at the video's ``fps`` (F frames, NaN rows where not lifted) on the ``rate`` grid.
-
-    Positions, hinge angles and joints are interpolated linearly and the root quaternion by
-    normalised interpolation, between the two frames around each step; steps without a lifted
-    frame on both sides are left out. Contacts come from the nearer frame; qvel is recomputed
-    on the grid, by central differences within each unbroken run of steps.
-    """
-    frames = len(qpos)
-    last = (frames - 1) / fps
-    step = np.arange(int(math.floor(last * rate + 1e-9)) + 1)
-    at = step / rate * fps
-    lo = np.minimum(np.floor(at).astype(int), frames - 1)
-    hi = np.minimum(lo + 1, frames - 1)
-    w = (at - lo)[:, None]
-    ok = np.isfinite(qpos[lo]).all(1) & np.isfinite(qpos[hi]).all(1)
-    step, lo, hi, w = step[ok], lo[ok], hi[ok], w[ok]
-    q = (1 - w) * qpos[lo] + w * qpos[hi]
-    quat_lo, quat_hi = qpos[lo, 3:7], qpos[hi, 3:7]
-    quat_hi = np.where((np.sum(quat_lo * quat_hi, axis=1) < 0)[:, None], -quat_hi, quat_hi)
-    quat = (1 - w) * quat_lo + w * quat_hi
-    q[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-    j = (1 - w[:, :, None]) * joints[lo] + w[:, :, None] * joints[hi]
-    c = contacts[np.where(w[:, 0] < 0.5, lo, hi)]
-    v = np.zeros((len(step), NV))
-    breaks = np.flatnonzero(np.diff(step) > 1) + 1
-    for run in np.split(np.arange(len(step)), breaks):
-        if len(run):
-            v[run] = velocities(model, q[run], rate)
-    return Motion(step, q, v, j, c)
-
-
-def _motion_columns(motion: Mapping[str, Motion]) -> dict[str, np.ndarray]:
+def _motion_columns(motion: Mapping[str, FighterMotion]) -> dict[str, np.ndarray]:
     parts: dict[str, list[np.ndarray]] = {}
     for role, m in motion.items():
         values = {
@@ -407,6 +348,6 @@ def _metrics(qpos, cleanup_metrics, lifted_std, change_mm) -> dict[str, float]:
     if all(r in qpos for r in ROLES):
         both = np.isfinite(qpos["adversary"]).all(1) & np.isfinite(qpos["opponent"]).all(1)
         if both.any():
-            gap = qpos["adversary"][both, :2] - qpos["opponent"][both, :2]
-            metrics["fighter_distance_mean_m"] = float(np.linalg.norm(gap, axis=1).mean())
+            gap = fighter_distance(qpos["adversary"][both], qpos["opponent"][both])
+            metrics["fighter_distance_mean_m"] = float(gap.mean())
     return {k: float(v) for k, v in metrics.items() if np.isfinite(v)}

@@ -21,10 +21,11 @@ from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import humanoid_index
 from models.humanoid.observations import SELF_DIM, body_states, observation
 from tasks.dataset.stage import ROLES
-from tasks.dataset.store import dataset_info, load_motion, load_transitions
+from tasks.dataset.store import dataset_info, load_transitions
 from tasks.errors import BadInput
+from tasks.lift.motion import RATE
 from tasks.lift.solve import velocities
-from tasks.lift.stage import RATE
+from tasks.lift.store import load_motion
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 from tasks.train.env import ReferenceMotions, facing_reference
 

@@ -1,0 +1,95 @@
+"""Each fighter's lifted motion on the simulation's 30 Hz grid, as `lift_motion` stores it.
+
+Step k of the grid lies k / 30 s into the video, whatever the video's frame rate. A fighter that
+was not lifted at some steps has no rows there: `FighterMotion.step` has gaps, and
+`FighterMotion.on_grid` puts NaN (False for contacts) in them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from models.humanoid.boxer import BoneLengths, single_scene_mjcf
+from models.humanoid.kinematics import NV
+from tasks.lift.solve import velocities
+
+# The rate every motion is stored at, whatever the video's: the simulation's policy rate.
+RATE = 30.0
+
+
+@dataclass(frozen=True, eq=False)
+class FighterMotion:
+    """One fighter's lifted motion: N steps of the 30 Hz grid (step k at k / 30 s)."""
+
+    step: np.ndarray  # (N,) int, increasing
+    qpos: np.ndarray  # (N, 35)
+    qvel: np.ndarray  # (N, 34)
+    joints: np.ndarray  # (N, 33, 3) BlazePose-order keypoints, world metres
+    contacts: np.ndarray  # (N, 2) bool, left and right foot
+    bones: BoneLengths
+
+    def rows(self, steps: np.ndarray) -> np.ndarray:
+        """Row indices of ``steps`` (which must all be present)."""
+        return np.searchsorted(self.step, steps)
+
+    def on_grid(self, values: np.ndarray, steps: int) -> np.ndarray:
+        """``values`` (N, ...), one row per lifted step, spread over steps 0..steps-1: NaN
+        (False for a bool array) at the steps where the fighter was not lifted."""
+        values = np.asarray(values)
+        fill = False if values.dtype == bool else np.nan
+        dtype = bool if values.dtype == bool else np.float64
+        out = np.full((steps, *values.shape[1:]), fill, dtype=dtype)
+        out[self.step] = values
+        return out
+
+
+def grid_steps(fighters: Mapping[str, FighterMotion]) -> int:
+    """How many 30 Hz steps the fighters span together: one past the last lifted step."""
+    return max((int(m.step[-1]) + 1 for m in fighters.values() if len(m.step)), default=0)
+
+
+def resample(
+    qpos: np.ndarray,
+    joints: np.ndarray,
+    contacts: np.ndarray,
+    *,
+    fps: float,
+    rate: float,
+    bones: BoneLengths,
+) -> FighterMotion:
+    """A motion at the video's ``fps`` (F frames, NaN rows where not lifted) on the ``rate`` grid.
+
+    Positions, hinge angles and joints are interpolated linearly and the root quaternion by
+    normalised interpolation, between the two frames around each step; steps without a lifted
+    frame on both sides are left out. Contacts come from the nearer frame; qvel is recomputed
+    on the grid, by central differences within each unbroken run of steps, on a humanoid of
+    ``bones``.
+    """
+    model = mujoco.MjModel.from_xml_string(single_scene_mjcf(bones))
+    frames = len(qpos)
+    last = (frames - 1) / fps
+    step = np.arange(int(math.floor(last * rate + 1e-9)) + 1)
+    at = step / rate * fps
+    lo = np.minimum(np.floor(at).astype(int), frames - 1)
+    hi = np.minimum(lo + 1, frames - 1)
+    w = (at - lo)[:, None]
+    ok = np.isfinite(qpos[lo]).all(1) & np.isfinite(qpos[hi]).all(1)
+    step, lo, hi, w = step[ok], lo[ok], hi[ok], w[ok]
+    q = (1 - w) * qpos[lo] + w * qpos[hi]
+    quat_lo, quat_hi = qpos[lo, 3:7], qpos[hi, 3:7]
+    quat_hi = np.where((np.sum(quat_lo * quat_hi, axis=1) < 0)[:, None], -quat_hi, quat_hi)
+    quat = (1 - w) * quat_lo + w * quat_hi
+    q[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    j = (1 - w[:, :, None]) * joints[lo] + w[:, :, None] * joints[hi]
+    c = contacts[np.where(w[:, 0] < 0.5, lo, hi)]
+    v = np.zeros((len(step), NV))
+    breaks = np.flatnonzero(np.diff(step) > 1) + 1
+    for run in np.split(np.arange(len(step)), breaks):
+        if len(run):
+            v[run] = velocities(model, q[run], rate)
+    return FighterMotion(step, q, v, j, c, bones)

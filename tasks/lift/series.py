@@ -1,0 +1,92 @@
+"""The cleanup's measures step by step: what the dashboard plots over a lifted video.
+
+`cleanup_series` measures a lift output's stored motion (`lift_motion`, the 30 Hz grid) with the
+functions the cleanup's own summary metrics use (`tasks.lift.solve.floor_depth`,
+`tasks.lift.solve.contact_slide`, `fighter_distance`), so each summary metric is an aggregate of
+a series: ``floor_penetration_max_mm`` its maximum, ``floor_penetration_mean_mm`` its mean,
+``contact_slide_cm_per_frame`` the mean slide per frame of the feet in contact,
+``fighter_distance_mean_m`` the mean distance. The summaries are taken at the video's frame
+rate before resampling, so on a real video they agree with the series to within what the
+resampling changes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from models.humanoid.boxer import single_scene_mjcf
+from tasks.lift.motion import RATE, FighterMotion, grid_steps
+from tasks.lift.solve import Skeleton, contact_slide, floor_depth, sole_positions
+
+
+def fighter_distance(qpos_a: np.ndarray, qpos_b: np.ndarray) -> np.ndarray:
+    """Horizontal pelvis-to-pelvis distance of two fighters: (T,) metres from (T, 35) qpos each
+    (the root body is the pelvis; its x, y are qpos[:, :2])."""
+    return np.linalg.norm(np.asarray(qpos_a)[:, :2] - np.asarray(qpos_b)[:, :2], axis=-1)
+
+
+@dataclass(frozen=True, eq=False)
+class FighterSeries:
+    """One fighter's cleanup measures per step; NaN at the steps where it was not lifted.
+
+    Attributes:
+        contact_slide_m_s: (S, 2) foot skating: horizontal speed of the left and right sole
+            (heel-toe midpoint) from the step before, for a foot in contact at both steps;
+            NaN for a foot in the air (it cannot skate) and at step 0.
+        floor_penetration_m: (S,) how deep the deepest geom is below the floor, 0 if none.
+    """
+
+    contact_slide_m_s: np.ndarray
+    floor_penetration_m: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class LiftSeries:
+    """A lift output's cleanup measures over its S steps of the 30 Hz grid (step k at k / 30 s).
+
+    Attributes:
+        time_s: (S,) seconds into the video.
+        fighters: role ("adversary", "opponent") -> its series, for the roles lifted.
+        fighter_distance_m: (S,) horizontal pelvis-to-pelvis distance; NaN where either
+            fighter is missing (all NaN with fewer than two fighters).
+    """
+
+    time_s: np.ndarray
+    fighters: dict[str, FighterSeries]
+    fighter_distance_m: np.ndarray
+
+
+def _fighter_series(motion: FighterMotion, steps: int, rate: float) -> FighterSeries:
+    model = mujoco.MjModel.from_xml_string(single_scene_mjcf(motion.bones))
+    soles = motion.on_grid(sole_positions(Skeleton.from_model(model), motion.qpos), steps)
+    contacts = motion.on_grid(motion.contacts, steps)
+    speed = np.full((steps, 2), np.nan)
+    # A step the fighter is missing at has no contacts, so no slide is measured across it.
+    speed[1:] = contact_slide(soles, contacts) * rate
+    return FighterSeries(
+        contact_slide_m_s=speed,
+        floor_penetration_m=motion.on_grid(floor_depth(model, motion.qpos), steps),
+    )
+
+
+def cleanup_series(fighters: Mapping[str, FighterMotion], *, rate: float = RATE) -> LiftSeries:
+    """Per-step foot skating, floor penetration and distance between the fighters.
+
+    Args:
+        fighters: role -> its motion on the ``rate`` grid (`tasks.lift.store.load_motion`).
+        rate: steps per second of the grid.
+
+    Returns:
+        The series over steps 0 .. (last step of either fighter); see `LiftSeries`.
+    """
+    steps = grid_steps(fighters)
+    series = {role: _fighter_series(m, steps, rate) for role, m in fighters.items()}
+    distance = np.full(steps, np.nan)
+    if len(fighters) == 2:
+        a, b = (m.on_grid(m.qpos, steps) for m in fighters.values())
+        distance = fighter_distance(a, b)  # NaN where either is missing
+    return LiftSeries(time_s=np.arange(steps) / rate, fighters=series, fighter_distance_m=distance)
