@@ -77,6 +77,9 @@ def reuse_or_run(
     """
     result = None if force else committed(data_paths(data_root).db, stage, video_id, key)
     if result is None:
+        # Seen by `ringside status` and the dashboard while the stage computes.
+        with connect(data_paths(data_root).db) as con:
+            record_run(con, current_run_id(), video_id, stage, key, "running")
         try:
             result = run(force)
             if not still_committed(data_root, result):

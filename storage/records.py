@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import socket
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -14,7 +16,7 @@ import numpy as np
 from storage.db import transaction, utcnow
 from storage.keys import stable_json
 
-RUN_STATES = ("done", "cached", "failed")
+RUN_STATES = ("running", "done", "cached", "failed")
 
 
 @dataclass(frozen=True)
@@ -174,22 +176,49 @@ def record_run(
     state: str,
     error: str | None = None,
 ) -> None:
+    """Note what run ``run_id`` did with ``stage`` of ``video_id``; a ``running`` note also names
+    this process (`this_worker`), so a reader can tell whether the run is still alive."""
     if state not in RUN_STATES:
         raise ValueError(f"state must be one of {RUN_STATES}, got {state!r}")
+    worker = this_worker() if state == "running" else None
     con.execute(
-        "INSERT INTO stage_runs VALUES (?, ?, ?, ?, ?, ?, ?)",
-        [run_id, video_id, stage, key, state, error, utcnow()],
+        "INSERT INTO stage_runs VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+        [run_id, video_id, stage, key, state, error, utcnow(), worker],
     )
 
 
+def this_worker() -> str:
+    """This process as ``host:pid``."""
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def worker_alive(worker: str | None) -> bool:
+    """Whether the process ``host:pid`` still runs; True when it is on another host, which this
+    one cannot see."""
+    if not worker:
+        return False
+    host, _, pid = worker.rpartition(":")
+    if host != socket.gethostname():
+        return True
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
+
+
 def latest_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
-    """Per video and stage, the newest run event whose output still exists (or that failed)."""
+    """Per video and stage, the newest run event whose output still exists, or that failed or is
+    running. A ``running`` event whose process has gone (killed, or crashed on a bug) reads as
+    ``interrupted``."""
     rows = con.execute(
         """
-        SELECT r.video_id, r.stage, r.key, r.state, r.error, r.created_at
+        SELECT r.video_id, r.stage, r.key, r.state, r.error, r.created_at, r.worker
         FROM stage_runs r
         LEFT JOIN stage_outputs o USING (stage, video_id, key)
-        WHERE r.state = 'failed' OR o.key IS NOT NULL
+        WHERE r.state IN ('failed', 'running') OR o.key IS NOT NULL
         QUALIFY row_number() OVER (
             PARTITION BY r.video_id, r.stage ORDER BY r.created_at DESC, r.state = 'failed'
         ) = 1
@@ -197,7 +226,14 @@ def latest_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
         """
     ).fetchall()
     names = ("video_id", "stage", "key", "state", "error", "created_at")
-    return [dict(zip(names, row, strict=True)) for row in rows]
+    runs = []
+    for row in rows:
+        run = dict(zip(names, row[:-1], strict=True))
+        if run["state"] == "running" and not worker_alive(row[-1]):
+            run["state"] = "interrupted"
+            run["error"] = "its process stopped before the stage finished (killed or crashed)"
+        runs.append(run)
+    return runs
 
 
 STATE_FIELDS = ("video_id", "stage", "key", "state", "error", "ran_at", "seconds")
@@ -205,9 +241,10 @@ STATE_FIELDS = ("video_id", "stage", "key", "state", "error", "ran_at", "seconds
 
 def stage_states(con: duckdb.DuckDBPyConnection, stages: Sequence[str]) -> list[dict[str, Any]]:
     """One row per registered video (oldest first) and stage in ``stages``, in that order: the
-    newest run's key, state (done, cached, failed, or missing when no run left an output), error,
-    when it ran (``ran_at``) and the seconds its output took to compute (None when failed or
-    missing: a cached run took the seconds of the run that computed it)."""
+    newest run's key, state (done, cached, failed, running, interrupted, or missing when no run
+    left an output), error, when it ran or started (``ran_at``) and the seconds its output took to
+    compute (None unless done or cached: a cached run took the seconds of the run that computed
+    it)."""
     videos = [
         row[0]
         for row in con.execute("SELECT video_id FROM videos ORDER BY registered_at").fetchall()
@@ -227,7 +264,8 @@ def stage_states(con: duckdb.DuckDBPyConnection, stages: Sequence[str]) -> list[
                 missing = {"video_id": video_id, "stage": stage, "state": "missing"}
                 rows.append({**dict.fromkeys(STATE_FIELDS), **missing})
                 continue
-            took = None if run["state"] == "failed" else seconds.get((stage, video_id, run["key"]))
+            finished = run["state"] in ("done", "cached")
+            took = seconds.get((stage, video_id, run["key"])) if finished else None
             rows.append(
                 {
                     **{name: run[name] for name in ("video_id", "stage", "key", "state", "error")},

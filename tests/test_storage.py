@@ -18,6 +18,7 @@ from storage.records import (
     insert_columns,
     latest_metrics,
     latest_runs,
+    record_run,
     register_video,
     write_output,
 )
@@ -66,6 +67,27 @@ def test_failed_write_keeps_previous_output(tmp_path: Path):
         assert con.execute("SELECT count(*) FROM ingest_chunks").fetchone()[0] == 3
         run = con.execute("SELECT run_id FROM stage_outputs").fetchall()
         assert run == [("run-1",)]
+
+
+def test_a_running_stage_reads_as_interrupted_once_its_process_has_gone(tmp_path: Path):
+    with connect(tmp_path / "r.duckdb") as con:
+        register_video(con, "vid", 1, "/v.mp4")
+        record_run(con, "run-1", "vid", "pose", "k1", "running")
+        assert [(r["state"], r["key"]) for r in latest_runs(con)] == [("running", "k1")]
+        # The same note from a process that has exited since.
+        gone = subprocess.run(
+            [sys.executable, "-c", "import os; print(os.getpid())"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        con.execute("UPDATE stage_runs SET worker = split_part(worker, ':', 1) || ':' || ?", [gone])
+        (run,) = latest_runs(con)
+        assert run["state"] == "interrupted" and "killed or crashed" in run["error"]
+        write_output(con, record(), {}, {"chunks": 1.0})
+        con.execute("UPDATE stage_outputs SET stage = 'pose'")
+        con.execute("UPDATE stage_runs SET stage = 'pose' WHERE state = 'done'")
+        assert [r["state"] for r in latest_runs(con)] == ["done"]
 
 
 def test_non_finite_metric_is_refused(tmp_path: Path):
