@@ -1,4 +1,4 @@
-"""The ``ringside`` command: process, status, rerun, metrics, assets, dashboard, demo.
+"""The ``ringside`` command: process, status, rerun, metrics, assets, dashboard, serve, demo.
 
 Prefect reads its settings when it is first imported, so ``main`` points Prefect at the data
 directory before anything imports it.
@@ -41,6 +41,14 @@ def prepare_environment(data_root: Path, *, verbose: bool) -> None:
     if not verbose:
         # Flow and task logs still reach the Prefect API and UI; the terminal shows our summary.
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "CRITICAL")
+    if "PREFECT_API_URL" not in os.environ:
+        from flows.serve import served_api
+
+        # While `ringside serve` runs on this data directory, every run reports to its server
+        # and shows in its UI; otherwise Prefect starts an ephemeral server per command.
+        api = served_api(data_root)
+        if api is not None:
+            os.environ["PREFECT_API_URL"] = api
 
 
 def _config_flags(parser: argparse.ArgumentParser) -> None:
@@ -221,6 +229,45 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-browser", action="store_true", help="do not open the dashboard in a browser"
     )
 
+    serve = commands.add_parser(
+        "serve",
+        help="start Prefect's server and UI, serve the pipeline, optionally watch a folder",
+    )
+    serve.add_argument(
+        "--watch", type=Path, metavar="DIR", help="process new videos dropped into DIR"
+    )
+    serve.add_argument("--adversary", metavar="NAME", help="who the videos in DIR show")
+    serve.add_argument("--adversary-colour", metavar="COLOUR", help="trunk colour or #rrggbb")
+    when = serve.add_mutually_exclusive_group()
+    when.add_argument("--cron", metavar="EXPR", help="when to look in DIR (default '*/5 * * * *')")
+    when.add_argument(
+        "--every", type=float, metavar="SECONDS", help="look in DIR every SECONDS instead"
+    )
+    serve.add_argument(
+        "--until", choices=STAGES, help="stop after this stage for videos found in DIR"
+    )
+    serve.add_argument(
+        "--port", type=int, default=4200, metavar="N", help="the server's port (default 4200)"
+    )
+    _config_flags(serve)
+
+    schedule = commands.add_parser(
+        "schedule", help="run the pipeline on videos later, through `ringside serve`"
+    )
+    schedule.add_argument("videos", nargs="+", metavar="VIDEO")
+    schedule.add_argument("--adversary", required=True, metavar="NAME", help="who the adversary is")
+    schedule.add_argument("--adversary-colour", metavar="COLOUR", help="trunk colour or #rrggbb")
+    schedule.add_argument("--notes", help="free text kept with the video")
+    schedule.add_argument(
+        "--at",
+        default="now",
+        metavar="TIME",
+        help="'now' (default), HH:MM (the next one, local time) or ISO 8601 (2030-06-01T18:30)",
+    )
+    schedule.add_argument("--until", choices=STAGES, help="stop after this stage")
+    schedule.add_argument("--json", action="store_true")
+    _config_flags(schedule)
+
     demo = commands.add_parser("demo", help="pull the assets and process the bundled sample")
     demo.add_argument("--json", action="store_true")
     return parser
@@ -325,43 +372,29 @@ def _status(args, data_root: Path) -> int:
     return 0
 
 
-def _ingested(data_root: Path, video: str) -> tuple[str, str, str, str | None, str | None]:
-    """(video_id, path, adversary, colour, notes) of the one ingested video ``video`` starts."""
-    from storage.db import connect
-    from storage.paths import data_paths
-    from tasks.errors import BadInput
-
-    db = data_paths(data_root).db
-    if not db.exists():
-        raise BadInput(str(db), "no database yet: process a video first")
-    with connect(db, read_only=True) as con:
-        found = con.execute(
-            """
-            SELECT p.video_id, p.path, a.name, a.colour, a.notes
-            FROM ingest_probes p JOIN ingest_adversaries a USING (key, video_id)
-            JOIN stage_outputs o ON o.stage = 'ingest' AND o.key = p.key AND o.video_id = p.video_id
-            WHERE p.video_id LIKE ? || '%'
-            QUALIFY row_number() OVER (PARTITION BY p.video_id ORDER BY o.created_at DESC) = 1
-            """,
-            [video],
-        ).fetchall()
-    if len(found) != 1:
-        problem = "matches no ingested video" if not found else "matches several videos"
-        raise BadInput(f"--video {video}", f"{problem}; see `ringside status`")
-    return found[0]
-
-
 def _rerun(args, data_root: Path) -> int:
-    _, path, name, colour, notes = _ingested(data_root, args.video)
-    return _process(args, data_root, [path], name, colour, notes, rerun=[args.stage])
+    from flows.videos import ingested_video
+
+    video = ingested_video(data_root, args.video)
+    return _process(
+        args,
+        data_root,
+        [video.path],
+        video.adversary,
+        video.colour,
+        video.notes,
+        rerun=[args.stage],
+    )
 
 
 def _pick(args, data_root: Path) -> int:
+    from flows.videos import ingested_video
     from storage.db import connect, utcnow
     from storage.paths import data_paths
     from tasks.errors import BadInput
 
-    video_id, path, name, colour, notes = _ingested(data_root, args.video)
+    video = ingested_video(data_root, args.video)
+    video_id = video.video_id
     with connect(data_paths(data_root).db) as con:
         tracks = sorted(
             row[0]
@@ -376,7 +409,7 @@ def _pick(args, data_root: Path) -> int:
             )
         con.execute("INSERT INTO pose_picks VALUES (?, ?, ?)", [video_id, args.track, utcnow()])
     args.until = None
-    return _process(args, data_root, [path], name, colour, notes)
+    return _process(args, data_root, [video.path], video.adversary, video.colour, video.notes)
 
 
 def _metrics(args, data_root: Path) -> int:
@@ -730,6 +763,127 @@ def _dashboard(args, data_root: Path) -> int:
         signal.signal(signal.SIGTERM, previous)
 
 
+def _serve(args, data_root: Path) -> int:
+    import signal
+
+    from flows import serve as served
+    from flows.config import load_config
+    from tasks.errors import BadInput
+
+    if not 0 < args.port < 65536:
+        raise ValueError(f"--port must be between 1 and 65535, got {args.port}")
+    watch = None
+    if args.watch is None:
+        for flag in ("adversary", "adversary_colour", "cron", "every", "until"):
+            if getattr(args, flag) is not None:
+                raise ValueError(f"--{flag.replace('_', '-')} goes with --watch DIR")
+    else:
+        if not args.watch.is_dir():
+            raise BadInput(str(args.watch), "is not a directory (--watch)")
+        if not args.adversary:
+            raise ValueError("--watch needs --adversary NAME: whom the videos dropped there show")
+        if args.every is not None and not args.every > 0:
+            raise ValueError(f"--every must be a positive number of seconds, got {args.every}")
+        watch = served.Watch(
+            args.watch,
+            args.adversary,
+            args.adversary_colour,
+            args.cron or served.DEFAULT_CRON,
+            args.every,
+            args.until,
+        )
+    running = served.served_api(data_root)
+    if running is not None:
+        raise ValueError(f"{data_root} is served already, at {running.removesuffix('/api')}")
+    own_server = "PREFECT_API_URL" not in os.environ
+    if own_server and not served.port_free(args.port):
+        raise ValueError(f"--port {args.port} is in use (another server?): choose another")
+    config = load_config(args.config, _overrides(args)).as_dict()
+    # Set before Prefect is first imported (just below): it reads its settings then. A URL the
+    # user set names their own server: serve there, start none.
+    api = os.environ.setdefault("PREFECT_API_URL", f"http://127.0.0.1:{args.port}/api")
+    for name, value in served.RUNNER_SETTINGS.items():
+        os.environ.setdefault(name, value)
+    deployments = served.deployments(data_root, config, watch)
+
+    def stop(_signum, _frame):
+        raise KeyboardInterrupt
+
+    # SIGTERM stops it as Ctrl-C does, the server included (below); once serving, SIGTERM
+    # cancels the runner instead (see serve_deployments).
+    previous = signal.signal(signal.SIGTERM, stop)
+    server = None
+    try:
+        if own_server:
+            server = served.start_server(data_root, args.port)
+            if not served.wait_until_up(api, server):
+                print(served.log_tail(data_root), file=sys.stderr)
+                log = served.served_file(data_root).with_name(served.SERVER_LOG)
+                print(
+                    f"ringside: error: Prefect's server did not start; see {log}", file=sys.stderr
+                )
+                return EXIT_FAILED
+        ui = api.removesuffix("/api")
+        served.write_served(data_root, served.Served(api, ui, os.getpid()))
+        print(f"Prefect UI: {ui} (Ctrl-C stops serving)", flush=True)
+        print(
+            f"serving {served.PIPELINE_FLOW}/{served.DEPLOYMENT} on {data_root}: "
+            "`ringside schedule`, the dashboard's reruns and the UI's Run start it",
+            flush=True,
+        )
+        if watch is not None:
+            when = f"every {watch.every_s:g} s" if watch.every_s else f"on cron '{watch.cron}'"
+            print(
+                f"watching {watch.folder.resolve()} {when} for new videos of {watch.adversary}",
+                flush=True,
+            )
+        served.serve_deployments(deployments)
+    except (KeyboardInterrupt, SystemExit):  # SystemExit: Prefect's own SIGTERM handler
+        pass
+    finally:
+        served.clear_served(data_root, os.getpid())
+        if server is not None:
+            served.stop_server(server)
+        signal.signal(signal.SIGTERM, previous)
+    print("serving stopped", file=sys.stderr)
+    return 0
+
+
+def _schedule(args, data_root: Path) -> int:
+    from datetime import datetime
+
+    from flows import serve as served
+    from flows.config import load_config
+    from tasks.ingest.probe import check_file
+
+    # Cheap checks first: a mistyped path or time fails before anything is submitted.
+    for video in args.videos:
+        check_file(Path(video))
+    at = served.parse_when(args.at, now=datetime.now().astimezone())
+    config = load_config(args.config, _overrides(args))
+    parameters = {
+        "data_root": str(data_root),
+        "videos": [str(Path(v).resolve()) for v in args.videos],
+        "adversary": args.adversary,
+        "adversary_colour": args.adversary_colour,
+        "notes": args.notes,
+        "config": config.as_dict(),
+        "until": args.until,
+        "rerun": None,
+    }
+    run_id = served.submit_run(
+        data_root, parameters, at=None if args.at.strip().lower() == "now" else at
+    )
+    ui = (served.served_api(data_root) or "").removesuffix("/api")
+    url = f"{ui}/runs/flow-run/{run_id}"
+    if args.json:
+        print(json.dumps({"flow_run_id": run_id, "scheduled_time": at.isoformat(), "url": url}))
+    else:
+        print(f"flow run {run_id} runs at {at:%Y-%m-%d %H:%M:%S %Z}")
+        print(f"follow it at {url}")
+    return 0
+
+
 def _demo(args, data_root: Path) -> int:
     from storage.assets import SAMPLE_VIDEO
     from storage.paths import data_paths
@@ -801,6 +955,10 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "dashboard":
             return _dashboard(args, data_root)
+        if args.command == "serve":
+            return _serve(args, data_root)
+        if args.command == "schedule":
+            return _schedule(args, data_root)
         if args.command == "demo":
             return _demo(args, data_root)
     except (BadInput, ValueError, FileNotFoundError) as error:

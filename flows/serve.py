@@ -1,0 +1,432 @@
+"""Ringside's Prefect server and its deployments: ``ringside serve``, ``ringside schedule`` and the
+dashboard's reruns.
+
+``ringside serve`` starts ``prefect server start`` on the data directory's Prefect home (unless
+``PREFECT_API_URL`` names a server already) and serves two deployments from one runner: the
+pipeline, ``video_to_opponent/ringside``, run on demand, and, with ``--watch``,
+``watch_folder/ringside`` on a schedule. It leaves ``DATA/prefect/served.json`` behind while it
+runs, so the other ``ringside`` commands and the dashboard find the server.
+
+Prefect reads its settings when first imported, so nothing here imports Prefect at module level:
+``served_api`` runs before the CLI decides where Prefect should report.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from dataclasses import asdict, dataclass
+from datetime import datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+from storage.files import write_atomic
+from storage.paths import data_paths
+from tasks.errors import BadInput
+
+PIPELINE_FLOW = "video_to_opponent"
+DEPLOYMENT = "ringside"
+DEFAULT_CRON = "*/5 * * * *"
+SERVED_FILE = "served.json"
+SERVER_LOG = "server.log"
+# The machine has few cores: one flow run at a time, pipeline or watcher, the others wait.
+RUN_LIMIT = 1
+# Prefect's defaults suit hourly schedules: its scheduler looks at changed deployments every 5 s
+# and tops up schedules every 60 s, a served runner asks for due runs every 10 s. Shorter loops
+# let a schedule of seconds fire on time and a `ringside schedule` run start within seconds; each
+# loop is one small query on a local server. Users' own values win.
+SERVER_SETTINGS = {
+    "PREFECT_SERVER_SERVICES_SCHEDULER_LOOP_SECONDS": "10",
+    "PREFECT_SERVER_SERVICES_SCHEDULER_RECENT_DEPLOYMENTS_LOOP_SECONDS": "2",
+}
+RUNNER_SETTINGS = {"PREFECT_RUNNER_POLL_FREQUENCY": "2"}
+# server.log keeps the server's warnings and errors (a failing scheduler says so there), not a
+# line per request: the runner alone asks every 2 s.
+SERVER_LOG_SETTINGS = {
+    "PREFECT_SERVER_LOGGING_LEVEL": "WARNING",
+    "PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL": "WARNING",
+}
+NO_SERVER = "no `ringside serve` is running on this data directory: start `ringside serve` first"
+
+
+@dataclass(frozen=True)
+class Served:
+    """Where a running ``ringside serve`` can be reached, as ``served.json`` holds it."""
+
+    api_url: str
+    ui_url: str
+    pid: int  # the `ringside serve` process, which owns the server and the runner
+
+
+def served_file(data_root: str | Path) -> Path:
+    return data_paths(data_root).prefect_home / SERVED_FILE
+
+
+def write_served(data_root: str | Path, served: Served) -> None:
+    write_atomic(served_file(data_root), json.dumps(asdict(served)).encode())
+
+
+def read_served(data_root: str | Path) -> Served | None:
+    """What ``served.json`` says, or None when there is none or it cannot be read."""
+    try:
+        return Served(**json.loads(served_file(data_root).read_text()))
+    except (OSError, ValueError, TypeError):
+        return None
+
+
+def clear_served(data_root: str | Path, pid: int) -> None:
+    """Remove ``served.json`` if process ``pid`` wrote it (another serve may have replaced it)."""
+    served = read_served(data_root)
+    if served is not None and served.pid == pid:
+        served_file(data_root).unlink(missing_ok=True)
+
+
+def answers(api_url: str, timeout_s: float = 2.0) -> bool:
+    """Whether the Prefect API at ``api_url`` answers its health check."""
+    try:
+        with urllib.request.urlopen(f"{api_url}/health", timeout=timeout_s) as answer:
+            return answer.status == 200
+    except (urllib.error.URLError, OSError, ValueError):
+        return False
+
+
+def process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, someone else's
+        return True
+    return True
+
+
+def served_api(data_root: str | Path) -> str | None:
+    """The API URL of the Prefect server ``ringside serve`` runs for ``data_root``, if it is up.
+
+    A ``served.json`` left by a killed serve names a dead process (or a port someone else may
+    use now), so the process must be alive and the API must answer.
+    """
+    served = read_served(data_root)
+    if served is None or not process_alive(served.pid) or not answers(served.api_url):
+        return None
+    return served.api_url
+
+
+def server_command(port: int) -> list[str]:
+    """``prefect server start`` on localhost, with its UI, in the foreground."""
+    return [
+        sys.executable,
+        "-m",
+        "prefect",
+        "server",
+        "start",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+    ]
+
+
+def port_free(port: int) -> bool:
+    """Whether nothing listens on ``127.0.0.1:port``."""
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def _die_with_parent() -> None:
+    """In the child before exec (Linux): SIGTERM it when ``ringside serve`` dies, even killed
+    with SIGKILL, so no orphaned server keeps the port."""
+    import ctypes
+
+    pr_set_pdeathsig = 1
+    ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+
+
+def start_server(data_root: str | Path, port: int) -> subprocess.Popen:
+    """Start Ringside's Prefect server; its output goes to ``DATA/prefect/server.log``.
+
+    It gets a session of its own so that Ctrl-C reaches only ``ringside serve``, which stops the
+    runner first (it pauses the schedules through the server) and then the server.
+    """
+    log_path = data_paths(data_root).prefect_home / SERVER_LOG
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    env = {**SERVER_SETTINGS, **os.environ, **SERVER_LOG_SETTINGS}
+    env.pop("PREFECT_API_URL", None)  # the server does not report to anyone
+    with log_path.open("ab") as log:
+        return subprocess.Popen(
+            server_command(port),
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+            preexec_fn=_die_with_parent if sys.platform == "linux" else None,
+        )
+
+
+def wait_until_up(api_url: str, server: subprocess.Popen, timeout_s: float = 180.0) -> bool:
+    """Whether the server answers before ``timeout_s`` (its first start migrates its database)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and server.poll() is None:
+        if answers(api_url):
+            return True
+        time.sleep(0.5)
+    return False
+
+
+def stop_server(server: subprocess.Popen, timeout_s: float = 30.0) -> None:
+    """SIGTERM (uvicorn shuts down gracefully), then SIGKILL if it will not go."""
+    if server.poll() is not None:
+        return
+    server.send_signal(signal.SIGTERM)
+    try:
+        server.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        server.kill()
+        server.wait()
+
+
+def log_tail(data_root: str | Path, lines: int = 20) -> str:
+    path = data_paths(data_root).prefect_home / SERVER_LOG
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError:
+        return ""
+
+
+def parse_when(text: str, *, now: datetime) -> datetime:
+    """When ``--at TEXT`` means, as an aware local time: ``now``; ``HH:MM`` (today, or tomorrow
+    once that time has passed); or ISO 8601 (without an offset: local time), not in the past.
+    ``now`` is aware."""
+    text = text.strip()
+    if text.lower() == "now":
+        return now
+    clock = re.fullmatch(r"(\d{1,2}):(\d{2})", text)
+    if clock:
+        hour, minute = int(clock[1]), int(clock[2])
+        if hour > 23 or minute > 59:
+            raise ValueError(f"--at {text}: no such time of day")
+        when = now.replace(hour=hour, minute=minute, second=0, microsecond=0)
+        return when if when > now else when + timedelta(days=1)
+    try:
+        when = datetime.fromisoformat(text)
+    except ValueError:
+        raise ValueError(
+            f"--at {text}: expected 'now', HH:MM or an ISO 8601 time like 2030-06-01T18:30"
+        ) from None
+    when = when.astimezone() if when.tzinfo is None else when  # naive: local time
+    if when < now:
+        raise ValueError(f"--at {text}: that is in the past (now is {now:%Y-%m-%d %H:%M:%S})")
+    return when
+
+
+def pipeline_parameters(
+    data_root: str | Path, video_id_prefix: str, *, rerun: list[str] | None
+) -> dict[str, Any]:
+    """The parameters of a ``video_to_opponent`` run that reruns an ingested video as it was
+    declared, with the settings of ``./ringside.toml``; ``rerun`` names stages to recompute
+    whether cached or not (None: only what changed, e.g. after a pick)."""
+    from flows.config import load_config
+    from flows.videos import ingested_video
+
+    video = ingested_video(data_root, video_id_prefix)
+    return {
+        "data_root": str(data_paths(data_root).root),
+        "videos": [video.path],
+        "adversary": video.adversary,
+        "adversary_colour": video.colour,
+        "notes": video.notes,
+        "config": load_config().as_dict(),
+        "until": None,
+        "rerun": rerun,
+    }
+
+
+def run_name(parameters: dict[str, Any]) -> str:
+    """A flow run name for Prefect's UI: the videos' file names and the stages rerun."""
+    videos = [Path(v).name for v in parameters.get("videos") or []]
+    name = " + ".join(videos[:2]) + (f" + {len(videos) - 2} more" if len(videos) > 2 else "")
+    rerun = parameters.get("rerun")
+    return f"{name} (rerun {', '.join(rerun)})" if rerun else name or PIPELINE_FLOW
+
+
+def submit_run(data_root: str | Path, parameters: dict, *, at: datetime | None = None) -> str:
+    """Create a run of the served pipeline deployment with ``parameters``, to start now or at
+    ``at`` (naive: local time); returns the flow run's id. The runner of ``ringside serve``
+    executes it."""
+    api = served_api(data_root)
+    if api is None:
+        raise BadInput(str(data_paths(data_root).root), NO_SERVER)
+    root = str(data_paths(data_root).root)
+    named = parameters.get("data_root", root)
+    if str(data_paths(named).root) != root:
+        raise ValueError(f"parameters name data_root {named}, not {root}")
+    parameters = {**parameters, "data_root": root}
+    if at is not None and at.tzinfo is None:
+        at = at.astimezone()
+    from prefect.deployments import run_deployment
+    from prefect.exceptions import ObjectNotFound
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    # The server of this data directory, whatever this process's Prefect settings were at import.
+    with temporary_settings(updates={PREFECT_API_URL: api}):
+        try:
+            run = run_deployment(
+                f"{PIPELINE_FLOW}/{DEPLOYMENT}",
+                parameters=parameters,
+                scheduled_time=at,
+                flow_run_name=run_name(parameters),
+                timeout=0,
+                as_subflow=False,
+            )
+        except ObjectNotFound:
+            raise BadInput(api, f"has no deployment {PIPELINE_FLOW}/{DEPLOYMENT} yet") from None
+    return str(run.id)
+
+
+@dataclass(frozen=True)
+class RunProgress:
+    """Where a flow run is, as Prefect's API says."""
+
+    state: str  # Prefect's state name: Scheduled, Late, Pending, Running, Completed, Failed...
+    finished: bool  # a final state: nothing more will happen
+    succeeded: bool
+    message: str
+
+
+def run_progress(data_root: str | Path, flow_run_id: str) -> RunProgress:
+    """The state of flow run ``flow_run_id`` on the served server; ``Unreachable`` (not
+    finished) while no ``ringside serve`` runs, so a poller can wait for it to come back."""
+    from uuid import UUID
+
+    api = served_api(data_root)
+    if api is None:
+        return RunProgress("Unreachable", False, False, NO_SERVER)
+    from prefect.client.orchestration import get_client
+    from prefect.exceptions import ObjectNotFound
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    with temporary_settings(updates={PREFECT_API_URL: api}), get_client(sync_client=True) as client:
+        try:
+            run = client.read_flow_run(UUID(flow_run_id))
+        except ObjectNotFound:
+            return RunProgress("Missing", True, False, f"Prefect has no flow run {flow_run_id}")
+    state = run.state
+    if state is None:
+        return RunProgress("Unknown", False, False, "")
+    return RunProgress(state.name, state.is_final(), state.is_completed(), state.message or "")
+
+
+@dataclass(frozen=True)
+class Watch:
+    """The folder ``ringside serve --watch`` looks in, and when."""
+
+    folder: Path
+    adversary: str
+    adversary_colour: str | None = None
+    cron: str | None = DEFAULT_CRON  # used when every_s is None
+    every_s: float | None = None
+    until: str | None = None  # the last stage to run on the videos found there
+
+
+def local_timezone() -> str:
+    """This machine's IANA time zone (``$TZ``, else where ``/etc/localtime`` points), so a cron
+    expression means local time as ``--at HH:MM`` does; UTC when it cannot be told."""
+    from zoneinfo import available_timezones
+
+    known = available_timezones()
+    name = os.environ.get("TZ", "").lstrip(":")
+    if name in known:
+        return name
+    target = str(Path("/etc/localtime").resolve())
+    _, found, key = target.partition("zoneinfo/")
+    return key if found and key in known else "UTC"
+
+
+def deployments(data_root: str | Path, config: dict, watch: Watch | None) -> list:
+    """Prefect deployments of the pipeline (on demand) and, with ``watch``, of the watcher (on
+    its schedule), with ``data_root`` and ``config`` as default parameters. Builds and checks
+    them (a bad cron expression fails here) without talking to the server."""
+    from prefect.client.schemas.schedules import CronSchedule, IntervalSchedule
+    from prefect.types.entrypoint import EntrypointType
+
+    from flows.pipeline import video_to_opponent
+    from flows.watch import watch_folder
+
+    root = str(data_paths(data_root).root)
+    # By module path, so a run finds the flow wherever the runner's working directory is.
+    by_module = EntrypointType.MODULE_PATH
+    found = [
+        video_to_opponent.to_deployment(
+            DEPLOYMENT,
+            parameters={"data_root": root, "config": config},
+            description=f"The pipeline on {root}: `ringside schedule`, the dashboard, this UI.",
+            entrypoint_type=by_module,
+        )
+    ]
+    if watch is not None:
+        if watch.every_s is not None:
+            when = {"schedule": IntervalSchedule(interval=timedelta(seconds=watch.every_s))}
+        else:
+            try:
+                when = {"schedule": CronSchedule(cron=watch.cron, timezone=local_timezone())}
+            except ValueError:  # pydantic's many-line message, said in one
+                raise ValueError(
+                    f"--cron {watch.cron!r} is not a cron expression (minute hour day month "
+                    "weekday, e.g. '*/5 * * * *')"
+                ) from None
+        found.append(
+            watch_folder.to_deployment(
+                DEPLOYMENT,
+                parameters={
+                    "data_root": root,
+                    "folder": str(watch.folder.resolve()),
+                    "adversary": watch.adversary,
+                    "adversary_colour": watch.adversary_colour,
+                    "config": config,
+                    "until": watch.until,
+                },
+                description=f"New videos in {watch.folder.resolve()} through the pipeline.",
+                entrypoint_type=by_module,
+                **when,
+            )
+        )
+    return found
+
+
+def serve_deployments(found: list) -> None:
+    """Serve ``found`` from one runner, ``RUN_LIMIT`` runs at a time, until Ctrl-C or SIGTERM;
+    the runner pauses the schedules as it stops."""
+    import asyncio
+
+    from prefect.runner import Runner
+
+    runner = Runner(name=DEPLOYMENT, limit=RUN_LIMIT, pause_on_shutdown=True)
+    for deployment in found:
+        runner.add_deployment(deployment)
+    asyncio.run(_run_until_stopped(runner))
+
+
+async def _run_until_stopped(runner) -> None:
+    import asyncio
+
+    started = asyncio.create_task(runner.start())
+    await asyncio.sleep(0)  # start() has set its own SIGTERM handler by now
+    # That handler exits from inside the signal handler (and warns of a coroutine never
+    # awaited); cancelling the runner as Ctrl-C does lets it clean up instead.
+    asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, started.cancel)
+    with contextlib.suppress(asyncio.CancelledError):
+        await started
