@@ -27,10 +27,12 @@ import streamlit as st
 
 from dashboards import queries
 from flows.config import STAGES
-from storage.db import DatabaseBusy, connect
+from storage.artifacts import artifact_path
+from storage.db import DatabaseBusy, connect, utcnow
 from storage.paths import data_paths
 from tasks.dataset.labels import HANDS, KINDS
 from tasks.dataset.statistics import DISTRIBUTIONS, SCALARS
+from tasks.errors import BadInput
 
 # A page waits this long for the pipeline to let go of the database, then says so: a writer
 # holds it for seconds at most, and an analyst should not stare at a blank page meanwhile.
@@ -39,6 +41,8 @@ STATE_COLOURS = {
     "done": "#d4f0da",
     "cached": "#dde9fa",
     "failed": "#f8d3d2",
+    "running": "#fff3c4",
+    "interrupted": "#fbe0c4",
     "missing": "#eeeeee",
 }
 # The statistics shown as headline numbers on the Dataset page, with their labels.
@@ -78,12 +82,29 @@ SAME_FOR_BOTH = {"distance_m"}
 AXIS_FORMAT = ".4~g"
 # Each fighter's colour in every chart: the corners of a boxing ring.
 FIGHTER_COLOURS = alt.Scale(domain=["adversary", "opponent"], range=["#c8102e", "#1f5fbf"])
+ROLE_COLOURS = alt.Scale(
+    domain=["adversary", "opponent", "other"], range=["#c8102e", "#1f5fbf", "#aaaaaa"]
+)
 # The Training page's headline numbers: the newest block's means of these.
 TILES = {
     "episode_length_s": "Episode length (s)",
     "reward_motion": "Motion reward",
     "reward_interaction": "Interaction reward",
     "falls_per_min": "Falls per minute",
+}
+# The Lift page's headline numbers.
+LIFT_TILES = {
+    "fighter_distance_mean_m": "Mean distance (m)",
+    "contact_slide_cm_per_frame": "Foot slide (cm / frame)",
+    "floor_penetration_max_mm": "Deepest penetration (mm)",
+}
+# The Evaluation page's headline numbers.
+EVALUATION_TILES = {
+    "style_score": "Style: trained adversary",
+    "style_score_untrained": "Style: untrained policy",
+    "style_score_opponent": "Style: trained partner",
+    "falls_per_min": "Falls per minute",
+    "onnx_max_abs_diff": "ONNX max difference",
 }
 # What the Stages page compares, for the stages whose outputs are not per video.
 COMPARED = {"train": "datasets", "evaluate": "training runs"}
@@ -142,6 +163,31 @@ def read(read_with: Callable[[duckdb.DuckDBPyConnection], T]) -> T | None:
 
 def finish_page() -> None:
     st.caption(f"{READ_AT} {datetime.now():%H:%M:%S} from `{database()}`.")
+
+
+def artifact_file(name: str | None) -> Path | None:
+    """Where the artifact ``name`` lives, or None (after saying so) when it is not there."""
+    if name is None:
+        return None
+    path = artifact_path(data_paths(data_root(sys.argv[1:])).artifacts, name)
+    if not path.exists():
+        st.warning(f"Artifact `{name}` is missing from the artifact store.")
+        return None
+    return path
+
+
+def show_video(name: str | None, caption: str) -> None:
+    """An H.264 MP4 from the artifact store, with a caption; browsers play it in place."""
+    path = artifact_file(name)
+    if path is not None:
+        st.video(str(path), width=720)
+        st.caption(caption)
+
+
+def choose_video(videos: Sequence[Mapping[str, Any]]) -> str:
+    """The video the page is about, chosen by the analyst (``?video=`` in the URL)."""
+    labels = video_labels(videos)
+    return choose("Video", list(labels), "video", format_func=labels.get)
 
 
 def choose(label: str, options: Sequence[str], param: str, **kwargs: Any) -> str:
@@ -210,8 +256,9 @@ def overview_page() -> None:
         matrix.style.map(lambda s: f"background-color: {STATE_COLOURS.get(s, '')}", list(STAGES))
     )
     st.caption(
-        "done: computed by its newest run; cached: its newest run reused an output; failed: see "
-        "below; missing: not run yet."
+        "done: computed by its newest run; cached: its newest run reused an output; running: "
+        "computing now; interrupted: its process stopped mid-stage (killed or crashed), rerun "
+        "it; failed: see below; missing: not run yet."
     )
     st.subheader("Newest run of each stage")
     runs = pd.DataFrame(
@@ -228,7 +275,92 @@ def overview_page() -> None:
     if not runs["why it failed"].any():
         runs = runs.drop(columns="why it failed")
     st.table(runs, hide_index=True)
+    rerun_section(videos)
     finish_page()
+
+
+def rerun_section(videos: Sequence[Mapping[str, Any]]) -> None:
+    """Rerun one stage of one video (and what depends on it) through Prefect, and follow the
+    runs started from this page."""
+    from flows.serve import pipeline_parameters, served_api
+
+    st.subheader("Rerun a stage")
+    root = data_root(sys.argv[1:])
+    served = served_api(root)
+    labels = video_labels(videos)
+    left, middle, right = st.columns([3, 2, 1], vertical_alignment="bottom")
+    video = left.selectbox("Video", list(labels), format_func=labels.get, key="rerun_video")
+    stage = middle.selectbox("Stage", STAGES, key="rerun_stage")
+    pressed = right.button(
+        "Rerun",
+        disabled=served is None,
+        help="Recompute this stage, cached or not, then the stages after it.",
+    )
+    if served is None:
+        st.info(
+            "Reruns are Prefect runs of the pipeline's deployment: start `ringside serve` on "
+            "this data directory, then reload. (`ringside rerun STAGE --video ID` reruns from a "
+            "terminal.)"
+        )
+    else:
+        st.caption(f"Runs go to Prefect at {served.removesuffix('/api')}.")
+    if pressed:
+        follow_run(root, video, stage, lambda: pipeline_parameters(root, video, rerun=[stage]))
+    reruns = st.session_state.get("reruns", [])
+    if reruns:
+        # Read again every 2 s while a run is unfinished, and not at all after: a timer left
+        # running would redraw whatever page the analyst has moved on to.
+        pending = any(not r.get("finished") for r in reruns)
+        st.fragment(rerun_progress, run_every=2.0 if pending else None)(root, labels)
+
+
+def follow_run(root: Path, video: str, stage: str, parameters: Callable[[], dict]) -> bool:
+    """Submit a pipeline run of ``video`` with ``parameters()`` to the served deployment and
+    remember it for `rerun_progress`; False (after saying why) if Prefect refused it."""
+    from flows.serve import submit_run
+
+    started = utcnow()
+    try:
+        run_id = submit_run(root, parameters())
+    except BadInput as error:
+        st.error(f"Could not start the run: {error}")
+        return False
+    st.session_state.setdefault("reruns", []).append(
+        {"flow_run": run_id, "video_id": video, "stage": stage, "started": started}
+    )
+    return True
+
+
+def rerun_progress(root: Path, labels: Mapping[str, str]) -> None:
+    """The state of each rerun started here: Prefect's state of the flow run and the stages it
+    has finished so far. Redraws the whole page once the last of them has finished."""
+    from flows.serve import run_progress
+
+    reruns = st.session_state["reruns"]
+    events = read(
+        lambda con: {
+            r["flow_run"]: queries.stages_finished_since(con, r["video_id"], r["started"])
+            for r in reruns
+        }
+    )
+    if events is None:
+        return
+    was_pending = any(not r.get("finished") for r in reruns)
+    for rerun in reversed(reruns):
+        progress = run_progress(root, rerun["flow_run"])
+        rerun["finished"] = progress.finished
+        finished = events[rerun["flow_run"]]
+        share = 1.0 if progress.finished else len(finished) / len(STAGES)
+        what = f"{rerun['stage']} of {labels.get(rerun['video_id'], rerun['video_id'][:12])}"
+        st.progress(
+            share,
+            text=f"Rerun of {what}: **{progress.state}**, stages finished: "
+            f"{', '.join(finished) or 'none yet'}",
+        )
+        if progress.finished and not progress.succeeded:
+            st.error(f"Rerun of {what} failed: {progress.message}")
+    if was_pending and all(r["finished"] for r in reruns):
+        st.rerun()
 
 
 def stage_page() -> None:
@@ -272,7 +404,32 @@ def stage_page() -> None:
     st.subheader(f"Every {stage} metric of each newest output")
     st.caption("The numbers `ringside metrics --stage " + stage + "` prints.")
     st.table(numbers_table(table))
+    against_previous_section(stage, list(dict.fromkeys(r["video_id"] for r in rows)), table)
     finish_page()
+
+
+def against_previous_section(stage: str, outputs: Sequence[str], table: pd.DataFrame) -> None:
+    """One video's (dataset's, run's) newest output of ``stage`` against its previous one."""
+    st.subheader("Against the previous output")
+    labels = dict(zip(outputs, table.columns, strict=True))
+    chosen = choose("Of", list(outputs), "of", format_func=labels.get)
+    history = read(lambda con: queries.outputs(con, stage, chosen))
+    if history is None:
+        return
+    compared = queries.against_previous(history)
+    if compared.empty:
+        st.info(
+            f"{labels[chosen]} has one {stage} output so far; change a {stage} setting and "
+            "rerun to compare."
+        )
+        return
+    newest, previous = history[0], history[1]
+    st.caption(
+        f"Newest: key {queries.short(newest['key'])} ({newest['created_at']:%Y-%m-%d %H:%M}); "
+        f"previous: key {queries.short(previous['key'])} "
+        f"({previous['created_at']:%Y-%m-%d %H:%M})."
+    )
+    st.table(numbers_table(compared))
 
 
 def grouped_bars(frame: pd.DataFrame, title: str) -> alt.Chart:
@@ -419,6 +576,234 @@ def training_page() -> None:
     finish_page()
 
 
+def pose_page() -> None:
+    st.title("Pose")
+    videos = read(queries.videos)
+    if videos is None:
+        return
+    if not videos:
+        st.info(f"No video yet: {PROCESS_HINT}.")
+        finish_page()
+        return
+    video = choose_video(videos)
+    review = read(lambda con: queries.pose_review(con, video))
+    if review is None:
+        st.info(f"This video has no pose output yet: {PROCESS_HINT}.")
+        finish_page()
+        return
+    st.caption(f"Pose output {queries.short(review.key)}.")
+    show_video(review.overlay, "Both fighters' keypoints and tracks over the footage.")
+    if review.stills:
+        columns = st.columns(min(4, len(review.stills)))
+        for column, (frame, name) in zip(columns * len(review.stills), review.stills, strict=False):
+            path = artifact_file(name)
+            if path is not None:
+                column.image(str(path), caption=f"frame {frame}")
+
+    st.subheader("Tracks")
+    st.altair_chart(track_timeline(review), width="stretch")
+    st.caption(
+        f"Each bar is a track, from its first to its last frame, coloured by its role. "
+        f"{plural(len(review.cuts), 'shot cut')} (grey rules); "
+        f"{plural(len(review.handovers), 'handover')} (black ticks): frames where a fighter's "
+        "keypoints come from another track than the frame before."
+    )
+    pick_section(video, review)
+
+    st.subheader("Confidence per joint")
+    st.altair_chart(confidence_chart(review.confidence), width="stretch")
+    st.caption("The pose estimator's mean confidence over the frames each fighter was tracked.")
+    finish_page()
+
+
+def track_timeline(review: queries.PoseReview) -> alt.LayerChart:
+    tracks = review.tracks.assign(label=[f"track {t}" for t in review.tracks["track"]])
+    order = list(tracks["label"])
+    bars = (
+        alt.Chart(tracks)
+        .mark_bar(height=12)
+        .encode(
+            y=alt.Y("label:N", sort=order, title=None),
+            x=alt.X("first_frame:Q", title="frame"),
+            x2="last_frame:Q",
+            color=alt.Color("role:N", scale=ROLE_COLOURS),
+            tooltip=["track", "role", "shot", "first_frame", "last_frame", "frames_observed"],
+        )
+    )
+    cuts = (
+        alt.Chart(pd.DataFrame({"frame": review.cuts}))
+        .mark_rule(color="#999999", strokeDash=[4, 3])
+        .encode(x="frame:Q", tooltip=["frame"])
+    )
+    handovers = review.handovers.assign(label=[f"track {t}" for t in review.handovers["to_track"]])
+    ticks = (
+        alt.Chart(handovers)
+        .mark_tick(color="black", thickness=2)
+        .encode(
+            x="frame:Q",
+            y=alt.Y("label:N", sort=order),
+            tooltip=["frame", "role", "from_track", "to_track"],
+        )
+    )
+    # Empty layers are left out: Vega-Lite cannot type the columns of an empty frame.
+    layers = [bars, *([cuts] if review.cuts else []), *([ticks] if len(handovers) else [])]
+    return alt.layer(*layers)
+
+
+def confidence_chart(confidence: pd.DataFrame) -> alt.Chart:
+    return (
+        alt.Chart(confidence)
+        .mark_bar()
+        .encode(
+            x=alt.X("joint:N", sort=None, title=None, axis=alt.Axis(labelAngle=-60)),
+            xOffset="role:N",
+            y=alt.Y("confidence:Q", scale=alt.Scale(domain=[0, 1])),
+            color=alt.Color("role:N", scale=ROLE_COLOURS),
+            tooltip=["role", "joint", alt.Tooltip("confidence:Q", format=".3f")],
+        )
+    )
+
+
+def pick_section(video: str, review: queries.PoseReview) -> None:
+    """Choose which track is the adversary: stored as the video's pick, then the pipeline
+    reruns the pose stage and what depends on it through Prefect."""
+    from flows.serve import pipeline_parameters, served_api
+
+    st.subheader("Which track is the adversary?")
+    root = data_root(sys.argv[1:])
+    tracks = list(review.tracks["track"])
+    roles = dict(zip(review.tracks["track"], review.tracks["role"], strict=True))
+    current = next((t for t in tracks if roles[t] == "adversary"), tracks[0] if tracks else None)
+    if current is None:
+        st.info("This pose output has no tracks.")
+        return
+    left, right = st.columns([3, 1], vertical_alignment="bottom")
+    track = left.selectbox(
+        "Adversary track",
+        tracks,
+        index=tracks.index(current),
+        format_func=lambda t: f"track {t} (now {roles[t]})",
+    )
+    served = served_api(root)
+    if right.button("Pick and rerun", disabled=served is None or track == current):
+        with connect(data_paths(root).db, wait_s=LOCK_WAIT_S) as con:
+            con.execute("INSERT INTO pose_picks VALUES (?, ?, ?)", [video, int(track), utcnow()])
+        if follow_run(root, video, "pose", lambda: pipeline_parameters(root, video, rerun=None)):
+            st.success(f"Track {track} is the adversary now; the Overview page follows the rerun.")
+    picked = "no pick yet" if review.pick is None else f"track {review.pick}"
+    hint = "" if served is not None else " Start `ringside serve` to pick from here."
+    st.caption(f"The analyst's pick for this video: {picked}.{hint}")
+
+
+def lift_page() -> None:
+    st.title("Lift")
+    videos = read(queries.videos)
+    if videos is None:
+        return
+    if not videos:
+        st.info(f"No video yet: {PROCESS_HINT}.")
+        finish_page()
+        return
+    video = choose_video(videos)
+    review = read(lambda con: queries.lift_review(con, video))
+    if review is None:
+        st.info(f"This video has no lift output yet: {PROCESS_HINT}.")
+        finish_page()
+        return
+    st.caption(f"Lift output {queries.short(review.key)}.")
+    for column, (name, label) in zip(st.columns(len(LIFT_TILES)), LIFT_TILES.items(), strict=True):
+        column.metric(label, format_value(review.metrics.get(name)))
+    show_video(
+        review.video,
+        "Both humanoids in MuJoCo, after the physics cleanup (adversary red, opponent blue).",
+    )
+    st.subheader("Cleanup over time")
+    long = (
+        review.series.reset_index()
+        .melt("time_s", var_name="curve")
+        .assign(
+            measure=lambda f: f["curve"].str.split("|").str[0],
+            fighter=lambda f: f["curve"].str.split("|").str[1],
+        )
+    )
+    measures = list(dict.fromkeys(long["measure"]))
+    for column, measure in zip(st.columns(2) * len(measures), measures, strict=False):
+        column.altair_chart(series_chart(long[long["measure"] == measure], measure))
+    st.caption(
+        "Foot skating: horizontal speed of the faster foot in contact with the floor. "
+        "Floor penetration: depth of the deepest body part below the floor. Distance: pelvis "
+        "to pelvis, horizontally. Gaps are steps where a fighter was not lifted."
+    )
+    st.subheader("Every lift metric")
+    st.table(numbers_table(pd.DataFrame({"value": review.metrics})))
+    finish_page()
+
+
+def series_chart(long: pd.DataFrame, title: str) -> alt.Chart:
+    """One cleanup measure over time, a line per fighter."""
+    return (
+        alt.Chart(long, title=title)
+        .mark_line()
+        .encode(
+            x=alt.X("time_s:Q", title="seconds"),
+            y=alt.Y("value:Q", title=None, axis=alt.Axis(format=AXIS_FORMAT)),
+            color=alt.Color(
+                "fighter:N",
+                scale=alt.Scale(
+                    domain=["adversary", "opponent", "both"],
+                    range=["#c8102e", "#1f5fbf", "#555555"],
+                ),
+            ),
+            tooltip=["fighter", "time_s", "value"],
+        )
+    )
+
+
+def evaluation_page() -> None:
+    st.title("Evaluation")
+    runs = read(queries.evaluations)
+    if runs is None:
+        return
+    if not runs:
+        st.info(f"No evaluation yet: {HINTS['evaluate']}.")
+        finish_page()
+        return
+    about = {r["run_key"]: r for r in runs}
+    run_key = choose("Run", list(about), "run", format_func=queries.short)
+    chosen = about[run_key]
+    tables = read(lambda con: queries.evaluation(con, chosen["key"], run_key))
+    if tables is None:
+        return
+    metrics = chosen["metrics"]
+    st.caption(
+        f"Evaluation {queries.short(chosen['key'])} of training run {queries.short(run_key)}."
+    )
+    tiles = EVALUATION_TILES
+    for column, (name, label) in zip(st.columns(len(tiles)), tiles.items(), strict=True):
+        column.metric(label, format_value(metrics.get(name)))
+    st.caption("Style scores: distance to the adversary's real statistics, 0-1, lower is closer.")
+    bout = next((r["artifact"] for r in tables["artifacts"] if r["name"] == "bout.mp4"), None)
+    show_video(bout, "The trained fighters' bout, rendered in MuJoCo.")
+    st.subheader("Style, per statistic")
+    style = pd.DataFrame(tables["style"])
+    if not style.empty:
+        st.table(numbers_table(style.pivot(index="statistic", columns="policy", values="distance")))
+    st.subheader("Boxing")
+    boxing = pd.DataFrame(tables["boxing"])
+    if not boxing.empty:
+        st.table(numbers_table(boxing.pivot(index="metric", columns="policy", values="value")))
+    st.subheader("Damage per episode, N (MAAIP Table 1)")
+    st.table(numbers_table(pd.DataFrame(tables["damage"])), hide_index=True)
+    st.subheader("Normalised heading return (MAAIP Table 2)")
+    if tables["heading"]:
+        st.table(numbers_table(pd.DataFrame(tables["heading"])), hide_index=True)
+    else:
+        st.info(
+            "No heading run on this dataset yet (train with `--train-reward-control-task heading`)."
+        )
+    finish_page()
+
+
 def curve_chart(frame: pd.DataFrame, title: str, names: Mapping[str, str]) -> alt.Chart:
     """The curves ``names`` (column -> legend label) of ``frame`` against the iteration."""
     present = {name: label for name, label in names.items() if name in frame.columns}
@@ -448,8 +833,11 @@ def curve_chart(frame: pd.DataFrame, title: str, names: Mapping[str, str]) -> al
 PAGES: dict[str, tuple[str, Callable[[], None]]] = {
     "overview": ("Overview", overview_page),
     "stages": ("Stages", stage_page),
+    "pose": ("Pose", pose_page),
+    "lift": ("Lift", lift_page),
     "dataset": ("Dataset", dataset_page),
     "training": ("Training", training_page),
+    "evaluation": ("Evaluation", evaluation_page),
 }
 
 

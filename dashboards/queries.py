@@ -9,18 +9,25 @@ cannot disagree.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 import duckdb
+import numpy as np
 import pandas as pd
 
 from flows.config import SECTIONS, STAGES
-from storage.records import latest_metrics, stage_states
+from models.pose.types import BLAZEPOSE_33
+from storage.records import latest_metrics, output_metrics, stage_states
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import list_datasets, member_statistics
+from tasks.evaluate.store import evaluation_tables
+from tasks.lift.store import lift_series
+from tasks.pose.stage import newest_pick
 from tasks.train.run import learning_curves
 
 # Every stage, in pipeline order (a stage has its config section once it exists): the ones
@@ -160,3 +167,213 @@ def curves_frame(rows: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
         [int(label.split("-")[0]) for label in frame.pop("iterations")], name="iteration"
     )
     return frame
+
+
+def outputs(con: duckdb.DuckDBPyConnection, stage: str, video_id: str) -> list[dict[str, Any]]:
+    """The committed outputs of ``stage`` for ``video_id`` (a video, or a dataset or run key),
+    newest first: key, created_at, seconds and metrics (name -> value)."""
+    rows = con.execute(
+        "SELECT key, created_at, seconds FROM stage_outputs WHERE stage = ? AND video_id = ? "
+        "ORDER BY created_at DESC",
+        [stage, video_id],
+    ).fetchall()
+    return [
+        {
+            "key": key,
+            "created_at": created_at,
+            "seconds": seconds,
+            "metrics": output_metrics(con, stage, video_id, key),
+        }
+        for key, created_at, seconds in rows
+    ]
+
+
+def against_previous(history: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
+    """The newest output's metrics beside the previous output's (`outputs` order), with the
+    change; empty without two outputs."""
+    if len(history) < 2:
+        return pd.DataFrame()
+    newest, previous = history[0]["metrics"], history[1]["metrics"]
+    names = sorted(set(newest) | set(previous))
+    frame = pd.DataFrame(
+        {
+            "newest": [newest.get(n, math.nan) for n in names],
+            "previous": [previous.get(n, math.nan) for n in names],
+        },
+        index=names,
+    )
+    frame["change"] = frame["newest"] - frame["previous"]
+    return frame
+
+
+@dataclass(frozen=True)
+class PoseReview:
+    """What the Pose page shows of one pose output.
+
+    Attributes:
+        key: the pose output's key.
+        overlay: artifact name of the overlay MP4 (None if the output has none).
+        stills: (frame, PNG artifact name) pairs.
+        tracks: one row per track: track, shot, role, first_frame, last_frame, frames_observed.
+        cuts: the frames where a new shot starts (after the first).
+        handovers: frame, role, from_track, to_track: where a fighter's keypoints move from one
+            track to another.
+        confidence: role, joint (BlazePose name), mean estimator confidence over tracked frames.
+        pick: the analyst's newest adversary track for the video, if any.
+    """
+
+    key: str
+    overlay: str | None
+    stills: list[tuple[int, str]]
+    tracks: pd.DataFrame
+    cuts: list[int]
+    handovers: pd.DataFrame
+    confidence: pd.DataFrame
+    pick: int | None
+
+
+def pose_review(con: duckdb.DuckDBPyConnection, video_id: str) -> PoseReview | None:
+    """The newest pose output of ``video_id`` as the Pose page shows it; None if there is none."""
+    history = con.execute(
+        "SELECT key, upstream FROM stage_outputs WHERE stage = 'pose' AND video_id = ? "
+        "ORDER BY created_at DESC LIMIT 1",
+        [video_id],
+    ).fetchone()
+    if history is None:
+        return None
+    key, upstream = history[0], json.loads(history[1])
+    where = [key, video_id]
+    media = con.execute(
+        "SELECT kind, frame, artifact FROM pose_media WHERE key = ? AND video_id = ? "
+        "ORDER BY kind, frame",
+        where,
+    ).fetchall()
+    tracks = con.execute(
+        "SELECT track, shot, role, first_frame, last_frame, frames_observed FROM pose_tracks "
+        "WHERE key = ? AND video_id = ? ORDER BY first_frame, track",
+        where,
+    ).df()
+    cuts = [
+        row[0]
+        for row in con.execute(
+            "SELECT start_frame FROM ingest_shots WHERE key = ? AND video_id = ? AND shot > 0 "
+            "ORDER BY shot",
+            [upstream["ingest"], video_id],
+        ).fetchall()
+    ]
+    handovers = con.execute(
+        """
+        WITH seen AS (
+            SELECT frame, role, track,
+                   lag(track) OVER (PARTITION BY role ORDER BY frame) AS from_track
+            FROM pose_keypoints WHERE key = ? AND video_id = ? AND track >= 0
+        )
+        SELECT frame, role, from_track, track AS to_track FROM seen
+        WHERE from_track IS NOT NULL AND from_track <> track ORDER BY frame, role
+        """,
+        where,
+    ).df()
+    confidence = con.execute(
+        """
+        SELECT role, joint - 1 AS joint, avg(raw_confidence[joint]) AS confidence
+        FROM pose_keypoints, range(1, 34) AS joints(joint)
+        WHERE key = ? AND video_id = ? AND track >= 0 AND isfinite(raw_confidence[joint])
+        GROUP BY ALL ORDER BY role, joint
+        """,
+        where,
+    ).df()
+    confidence["joint"] = [BLAZEPOSE_33[i] for i in confidence["joint"]]
+    return PoseReview(
+        key=key,
+        overlay=next((a for kind, _, a in media if kind == "overlay"), None),
+        stills=[(frame, a) for kind, frame, a in media if kind == "still"],
+        tracks=tracks,
+        cuts=cuts,
+        handovers=handovers,
+        confidence=confidence,
+        pick=newest_pick(con, video_id),
+    )
+
+
+def stages_finished_since(
+    con: duckdb.DuckDBPyConnection, video_id: str, since: datetime
+) -> list[str]:
+    """The per-video stages of ``video_id`` that some run has finished (done or cached) since
+    ``since`` (UTC), in pipeline order."""
+    found = {
+        row[0]
+        for row in con.execute(
+            "SELECT DISTINCT stage FROM stage_runs WHERE video_id = ? AND created_at >= ? "
+            "AND state IN ('done', 'cached')",
+            [video_id, since],
+        ).fetchall()
+    }
+    return [stage for stage in STAGES if stage in found]
+
+
+def evaluations(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
+    """The newest evaluation of each evaluated training run, newest first: run_key, key
+    (the evaluation's), created_at and its metrics."""
+    rows = con.execute(
+        """
+        SELECT video_id, key, created_at FROM stage_outputs WHERE stage = 'evaluate'
+        QUALIFY row_number() OVER (PARTITION BY video_id ORDER BY created_at DESC) = 1
+        ORDER BY created_at DESC
+        """
+    ).fetchall()
+    return [
+        {
+            "run_key": run_key,
+            "key": key,
+            "created_at": created_at,
+            "metrics": output_metrics(con, "evaluate", run_key, key),
+        }
+        for run_key, key, created_at in rows
+    ]
+
+
+def evaluation(con: duckdb.DuckDBPyConnection, key: str, run_key: str) -> dict[str, list[dict]]:
+    """The evaluation tables `ringside evaluate` prints (`evaluation_tables`)."""
+    return evaluation_tables(con, key, run_key)
+
+
+@dataclass(frozen=True)
+class LiftReview:
+    """What the Lift page shows of one lift output: its key, the MP4 of both humanoids (an
+    artifact name, None if absent), its metrics and the cleanup measures per step in one frame
+    (index: seconds into the video; columns: measure and fighter)."""
+
+    key: str
+    video: str | None
+    metrics: dict[str, float]
+    series: pd.DataFrame
+
+
+def lift_review(con: duckdb.DuckDBPyConnection, video_id: str) -> LiftReview | None:
+    """The newest lift output of ``video_id`` as the Lift page shows it; None if there is none."""
+    history = outputs(con, "lift", video_id)
+    if not history:
+        return None
+    key = history[0]["key"]
+    media = dict(
+        con.execute(
+            "SELECT kind, artifact FROM lift_media WHERE key = ? AND video_id = ?", [key, video_id]
+        ).fetchall()
+    )
+    measured = lift_series(con, key, video_id)
+    columns: dict[tuple[str, str], Any] = {
+        ("distance between fighters (m)", "both"): measured.fighter_distance_m
+    }
+    for role, fighter in measured.fighters.items():
+        slide = fighter.contact_slide_m_s
+        # A step's skating: the faster sliding foot of those in contact (NaN with both in the air).
+        any_contact = ~np.isnan(slide).all(axis=1)
+        fastest = np.full(len(slide), np.nan)
+        fastest[any_contact] = np.nanmax(slide[any_contact], axis=1)
+        columns[("foot skating, feet in contact (m/s)", role)] = fastest
+        columns[("floor penetration (m)", role)] = fighter.floor_penetration_m
+    series = pd.DataFrame(
+        {f"{measure}|{role}": values for (measure, role), values in columns.items()},
+        index=pd.Index(measured.time_s, name="time_s"),
+    )
+    return LiftReview(key, media.get("video"), history[0]["metrics"], series)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -58,6 +59,15 @@ TINY_TRAIN_FLAGS = [
     "--train-discriminator-updates-per-iteration",
     "1",
 ]
+# `ringside evaluate` flags for a few short bouts and a one-second video.
+TINY_EVALUATE_FLAGS = [
+    "--evaluate-episodes",
+    "4",
+    "--evaluate-episode-frames",
+    "60",
+    "--evaluate-video-seconds",
+    "1",
+]
 
 
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
@@ -100,6 +110,26 @@ def sample_run(tmp_path_factory, sample_video: Path) -> Path:
     ]
     assert main(argv) == 0
     return data
+
+
+def copy_data(source: Path, data: Path) -> Path:
+    """A data directory of a test's own holding ``source``'s results (database and artifacts;
+    assets stay shared through ``RINGSIDE_ASSETS``), for tests whose runs must not change a
+    shared fixture's. Returns ``data``."""
+    data.mkdir(parents=True)
+    for name in ("ringside.duckdb", "ringside.duckdb.wal"):  # a WAL only if not checkpointed
+        if (source / name).exists():
+            shutil.copy2(source / name, data / name)
+    shutil.copytree(source / "artifacts", data / "artifacts")
+    return data
+
+
+def render_page(path: str) -> None:
+    """One dashboard page as a script of its own, for Streamlit's AppTest (which runs a
+    function's body, so the import is inside)."""
+    from dashboards.app import PAGES
+
+    PAGES[path][1]()
 
 
 def write_video(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> Path:

@@ -13,18 +13,30 @@ import io
 import json
 import math
 import os
+import re
 import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
-from conftest import REPO, TINY_TRAIN_FLAGS, query, run_cli
+from conftest import (
+    REPO,
+    TINY_EVALUATE_FLAGS,
+    TINY_TRAIN_FLAGS,
+    copy_data,
+    query,
+    render_page,
+    run_cli,
+)
 
 from dashboards import queries
 from dashboards.app import (
+    EVALUATION_TILES,
     HEADLINES,
+    LIFT_TILES,
     PAGES,
     READ_AT,
     TILES,
@@ -34,6 +46,7 @@ from dashboards.app import (
 )
 from flows.cli import build_parser, main, wait_until_serving
 from flows.config import STAGES
+from flows.serve import run_progress, served_api
 from storage.db import connect
 from storage.paths import data_paths
 from tasks.dataset.statistics import combine_videos
@@ -63,14 +76,22 @@ TILE_TEXTS = """() => [...document.querySelectorAll('[data-testid="stMetric"]')]
 @pytest.fixture(scope="module")
 def trained(sample_run: Path) -> tuple[Path, str]:
     """The sample's data directory with a tiny training run on its first dataset (three
-    iterations: not the two `test_train_stage` trains, so both tests find their run new)."""
+    iterations: not the two `test_train_stage` trains, so both tests find their run new),
+    evaluated."""
     (dataset_key,) = query(
         sample_run, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1"
     )[0]
     argv = ["--data", str(sample_run), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS]
     said = io.StringIO()
     with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-        code = main([*argv, "--train-iterations", "3"])
+        code = main([*argv, "--train-iterations", "3", "--json"])
+    assert code == 0, said.getvalue()
+    (run,) = json.loads(said.getvalue().splitlines()[-1])
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+        code = main(
+            ["--data", str(sample_run), "evaluate", "--run", run["key"], *TINY_EVALUATE_FLAGS]
+        )
     assert code == 0, said.getvalue()
     return sample_run, dataset_key
 
@@ -180,13 +201,18 @@ def _cell(tables: list, row_name: str, column: str) -> str:
     raise AssertionError(f"no table has row {row_name!r} and column {column!r}")
 
 
+def _settle(page) -> int:
+    """Wait until the page is drawn; its height."""
+    # The first render of a fresh server imports the pipeline's modules: allow for it.
+    page.get_by_text(READ_AT).wait_for(timeout=120_000)
+    return page.wait_for_function(SETTLED, polling=250, timeout=60_000).json_value()
+
+
 def _open(page, url: str, shot: str) -> str:
     """Open ``url``, wait until the page is drawn, save its screenshot; the page's text."""
     page.set_viewport_size({"width": 1400, "height": 900})
     page.goto(url)
-    # The first render of a fresh server imports the pipeline's modules: allow for it.
-    page.get_by_text(READ_AT).wait_for(timeout=120_000)
-    height = page.wait_for_function(SETTLED, polling=250, timeout=60_000).json_value()
+    height = _settle(page)
     # Streamlit scrolls inside its main block, so a full-page screenshot needs a tall window.
     page.set_viewport_size({"width": 1400, "height": int(height)})
     page.screenshot(path=str(SCREENSHOTS / f"{shot}.png"), full_page=True)
@@ -196,14 +222,62 @@ def _open(page, url: str, shot: str) -> str:
     return text
 
 
+def _play_videos(page, shot: str) -> int:
+    """Play every video of the page, muted, to its end; how many there were."""
+    videos = page.locator("video")
+    for i in range(videos.count()):
+        video = videos.nth(i)
+        video.scroll_into_view_if_needed()
+        # play() rejects when the browser cannot decode the file (OpenCV's mp4v, say).
+        duration = video.evaluate("v => { v.muted = true; return v.play().then(() => v.duration) }")
+        assert duration > 0, (shot, i)
+        ended = video.evaluate(
+            "v => new Promise(done => { if (v.ended) done(true); v.onended = () => done(true); })"
+        )
+        assert ended and video.evaluate("v => v.currentTime") >= duration - 0.1, (shot, i)
+    return videos.count()
+
+
+def _start_serving(data: Path, home: Path) -> subprocess.Popen:
+    """`ringside serve` on ``data``: a Prefect server (its home ``home``, not the one this
+    process's ephemeral servers share) and the runner of the pipeline's deployment. Its output
+    goes to ``home/serve.log``: a pipe nobody reads could fill and stall it."""
+    home.mkdir(parents=True, exist_ok=True)
+    command = ["-m", "flows.cli", "--data", str(data), "serve", "--port", str(_free_port())]
+    with (home / "serve.log").open("w") as log:
+        return subprocess.Popen(
+            [sys.executable, *command],
+            env={**os.environ, "PREFECT_HOME": str(home)},
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
+
+
+def _stop(process: subprocess.Popen, what: str) -> str:
+    """Stop ``process`` as Ctrl-C would (SIGTERM); its output. Fails the test if it hangs."""
+    process.send_signal(signal.SIGTERM)
+    try:
+        out, _ = process.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        out, _ = process.communicate()
+        pytest.fail(f"{what} did not stop on SIGTERM:\n{out}")
+    return out
+
+
 @pytest.mark.skipif(
     not CHROMIUM.exists(), reason=f"Debian's chromium is not installed ({CHROMIUM}): `make setup`"
 )
-def test_every_page_in_a_browser(capsys, trained):
+def test_every_page_in_a_browser(capsys, trained, tmp_path):
     from playwright.sync_api import sync_playwright
 
-    data, dataset_key = trained
+    # A copy: the rerun and the pick below must not change the shared sample's outputs.
+    data, dataset_key = copy_data(trained[0], tmp_path / "data"), trained[1]
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    home = tmp_path / "prefect"
+    serving = _start_serving(data, home)  # it takes a while to come up: meanwhile, the pages
     metrics = {
         stage: _cli_json(capsys, data, "metrics", "--stage", stage)
         for stage in queries.METRIC_STAGES
@@ -216,6 +290,7 @@ def test_every_page_in_a_browser(capsys, trained):
         data, "SELECT video_id, key FROM dataset_members WHERE dataset_key = ?", [dataset_key]
     )
     assert len(members) == 1, "the sample's dataset joins one video"
+    video_id = members[0][0]
     adversary = dict(
         query(
             data,
@@ -224,12 +299,19 @@ def test_every_page_in_a_browser(capsys, trained):
             list(members[0]),
         )
     )
+    lifted = {r["name"]: r["value"] for r in metrics["lift"] if r["video_id"] == video_id}
+    judged = {r["name"]: r["value"] for r in metrics["evaluate"] if r["video_id"] == run["key"]}
+    assert judged, "the fixture evaluated the run"
 
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
     command = ["-m", "flows.cli", "--data", str(data), "dashboard", "--port", str(port)]
+    # The dashboard's reruns take the settings of ./ringside.toml where it was started: the
+    # sample's, so that a rerun recomputes the stage asked for and finds the rest cached.
+    (tmp_path / "ringside.toml").write_text("[ingest]\nchunk_frames = 30\n")
     server = subprocess.Popen(
         [sys.executable, *command, "--no-browser"],
+        cwd=tmp_path,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -243,12 +325,6 @@ def test_every_page_in_a_browser(capsys, trained):
             )
             page = browser.new_page()
 
-            _open(page, f"{url}/", "overview")
-            labels = video_labels(videos)
-            for state in _read(data, queries.stage_overview):
-                label = labels[state["video_id"]]
-                assert _cell(page.evaluate(TABLES), label, state["stage"]) == state["state"]
-
             for stage, printed in metrics.items():
                 text = _open(page, f"{url}/stages?stage={stage}", f"stage-{stage}")
                 if not printed:
@@ -258,6 +334,16 @@ def test_every_page_in_a_browser(capsys, trained):
                 for row in printed:
                     cell = _cell(tables, row["name"], names[row["video_id"]])
                     assert cell == format_value(row["value"]), (stage, row)
+
+            text = _open(page, f"{url}/pose?video={video_id}", "pose")
+            assert "Which track is the adversary?" in text
+            assert _play_videos(page, "pose") == 1
+
+            _open(page, f"{url}/lift?video={video_id}", "lift")
+            tiles = dict(page.evaluate(TILE_TEXTS))
+            for name, label in LIFT_TILES.items():
+                assert tiles[label] == format_value(lifted[name]), name
+            assert _play_videos(page, "lift") == 1
 
             _open(page, f"{url}/dataset?dataset={dataset_key}", "dataset")
             tiles = dict(page.evaluate(TILE_TEXTS))
@@ -269,27 +355,80 @@ def test_every_page_in_a_browser(capsys, trained):
             tiles = dict(page.evaluate(TILE_TEXTS))
             for name, label in TILES.items():
                 assert tiles[label] == format_value(newest[name]), name
+
+            _open(page, f"{url}/evaluation?run={run['key']}", "evaluation")
+            tiles = dict(page.evaluate(TILE_TEXTS))
+            for name, label in EVALUATION_TILES.items():
+                assert tiles[label] == format_value(judged[name]), name
+            assert _play_videos(page, "evaluation") == 1
+
+            # The rerun button: ingest (the first stage) of the sample, through the served
+            # deployment; the page follows the run to its end.
+            deadline = time.monotonic() + 180
+            while served_api(data) is None and time.monotonic() < deadline:
+                assert serving.poll() is None, (home / "serve.log").read_text()
+                time.sleep(1)
+            assert served_api(data), "`ringside serve` never came up"
+            _open(page, f"{url}/", "overview")
+            labels = video_labels(videos)
+            for state in _read(data, queries.stage_overview):
+                label = labels[state["video_id"]]
+                assert _cell(page.evaluate(TABLES), label, state["stage"]) == state["state"]
+            before = _read(
+                data,
+                lambda con: con.execute("SELECT max(created_at) FROM stage_runs").fetchone()[0],
+            )
+            page.get_by_role("button", name="Rerun").click()
+            page.get_by_text("Completed", exact=False).wait_for(timeout=300_000)
+            page.screenshot(path=str(SCREENSHOTS / "overview-rerun.png"), full_page=True)
+            text = page.inner_text("body")
+            assert "stages finished: ingest, pose, lift, dataset" in text, text[-2000:]
+            assert "Failed" not in text
+            rerun = query(
+                data,
+                "SELECT run_id, state FROM stage_runs WHERE stage = 'ingest' AND video_id = ? "
+                "AND created_at > ? AND state = 'done'",
+                [videos[0]["video_id"], before],
+            )
+            assert rerun, "the ingest stage was not recomputed"
+            later = query(
+                data,
+                "SELECT stage, state FROM stage_runs WHERE video_id = ? AND created_at > ? "
+                "AND stage <> 'ingest'",
+                [videos[0]["video_id"], before],
+            )
+            assert sorted(later) == [("dataset", "cached"), ("lift", "cached"), ("pose", "cached")]
+            assert run_progress(data, rerun[0][0]).state == "Completed"
+
+            # The fighter pick: the other track is the adversary, the pipeline reruns from pose.
+            _open(page, f"{url}/pose?video={video_id}", "pose")
+            tracks = _read(data, lambda con: queries.pose_review(con, video_id).tracks)
+            other = int(tracks.loc[tracks["role"] == "opponent", "track"].iloc[0])
+            # Typing into the select box lists the matching choices.
+            choice = page.get_by_role("combobox", name="Adversary track")
+            choice.scroll_into_view_if_needed()
+            choice.fill(f"track {other}")
+            page.get_by_role("option", name=f"track {other} (now opponent)").click()
+            page.get_by_role("button", name="Pick and rerun").click()
+            page.get_by_text(f"Track {other} is the adversary now").wait_for()
+            # The sidebar's links keep the browser's session, and with it the runs it follows.
+            page.get_by_role("link", name="Overview").click()
+            page.get_by_text(re.compile(r"Rerun of pose .*Completed")).wait_for(timeout=300_000)
+            page.screenshot(path=str(SCREENSHOTS / "overview-pick.png"), full_page=True)
+            assert "Failed" not in page.inner_text("body")
             browser.close()
+        picked = _read(data, lambda con: queries.pose_review(con, video_id))
+        assert picked.pick == other
+        roles = dict(zip(picked.tracks["track"], picked.tracks["role"], strict=True))
+        assert roles[other] == "adversary"
     finally:
-        # As Ctrl-C would; the command must take Streamlit down with it.
-        server.send_signal(signal.SIGTERM)
-        try:
-            out, _ = server.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-            out, _ = server.communicate()
-            pytest.fail(f"the dashboard did not stop on SIGTERM:\n{out}")
+        out = _stop(server, "the dashboard")
+        _stop(serving, "`ringside serve`")
     assert server.returncode == 0, out
+    assert serving.returncode == 0, (home / "serve.log").read_text()
     assert "dashboard stopped" in out and f"http://localhost:{port}" in out
     with socket.socket() as s:  # nothing listens any more
         assert s.connect_ex(("127.0.0.1", port)) != 0
-
-
-def _render(path: str) -> None:
-    """One dashboard page as a script of its own (AppTest runs a function's body)."""
-    from dashboards.app import PAGES
-
-    PAGES[path][1]()
 
 
 @pytest.mark.parametrize(
@@ -306,14 +445,14 @@ def test_pages_of_an_empty_data_directory(tmp_path, monkeypatch, path, message):
 
     assert path in PAGES
     monkeypatch.setenv("RINGSIDE_DATA", str(tmp_path))
-    app = AppTest.from_function(_render, args=(path,), default_timeout=60)
+    app = AppTest.from_function(render_page, args=(path,), default_timeout=60)
     assert [i.value for i in app.run().info] == [
         f"No database yet in `{tmp_path}`: run `ringside process VIDEO --adversary NAME` "
         "(or `ringside demo`)."
     ]
     with connect(data_paths(tmp_path).db):
         pass  # a fresh database: every table there, all of them empty
-    app = AppTest.from_function(_render, args=(path,), default_timeout=60).run()
+    app = AppTest.from_function(render_page, args=(path,), default_timeout=60).run()
     assert not app.exception, app.exception
     (info,) = app.info
     assert info.value.startswith(message), info.value
@@ -330,7 +469,7 @@ def test_a_failed_stage_shows_why_on_the_overview(tmp_path, monkeypatch):
         register_video(con, "f" * 64, 1234, "/footage/empty.mp4")
         record_run(con, "run-1", "f" * 64, "pose", "k" * 24, "failed", why)
     monkeypatch.setenv("RINGSIDE_DATA", str(tmp_path))
-    app = AppTest.from_function(_render, args=("overview",), default_timeout=60).run()
+    app = AppTest.from_function(render_page, args=("overview",), default_timeout=60).run()
     assert not app.exception, app.exception
     matrix, runs = (table.value for table in app.table)
     states = ["failed" if stage == "pose" else "missing" for stage in STAGES]

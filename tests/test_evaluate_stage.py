@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import TINY_TRAIN_FLAGS, query, run_cli
+from conftest import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS, query, run_cli
 
 from storage.artifacts import artifact_path, read_bytes
 from storage.paths import data_paths
@@ -22,19 +22,11 @@ from tasks.evaluate.opponent import load_opponent
 from tasks.evaluate.stage import POLICIES
 
 TINY_TRAIN = [*TINY_TRAIN_FLAGS, "--train-iterations", "2"]
-TINY_EVALUATE = [
-    "--evaluate-episodes",
-    "4",
-    "--evaluate-episode-frames",
-    "60",
-    "--evaluate-video-seconds",
-    "1",
-]
 REQUIRED = ("onnx_max_abs_diff", "style_score", "style_score_untrained", "falls_per_min")
 
 
 def _evaluate(capsys, data: Path, run: str, *flags: str) -> dict:
-    argv = ["--data", str(data), "evaluate", "--run", run, *TINY_EVALUATE, *flags, "--json"]
+    argv = ["--data", str(data), "evaluate", "--run", run, *TINY_EVALUATE_FLAGS, *flags, "--json"]
     code, out, err = run_cli(capsys, *argv)
     assert code == 0, err
     return json.loads(out)
@@ -134,7 +126,7 @@ def test_evaluate_fills_every_table_caches_and_reruns_identically(capsys, sample
     code, out, _ = run_cli(capsys, "--data", str(sample_run), "metrics", "--stage", "evaluate")
     assert code == 0 and "style_score_untrained" in out and "onnx_max_abs_diff" in out
     code, out, _ = run_cli(
-        capsys, "--data", str(sample_run), "evaluate", "--run", run_key, *TINY_EVALUATE
+        capsys, "--data", str(sample_run), "evaluate", "--run", run_key, *TINY_EVALUATE_FLAGS
     )
     assert code == 0 and "damage per episode" in out and "style_score (lower is closer)" in out
 

@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+import duckdb
 import numpy as np
 
 from models.pose.tiling import TiledDetector
@@ -58,6 +59,16 @@ def pose_code() -> str:
 
 def pose_upstream(ingest_key: str, pick: int | None) -> dict:
     return {"ingest": ingest_key, "pick": pick}
+
+
+def newest_pick(con: duckdb.DuckDBPyConnection, video_id: str) -> int | None:
+    """The analyst's newest choice of adversary track for ``video_id`` (`ringside pick`, the
+    dashboard's Pose page), if any: an input of the pose stage."""
+    row = con.execute(
+        "SELECT track FROM pose_picks WHERE video_id = ? ORDER BY picked_at DESC LIMIT 1",
+        [video_id],
+    ).fetchone()
+    return None if row is None else int(row[0])
 
 
 def pose_key(config: PoseConfig, ingest_key: str, pick: int | None) -> str:

@@ -15,7 +15,14 @@ from tasks.ingest.outputs import IngestOutput
 from tasks.pose.chunk import ChunkTracks
 from tasks.pose.config import PoseConfig
 from tasks.pose.merge import ChunkSpan
-from tasks.pose.stage import STAGE, assemble, pose_code, pose_upstream, process_chunk
+from tasks.pose.stage import (
+    STAGE,
+    assemble,
+    newest_pick,
+    pose_code,
+    pose_upstream,
+    process_chunk,
+)
 from tasks.runner import StageResult, run_stage
 from tasks.stage_task import stage_task
 
@@ -52,11 +59,7 @@ def latest_pick(db: Path, video_id: str) -> int | None:
     if not db.exists():
         return None
     with connect(db, read_only=True) as con:
-        row = con.execute(
-            "SELECT track FROM pose_picks WHERE video_id = ? ORDER BY picked_at DESC LIMIT 1",
-            [video_id],
-        ).fetchone()
-    return None if row is None else int(row[0])
+        return newest_pick(con, video_id)
 
 
 @stage_task("pose", "pose-{ingest.video_id:.12}")
