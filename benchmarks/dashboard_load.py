@@ -29,7 +29,12 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+# The tests' tiny training and evaluation settings (tests/tiny.py, free of conftest's set-up).
+sys.path.insert(0, str(REPO / "tests"))
+
+from tiny import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS  # noqa: E402
 
 from dashboards.app import PAGES, READ_AT  # noqa: E402
 from dashboards.queries import METRIC_STAGES  # noqa: E402
@@ -43,33 +48,6 @@ ADVERSARY = "A"
 CHROMIUM = "/usr/bin/chromium"
 VISITS = 3
 TRAIN_ITERATIONS = 20
-# Tiny networks and batches, as tests/conftest.py's TINY_TRAIN_FLAGS: the Training page draws
-# the same tables whatever the run's size.
-TINY_TRAIN_FLAGS = [
-    "--train-network-hidden",
-    "16,16",
-    "--train-env-num-envs",
-    "4",
-    "--train-ppo-horizon",
-    "4",
-    "--train-ppo-minibatch-size",
-    "16",
-    "--train-ppo-epochs",
-    "1",
-    "--train-discriminator-samples-per-update",
-    "16",
-    "--train-discriminator-updates-per-iteration",
-    "1",
-]
-# A few short bouts and a one-second video, as tests/conftest.py's TINY_EVALUATE_FLAGS.
-TINY_EVALUATE_FLAGS = [
-    "--evaluate-episodes",
-    "4",
-    "--evaluate-episode-frames",
-    "60",
-    "--evaluate-video-seconds",
-    "1",
-]
 # Query-parameter variants of a page, beyond its defaults, that draw different things.
 VARIANTS: dict[str, list[str]] = {"stages": [f"stage={stage}" for stage in METRIC_STAGES]}
 # The layout must hold this long to count as settled (charts and videos resize as they load).

@@ -39,7 +39,7 @@ from models.humanoid.boxer import boxer_mjcf  # noqa: E402
 from models.humanoid.observations import observation  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
-from tasks.lift.solve import velocities  # noqa: E402
+from tasks.lift.motion import velocities  # noqa: E402
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget  # noqa: E402
 from tasks.train.env import ArenaEnv, EnvConfig, ReferenceMotions, facing_reference  # noqa: E402
 

@@ -161,6 +161,19 @@ def read(read_with: Callable[[duckdb.DuckDBPyConnection], T]) -> T | None:
         return None
 
 
+def read_rows(
+    read_with: Callable[[duckdb.DuckDBPyConnection], list[T]], empty: str
+) -> list[T] | None:
+    """``read_with``'s rows; None when there are none, after saying ``empty`` and finishing the
+    page, or when the read failed (`read` has said why)."""
+    rows = read(read_with)
+    if rows is not None and not rows:
+        st.info(empty)
+        finish_page()
+        return None
+    return rows
+
+
 def finish_page() -> None:
     st.caption(f"{READ_AT} {datetime.now():%H:%M:%S} from `{database()}`.")
 
@@ -188,6 +201,25 @@ def choose_video(videos: Sequence[Mapping[str, Any]]) -> str:
     """The video the page is about, chosen by the analyst (``?video=`` in the URL)."""
     labels = video_labels(videos)
     return choose("Video", list(labels), "video", format_func=labels.get)
+
+
+def video_review(
+    stage: str, review_with: Callable[[duckdb.DuckDBPyConnection, str], T | None]
+) -> tuple[str, T] | None:
+    """The video a per-video page is about, chosen by the analyst, and ``review_with``'s reading
+    of its newest ``stage`` output; None, after saying why, when there is nothing to show."""
+    videos = read_rows(queries.videos, f"No video yet: {PROCESS_HINT}.")
+    if videos is None:
+        return None
+    video = choose_video(videos)
+    found = read(lambda con: (review_with(con, video),))  # None only when the read failed
+    if found is None:
+        return None
+    if found[0] is None:
+        st.info(f"This video has no {stage} output yet: {PROCESS_HINT}.")
+        finish_page()
+        return None
+    return video, found[0]
 
 
 def choose(label: str, options: Sequence[str], param: str, **kwargs: Any) -> str:
@@ -468,12 +500,11 @@ def histogram(samples: Mapping[str, Any], name: str) -> alt.Chart:
 
 def dataset_page() -> None:
     st.title("Dataset")
-    sets = read(queries.datasets)
+    sets = read_rows(
+        queries.datasets,
+        f"No dataset yet: {PROCESS_HINT}; the dataset stage assembles one per adversary.",
+    )
     if sets is None:
-        return
-    if not sets:
-        st.info(f"No dataset yet: {PROCESS_HINT}; the dataset stage assembles one per adversary.")
-        finish_page()
         return
     labels = dataset_labels(sets)
     about = {d["dataset_key"]: d for d in sets}
@@ -531,12 +562,8 @@ def dataset_page() -> None:
 
 def training_page() -> None:
     st.title("Training")
-    runs = read(queries.training_runs)
+    runs = read_rows(queries.training_runs, f"No training run yet: {TRAIN_HINT}.")
     if runs is None:
-        return
-    if not runs:
-        st.info(f"No training run yet: {TRAIN_HINT}.")
-        finish_page()
         return
     st.subheader("Runs")
     st.table(
@@ -578,19 +605,10 @@ def training_page() -> None:
 
 def pose_page() -> None:
     st.title("Pose")
-    videos = read(queries.videos)
-    if videos is None:
+    found = video_review("pose", queries.pose_review)
+    if found is None:
         return
-    if not videos:
-        st.info(f"No video yet: {PROCESS_HINT}.")
-        finish_page()
-        return
-    video = choose_video(videos)
-    review = read(lambda con: queries.pose_review(con, video))
-    if review is None:
-        st.info(f"This video has no pose output yet: {PROCESS_HINT}.")
-        finish_page()
-        return
+    video, review = found
     st.caption(f"Pose output {queries.short(review.key)}.")
     show_video(review.overlay, "Both fighters' keypoints and tracks over the footage.")
     if review.stills:
@@ -697,19 +715,10 @@ def pick_section(video: str, review: queries.PoseReview) -> None:
 
 def lift_page() -> None:
     st.title("Lift")
-    videos = read(queries.videos)
-    if videos is None:
+    found = video_review("lift", queries.lift_review)
+    if found is None:
         return
-    if not videos:
-        st.info(f"No video yet: {PROCESS_HINT}.")
-        finish_page()
-        return
-    video = choose_video(videos)
-    review = read(lambda con: queries.lift_review(con, video))
-    if review is None:
-        st.info(f"This video has no lift output yet: {PROCESS_HINT}.")
-        finish_page()
-        return
+    _, review = found
     st.caption(f"Lift output {queries.short(review.key)}.")
     for column, (name, label) in zip(st.columns(len(LIFT_TILES)), LIFT_TILES.items(), strict=True):
         column.metric(label, format_value(review.metrics.get(name)))
@@ -761,12 +770,8 @@ def series_chart(long: pd.DataFrame, title: str) -> alt.Chart:
 
 def evaluation_page() -> None:
     st.title("Evaluation")
-    runs = read(queries.evaluations)
+    runs = read_rows(queries.evaluations, f"No evaluation yet: {HINTS['evaluate']}.")
     if runs is None:
-        return
-    if not runs:
-        st.info(f"No evaluation yet: {HINTS['evaluate']}.")
-        finish_page()
         return
     about = {r["run_key"]: r for r in runs}
     run_key = choose("Run", list(about), "run", format_func=queries.short)

@@ -24,6 +24,7 @@ os.environ.setdefault(
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from tiny import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS  # noqa: E402, F401  (tests import them from here)
 
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
@@ -40,34 +41,6 @@ def assets() -> Path:
 @pytest.fixture(scope="session")
 def sample_video(assets: Path) -> Path:
     return assets / SAMPLE_VIDEO
-
-
-# `ringside train` flags for a run of tiny networks and batches (seconds, not minutes).
-TINY_TRAIN_FLAGS = [
-    "--train-network-hidden",
-    "16,16",
-    "--train-env-num-envs",
-    "4",
-    "--train-ppo-horizon",
-    "4",
-    "--train-ppo-minibatch-size",
-    "16",
-    "--train-ppo-epochs",
-    "1",
-    "--train-discriminator-samples-per-update",
-    "16",
-    "--train-discriminator-updates-per-iteration",
-    "1",
-]
-# `ringside evaluate` flags for a few short bouts and a one-second video.
-TINY_EVALUATE_FLAGS = [
-    "--evaluate-episodes",
-    "4",
-    "--evaluate-episode-frames",
-    "60",
-    "--evaluate-video-seconds",
-    "1",
-]
 
 
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
@@ -130,6 +103,20 @@ def render_page(path: str) -> None:
     from dashboards.app import PAGES
 
     PAGES[path][1]()
+
+
+def read_video(path: Path) -> tuple[str, list[np.ndarray]]:
+    """A video file's codec (FourCC, e.g. 'avc1') and every frame OpenCV decodes from it."""
+    capture = cv2.VideoCapture(str(path))
+    fourcc = int(capture.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame)
+    capture.release()
+    return fourcc, frames
 
 
 def write_video(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> Path:

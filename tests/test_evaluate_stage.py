@@ -10,10 +10,9 @@ import json
 import math
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
-from conftest import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS, query, run_cli
+from conftest import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS, query, read_video, run_cli
 
 from storage.artifacts import artifact_path, read_bytes
 from storage.paths import data_paths
@@ -104,13 +103,7 @@ def test_evaluate_fills_every_table_caches_and_reruns_identically(capsys, sample
     assert opponent.agent == 0 and opponent.manifest["run_key"] == run_key
     # The bout plays: up to 1 s at 30 Hz (the episodes may be shorter in all), in frames that
     # are pictures rather than one flat colour.
-    video = cv2.VideoCapture(str(artifact_path(paths.artifacts, stored["bout.mp4"])))
-    frames = []
-    while True:
-        ok, frame = video.read()
-        if not ok:
-            break
-        frames.append(frame)
+    _, frames = read_video(artifact_path(paths.artifacts, stored["bout.mp4"]))
     assert 1 < len(frames) == metrics["video_frames"] <= 30
     assert frames[0].shape == (360, 640, 3) and frames[0].std() > 10 and frames[-1].std() > 10
 

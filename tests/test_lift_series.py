@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import mujoco
 import numpy as np
 import pytest
+from conftest import read_video
 
 from models.humanoid.boxer import BoneLengths, single_scene_mjcf
 from tasks.lift.motion import RATE, FighterMotion
@@ -117,19 +117,6 @@ def colour_pixels(frame: np.ndarray) -> tuple[int, int]:
     red = (r > 120) & (r > 2 * g) & (r > 2 * b)
     blue = (b > 120) & (b > 2 * g) & (b > 2 * r)
     return int(red.sum()), int(blue.sum())
-
-
-def read_video(path: Path) -> tuple[str, list[np.ndarray]]:
-    capture = cv2.VideoCapture(str(path))
-    fourcc = int(capture.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
-    frames = []
-    while True:
-        ok, frame = capture.read()
-        if not ok:
-            break
-        frames.append(frame)
-    capture.release()
-    return fourcc, frames
 
 
 def test_video_shows_both_humanoids_and_hides_a_missing_one(tmp_path: Path):

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import query, run_cli
-from test_lift_series import colour_pixels, read_video
+from conftest import query, read_video, run_cli
+from test_lift_series import colour_pixels
 
 from storage.artifacts import artifact_path
 from storage.db import connect

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from conftest import run_cli
+from conftest import read_video, run_cli
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OBSERVATION_DIM
@@ -171,13 +171,7 @@ def test_spar_renders_a_bout_that_plays(tmp_path, pair):
     opponent = load_opponent(pair[0])
     result = spar(opponent, Partner(None), seconds=2.0, video=video, size=(320, 180))
     assert result.frames_rendered == 60
-    capture = cv2.VideoCapture(str(video))
-    frames = []
-    while True:
-        ok, frame = capture.read()
-        if not ok:
-            break
-        frames.append(frame)
+    _, frames = read_video(video)
     assert len(frames) == 60 and frames[0].shape == (180, 320, 3)
     # The fighters are on screen: the middle of the picture differs from its empty edges, and
     # they move.

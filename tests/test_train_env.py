@@ -19,7 +19,7 @@ from models.humanoid.kinematics import (
     joint_targets_to_action,
 )
 from models.humanoid.observations import body_state, observation, self_observation
-from tasks.lift.solve import velocities
+from tasks.lift.motion import velocities
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 from tasks.train.env import (
     ArenaEnv,

@@ -37,8 +37,7 @@ from tasks.dataset.config import DatasetConfig
 from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
 from tasks.errors import BadInput
-from tasks.lift.motion import RATE, FighterMotion
-from tasks.lift.solve import velocities
+from tasks.lift.motion import RATE, FighterMotion, velocities
 from tasks.lift.stage import ROLES
 from tasks.lift.synthetic import load_deepmimic, retarget
 from tasks.runner import StageOutput

@@ -16,7 +16,6 @@ import numpy as np
 
 from models.humanoid.boxer import BoneLengths, single_scene_mjcf
 from models.humanoid.kinematics import NV
-from tasks.lift.solve import velocities
 
 # The rate every motion is stored at, whatever the video's: the simulation's policy rate.
 RATE = 30.0
@@ -93,3 +92,45 @@ def resample(
         if len(run):
             v[run] = velocities(model, q[run], rate)
     return FighterMotion(step, q, v, j, c, bones)
+
+
+def gaussian_smooth(values: np.ndarray, sigma: float) -> np.ndarray:
+    """Zero-phase Gaussian filter along axis 0, with odd reflection at the ends.
+
+    Odd reflection (2 x_0 - x_k) keeps a linear trend through the ends, so a moving root
+    is not pulled back at the start and end of a clip.
+
+    Args:
+        values: (T, ...) samples.
+        sigma: standard deviation in samples; 0 returns a copy.
+
+    Returns:
+        (T, ...) filtered copy.
+    """
+    x = np.asarray(values, dtype=np.float64)
+    if sigma <= 0 or len(x) < 2:
+        return x.copy()
+    half = min(int(math.ceil(3 * sigma)), len(x) - 1)
+    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
+    kernel /= kernel.sum()
+    head = 2 * x[:1] - x[1 : half + 1][::-1]
+    tail = 2 * x[-1:] - x[-half - 1 : -1][::-1]
+    padded = np.concatenate([head, x, tail])
+    out = np.zeros_like(x)
+    for k, w in enumerate(kernel):
+        out += w * padded[k : k + len(x)]
+    return out
+
+
+def velocities(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarray:
+    """qvel (T, nv) by central differences of qpos with `mj_differentiatePos` (one-sided at
+    the ends; zeros for a single frame)."""
+    frames = len(qpos)
+    qvel = np.zeros((frames, model.nv))
+    if frames < 2:
+        return qvel
+    dt = 1.0 / fps
+    for frame in range(frames):
+        a, b = max(frame - 1, 0), min(frame + 1, frames - 1)
+        mujoco.mj_differentiatePos(model, qvel[frame], (b - a) * dt, qpos[a], qpos[b])
+    return qvel

@@ -71,6 +71,7 @@ from tasks.lift.metrics import (
     foot_skating_cm_per_frame,
     jitter_m_s2,
 )
+from tasks.lift.motion import gaussian_smooth, velocities
 
 NUM_KEYPOINTS = len(BLAZEPOSE_33)
 
@@ -278,34 +279,6 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     padded = np.concatenate([[False], mask, [False]])
     edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
     return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
-
-
-def gaussian_smooth(values: np.ndarray, sigma: float) -> np.ndarray:
-    """Zero-phase Gaussian filter along axis 0, with odd reflection at the ends.
-
-    Odd reflection (2 x_0 - x_k) keeps a linear trend through the ends, so a moving root
-    is not pulled back at the start and end of a clip.
-
-    Args:
-        values: (T, ...) samples.
-        sigma: standard deviation in samples; 0 returns a copy.
-
-    Returns:
-        (T, ...) filtered copy.
-    """
-    x = np.asarray(values, dtype=np.float64)
-    if sigma <= 0 or len(x) < 2:
-        return x.copy()
-    half = min(int(math.ceil(3 * sigma)), len(x) - 1)
-    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
-    kernel /= kernel.sum()
-    head = 2 * x[:1] - x[1 : half + 1][::-1]
-    tail = 2 * x[-1:] - x[-half - 1 : -1][::-1]
-    padded = np.concatenate([head, x, tail])
-    out = np.zeros_like(x)
-    for k, w in enumerate(kernel):
-        out += w * padded[k : k + len(x)]
-    return out
 
 
 def _max_then_mean(values: np.ndarray, half: int) -> np.ndarray:
@@ -1568,20 +1541,6 @@ def lift_above_floor(model: mujoco.MjModel, qpos: np.ndarray, half: int) -> np.n
     if depth.max() > 0:
         out[:, 2] += _max_then_mean(depth, half)
     return out
-
-
-def velocities(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarray:
-    """qvel (T, nv) by central differences of qpos with `mj_differentiatePos` (one-sided at
-    the ends; zeros for a single frame)."""
-    frames = len(qpos)
-    qvel = np.zeros((frames, model.nv))
-    if frames < 2:
-        return qvel
-    dt = 1.0 / fps
-    for frame in range(frames):
-        a, b = max(frame - 1, 0), min(frame + 1, frames - 1)
-        mujoco.mj_differentiatePos(model, qvel[frame], (b - a) * dt, qpos[a], qpos[b])
-    return qvel
 
 
 def sole_positions(skeleton: Skeleton, qpos: np.ndarray) -> np.ndarray:

@@ -25,8 +25,7 @@ import numpy as np
 from models.humanoid.arena import arena_mjcf
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ
-from tasks.lift.motion import RATE, FighterMotion, grid_steps
-from tasks.lift.solve import gaussian_smooth
+from tasks.lift.motion import RATE, FighterMotion, gaussian_smooth, grid_steps
 
 VIDEO_SIZE = (640, 360)
 # Agent 0 and agent 1 of the arena, as the dataset and training number the fighters.

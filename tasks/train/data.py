@@ -23,8 +23,7 @@ from models.humanoid.observations import SELF_DIM, body_states, observation
 from tasks.dataset.stage import ROLES
 from tasks.dataset.store import dataset_info, load_transitions
 from tasks.errors import BadInput
-from tasks.lift.motion import RATE
-from tasks.lift.solve import velocities
+from tasks.lift.motion import RATE, velocities
 from tasks.lift.store import load_motion
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 from tasks.train.env import ReferenceMotions, facing_reference
