@@ -12,6 +12,8 @@ Prints both and, last, ``train_vs_physics: R x`` (end to end over raw physics).
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -35,10 +37,27 @@ PHYSICS_STEPS = 100
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--envs",
+        type=int,
+        help="environments per batch instead of the default (the PPO minibatch scales with it)",
+    )
+    args = parser.parse_args()
     assets = data_paths().assets
     pull(assets, dev=True, log=lambda _line: None)
     demos = clip_demonstrations(assets, "punch")
     config = TrainConfig()
+    if args.envs:
+        # The same number of minibatches per epoch as the defaults.
+        scale = args.envs / config.env.num_envs
+        config = dataclasses.replace(
+            config,
+            env=dataclasses.replace(config.env, num_envs=args.envs),
+            ppo=dataclasses.replace(
+                config.ppo, minibatch_size=round(config.ppo.minibatch_size * scale)
+            ),
+        )
     n = config.env.num_envs
 
     with ArenaEnv(config.env, np.random.default_rng(0), demos.bones) as env:
