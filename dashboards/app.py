@@ -33,6 +33,7 @@ from storage.paths import data_paths
 from tasks.dataset.labels import HANDS, KINDS
 from tasks.dataset.statistics import DISTRIBUTIONS, SCALARS
 from tasks.errors import BadInput
+from tasks.pose.stage import record_pick
 
 # A page waits this long for the pipeline to let go of the database, then says so: a writer
 # holds it for seconds at most, and an analyst should not stare at a blank page meanwhile.
@@ -705,7 +706,7 @@ def pick_section(video: str, review: queries.PoseReview) -> None:
     served = served_api(root)
     if right.button("Pick and rerun", disabled=served is None or track == current):
         with connect(data_paths(root).db, wait_s=LOCK_WAIT_S) as con:
-            con.execute("INSERT INTO pose_picks VALUES (?, ?, ?)", [video, int(track), utcnow()])
+            record_pick(con, video, int(track))
         if follow_run(root, video, "pose", lambda: pipeline_parameters(root, video, rerun=None)):
             st.success(f"Track {track} is the adversary now; the Overview page follows the rerun.")
     picked = "no pick yet" if review.pick is None else f"track {review.pick}"

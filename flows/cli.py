@@ -389,25 +389,13 @@ def _rerun(args, data_root: Path) -> int:
 
 def _pick(args, data_root: Path) -> int:
     from flows.videos import ingested_video
-    from storage.db import connect, utcnow
+    from storage.db import connect
     from storage.paths import data_paths
-    from tasks.errors import BadInput
+    from tasks.pose.stage import record_pick
 
     video = ingested_video(data_root, args.video)
-    video_id = video.video_id
     with connect(data_paths(data_root).db) as con:
-        tracks = sorted(
-            row[0]
-            for row in con.execute(
-                "SELECT DISTINCT track FROM pose_tracks WHERE video_id = ?", [video_id]
-            ).fetchall()
-        )
-        if args.track not in tracks:
-            raise BadInput(
-                f"--track {args.track}",
-                f"video {video_id[:12]} has no such track; tracks: {tracks}",
-            )
-        con.execute("INSERT INTO pose_picks VALUES (?, ?, ?)", [video_id, args.track, utcnow()])
+        record_pick(con, video.video_id, args.track)
     args.until = None
     return _process(args, data_root, [video.path], video.adversary, video.colour, video.notes)
 

@@ -20,6 +20,7 @@ import numpy as np
 from models.pose.tiling import TiledDetector
 from models.pose.types import BLAZEPOSE_33, BLAZEPOSE_TO_COCO17, COCO_17, Detector, PoseEstimator
 from storage.artifacts import put_bytes
+from storage.db import utcnow
 from storage.keys import code_version, digest, stage_key
 from tasks.errors import BadInput
 from tasks.pose.chunk import ChunkTracks, track_chunk
@@ -69,6 +70,22 @@ def newest_pick(con: duckdb.DuckDBPyConnection, video_id: str) -> int | None:
         [video_id],
     ).fetchone()
     return None if row is None else int(row[0])
+
+
+def record_pick(con: duckdb.DuckDBPyConnection, video_id: str, track: int) -> None:
+    """Store the analyst's choice of ``track`` as the adversary of ``video_id`` (read back by
+    `newest_pick`); BadInput when the video has no such track."""
+    tracks = sorted(
+        row[0]
+        for row in con.execute(
+            "SELECT DISTINCT track FROM pose_tracks WHERE video_id = ?", [video_id]
+        ).fetchall()
+    )
+    if track not in tracks:
+        raise BadInput(
+            f"--track {track}", f"video {video_id[:12]} has no such track; tracks: {tracks}"
+        )
+    con.execute("INSERT INTO pose_picks VALUES (?, ?, ?)", [video_id, track, utcnow()])
 
 
 def pose_key(config: PoseConfig, ingest_key: str, pick: int | None) -> str:
