@@ -31,6 +31,7 @@ from typing import Any
 
 from storage.files import write_atomic
 from storage.paths import data_paths
+from storage.records import process_alive
 from tasks.errors import BadInput
 
 PIPELINE_FLOW = "video_to_opponent"
@@ -97,16 +98,6 @@ def answers(api_url: str, timeout_s: float = 2.0) -> bool:
             return answer.status == 200
     except (urllib.error.URLError, OSError, ValueError):
         return False
-
-
-def process_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # alive, someone else's
-        return True
-    return True
 
 
 def served_api(data_root: str | Path) -> str | None:

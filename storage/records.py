@@ -198,10 +198,13 @@ def worker_alive(worker: str | None) -> bool:
     if not worker:
         return False
     host, _, pid = worker.rpartition(":")
-    if host != socket.gethostname():
-        return True
+    return host != socket.gethostname() or process_alive(int(pid))
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this host."""
     try:
-        os.kill(int(pid), 0)
+        os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # alive, another user's
