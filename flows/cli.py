@@ -321,23 +321,25 @@ def _process(
 ) -> int:
     from flows.config import load_config
     from flows.pipeline import PipelineFailed, video_to_opponent
+    from flows.serve import run_parameters
     from tasks.ingest.probe import check_file
 
     # Cheap checks before Prefect starts, so a mistyped path fails in milliseconds.
     for video in videos:
         check_file(Path(video))
     config = load_config(args.config, _overrides(args))
+    parameters = run_parameters(
+        data_root,
+        videos,
+        adversary,
+        colour,
+        notes,
+        config.as_dict(),
+        until=getattr(args, "until", None),
+        rerun=rerun,
+    )
     try:
-        summaries = video_to_opponent(
-            str(data_root),
-            [str(Path(v).resolve()) for v in videos],
-            adversary,
-            colour,
-            notes,
-            config.as_dict(),
-            getattr(args, "until", None),
-            rerun,
-        )
+        summaries = video_to_opponent(**parameters)
     except PipelineFailed as failed:
         if failed.summaries:
             _print_summary(failed.summaries, data_root, args.json)
@@ -849,16 +851,15 @@ def _schedule(args, data_root: Path) -> int:
         check_file(Path(video))
     at = served.parse_when(args.at, now=datetime.now().astimezone())
     config = load_config(args.config, _overrides(args))
-    parameters = {
-        "data_root": str(data_root),
-        "videos": [str(Path(v).resolve()) for v in args.videos],
-        "adversary": args.adversary,
-        "adversary_colour": args.adversary_colour,
-        "notes": args.notes,
-        "config": config.as_dict(),
-        "until": args.until,
-        "rerun": None,
-    }
+    parameters = served.run_parameters(
+        data_root,
+        args.videos,
+        args.adversary,
+        args.adversary_colour,
+        args.notes,
+        config.as_dict(),
+        until=args.until,
+    )
     run_id = served.submit_run(
         data_root, parameters, at=None if args.at.strip().lower() == "now" else at
     )

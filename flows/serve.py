@@ -234,14 +234,38 @@ def pipeline_parameters(
     from flows.videos import ingested_video
 
     video = ingested_video(data_root, video_id_prefix)
+    return run_parameters(
+        data_root,
+        [video.path],
+        video.adversary,
+        video.colour,
+        video.notes,
+        load_config().as_dict(),
+        rerun=rerun,
+    )
+
+
+def run_parameters(
+    data_root: str | Path,
+    videos: list[str],
+    adversary: str,
+    adversary_colour: str | None,
+    notes: str | None,
+    config: dict,
+    *,
+    until: str | None = None,
+    rerun: list[str] | None = None,
+) -> dict[str, Any]:
+    """The parameters of one ``video_to_opponent`` run, by the flow's own names, with the data
+    directory and the videos as absolute paths (a run may start in another directory)."""
     return {
         "data_root": str(data_paths(data_root).root),
-        "videos": [video.path],
-        "adversary": video.adversary,
-        "adversary_colour": video.colour,
-        "notes": video.notes,
-        "config": load_config().as_dict(),
-        "until": None,
+        "videos": [str(Path(v).resolve()) for v in videos],
+        "adversary": adversary,
+        "adversary_colour": adversary_colour,
+        "notes": notes,
+        "config": config,
+        "until": until,
         "rerun": rerun,
     }
 
