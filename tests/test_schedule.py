@@ -270,7 +270,10 @@ def test_schedule_runs_later_and_shows_in_prefect(served, capsys, sample_video: 
     assert progress == RunProgress("Completed", True, True, progress.message)
     [run] = api_post(api, "flow_runs/filter", {"flow_runs": {"id": {"any_": [run_id]}}})
     started = datetime.fromisoformat(run["start_time"])
-    assert started >= at.astimezone(UTC) - timedelta(seconds=1)  # not before its time
+    # Not before its time: the second `--at` asked for, not `at` with its microseconds (a run
+    # once started at 21:39:59.77 for `--at 21:40:00`, taken at 21:39:52.90 + 8 s).
+    asked = at.replace(microsecond=0).astimezone(UTC)
+    assert started >= asked - timedelta(seconds=1)
     assert ingested(data, video)
 
 
