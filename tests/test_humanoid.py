@@ -10,10 +10,13 @@ import pytest
 
 from models.humanoid import kinematics as K
 from models.humanoid.boxer import (
+    DEFAULT_GAINS,
     JOINT_RANGES_DEG,
+    KNEE_LOCK_RAD,
     TIMESTEP,
     BoneLengths,
     boxer_mjcf,
+    gain_scale,
     single_scene_mjcf,
 )
 from models.pose.types import BLAZEPOSE_33, COCO_17
@@ -87,19 +90,31 @@ def test_mjcf_compiles_with_the_papers_layout() -> None:
     assert (index.qpos_start, index.qvel_start) == (0, 0)
 
 
-def test_joint_limits_gains_and_axes() -> None:
-    model = _model()
+@pytest.mark.parametrize("bones", [BoneLengths(), SMALL])
+def test_joint_limits_gains_and_axes(bones: BoneLengths) -> None:
+    model = _model(bones)
+    scale = gain_scale(24.0 * bones.stature**2, bones.stature)
+    assert scale == pytest.approx(
+        1.0 if bones == BoneLengths() else (bones.stature / 1.78) ** 3, rel=0.02
+    )
+    group = {hinge: spec.group for spec in K.JOINT_LAYOUT for hinge in spec.hinges}
     for hinge, (lo, hi) in JOINT_RANGES_DEG.items():
         joint = model.joint(hinge)
         assert joint.type[0] == mujoco.mjtJoint.mjJNT_HINGE
         assert joint.limited[0]
         np.testing.assert_allclose(joint.range, np.radians([lo, hi]))
         actuator = model.actuator(hinge)
+        gains = DEFAULT_GAINS[group[hinge]]
         kp = actuator.gainprm[0]
-        assert 300 <= kp <= 1000
-        assert model.dof_damping[joint.dofadr[0]] == pytest.approx(kp / 10)
+        assert kp == pytest.approx(gains.kp * scale)
+        assert 299 * scale <= kp <= 2501 * scale
+        assert model.dof_damping[joint.dofadr[0]] == pytest.approx(gains.kd * scale)
         assert actuator.biasprm[1] == pytest.approx(-kp)  # position servo: -kp q
-        np.testing.assert_allclose(actuator.ctrlrange, joint.range)
+        assert actuator.forcerange[1] == pytest.approx(gains.max_torque * scale)
+        # A knee's target may press past straight into its limit (a locked knee); the rest
+        # stay within the joint's range.
+        lock = KNEE_LOCK_RAD if group[hinge] == "knee" else 0.0
+        np.testing.assert_allclose(actuator.ctrlrange, joint.range - [lock, 0.0])
         assert actuator.forcelimited[0]
     for spec in K.JOINT_LAYOUT:
         for hinge, axis in zip(spec.hinges, spec.axes, strict=True):

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from models.humanoid.boxer import INTEGRATOR, BoneLengths, boxer_mjcf
+from models.humanoid.boxer import CONTACT_SOLREF, INTEGRATOR, BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import NUM_ACTUATED, HumanoidIndex, humanoid_index
 
 NUM_AGENTS = 2
@@ -147,6 +147,7 @@ def arena_mjcf(
         contype="0",
         conaffinity=str(COLLISION_BITS[0][0] | COLLISION_BITS[1][0]),
         condim="3",
+        solref=_fmt(CONTACT_SOLREF),
     )
     # A broadcast-style side view (the fighters in profile) and a view from above. The side
     # camera looks along +y and 4 deg down: its y axis (0, 0.075, 1) tilts it.

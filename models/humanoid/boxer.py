@@ -17,6 +17,22 @@ Design decisions:
 - Gains per joint group in `DEFAULT_GAINS`: kp 300-1000 N m/rad as in public
   AMP humanoids, kd = kp / 10, torque limits of a strong adult, and a little
   armature (reflected rotor inertia) that keeps the light distal bodies stable.
+  Legs chosen by measurement (tests/test_standing.py): the rest pose held with
+  action noise of std 0.02 on every target fell in 3-4 s with knees at kp 800 and
+  ankles at kp 500; the knees buckled (a straight knee at its limit takes only
+  flexing targets, so noise bent it on average) and the ankles, at a stiffness
+  only 1.4x the body's m g h, let the lean grow. Knees at kp 2500 whose targets
+  may reach `KNEE_LOCK_RAD` past straight (the joint's limit holds the knee while
+  the servo presses it there, as a locked knee) and ankles at kp 700 with kd 210
+  (kd = 0.3 kp; with kd 140, 1 of 128 trials fell) stood every one of 128 trials
+  (4 seeds x 16 arenas, the default body and a sample's) for 30 s; stiffer ankles
+  turn the ankles' own target noise into lean and fell sooner (kp 1000: 18 s on
+  average). The gains are the default body's, scaled to each body's m g h
+  (`gain_scale`): on the sample's 1.58 m fighters, unscaled kp 700 ankles lost 3-7
+  of 32 trials, kp 500 none.
+- Contact stiffness `CONTACT_SOLREF`: the stiffest MuJoCo allows at 120 Hz (a time
+  constant of two timesteps); with MuJoCo's default (0.02 s) the same standing
+  trials lost 1 in 32 in 30 s, the feet rocking in the softer floor.
 - Timestep 1/120 s (`TIMESTEP`) with MuJoCo's `implicitfast` integrator: the
   architecture notes saw 1/60 s diverge and 1/120 s not.
 - Masses are segment fractions of the body mass (Winter, "Biomechanics and Motor
@@ -46,11 +62,25 @@ from models.pose.types import BLAZEPOSE_33
 
 TIMESTEP = 1.0 / 120.0
 INTEGRATOR = "implicitfast"
+# solref (time constant s, damping ratio) of every geom's contacts; see the module docstring.
+CONTACT_SOLREF = (2.0 / 120.0, 1.0)
+# How far past straight (radians) a knee's servo target may go: the knee locks on its limit.
+KNEE_LOCK_RAD = 0.1
 
 # Standing height (sole to top of head) of the default bones, metres.
 DEFAULT_STATURE = 1.78
 # Body-mass index used when no body mass is given (a lean, muscular adult).
 DEFAULT_BMI = 24.0
+
+
+# Foot proportions of the default bones: horizontal foot length (heel to toe tip) and ankle
+# height as shares of stature, and the share of the foot behind the ankle (`with_plausible_feet`).
+FOOT_SHARE = 0.153
+ANKLE_SHARE = 0.0393
+HEEL_SHARE = 0.235
+# Relative deviations from those shares within which a measured foot or ankle height is kept.
+FOOT_LENGTH_TOLERANCE = 0.15
+ANKLE_TOLERANCE = 0.25
 
 
 @dataclass(frozen=True)
@@ -136,6 +166,36 @@ class BoneLengths:
         """Horizontal distance from the ankle back to the heel."""
         return math.sqrt(self.heel**2 - self.ankle_height**2)
 
+    def with_plausible_feet(self) -> BoneLengths:
+        """These bones with feet that can carry the body: the heel and the ankle height from the
+        body's proportions, the measured foot length kept only where it is plausible.
+
+        A foot measured from video is the least reliable length (BlazePose's heel landmark sits
+        on the sole's blurred outline): one fighter of the sample measured a heel 1.1 cm behind
+        the ankle, and its humanoid fell backward holding the rest pose. The proportions are the
+        default bones' (Drillis and Contini as tabulated by Winter 2009: foot length 0.152-0.153
+        of stature, ankle height 0.039), scaled to this fighter's stature: the horizontal foot
+        (heel to toe tip) within `FOOT_LENGTH_TOLERANCE` of stature x FOOT_SHARE is kept, else
+        that product; the heel takes the default share of it behind the ankle; the ankle height
+        within `ANKLE_TOLERANCE` of stature x ANKLE_SHARE is kept, else that product.
+        """
+        stature = self.stature
+        length = self.toe_forward + self.heel_back
+        expected = FOOT_SHARE * stature
+        if abs(length - expected) > FOOT_LENGTH_TOLERANCE * expected:
+            length = expected
+        ankle = self.ankle_height
+        expected_ankle = ANKLE_SHARE * stature
+        if abs(ankle - expected_ankle) > ANKLE_TOLERANCE * expected_ankle:
+            ankle = expected_ankle
+        back = HEEL_SHARE * length
+        return replace(
+            self,
+            ankle_height=ankle,
+            foot=math.hypot(length - back, ankle),
+            heel=math.hypot(back, ankle),
+        )
+
     def scaled(self, factor: float) -> BoneLengths:
         """Every length times `factor` (e.g. stature / 1.78 for a taller fighter)."""
         if not (math.isfinite(factor) and factor > 0):
@@ -155,7 +215,8 @@ class BoneLengths:
         fighter bias it low. head_radius is the ear distance / 1.5; ankle_height
         is the ankle's distance from the heel-toe line.
         Only distances are used, so any right-handed or left-handed metric frame
-        works (BlazePose world landmarks: y down).
+        works (BlazePose world landmarks: y down). The feet are then made plausible
+        (`with_plausible_feet`).
 
         Args:
             points: (T, 33, 3) BlazePose-order 3D points in metres; NaN marks a
@@ -219,7 +280,8 @@ class BoneLengths:
         default = cls()
         share = default.pelvis_to_torso / (default.pelvis_to_torso + default.torso_to_neck)
         trunk = lengths.pop("trunk")
-        return cls(pelvis_to_torso=trunk * share, torso_to_neck=trunk * (1 - share), **lengths)
+        measured = cls(pelvis_to_torso=trunk * share, torso_to_neck=trunk * (1 - share), **lengths)
+        return measured.with_plausible_feet()
 
 
 @dataclass(frozen=True)
@@ -252,8 +314,8 @@ DEFAULT_GAINS: Mapping[str, PDGains] = MappingProxyType(
         "shoulder": PDGains(kp=500.0, kd=50.0, max_torque=150.0, armature=0.02),
         "elbow": PDGains(kp=400.0, kd=40.0, max_torque=100.0, armature=0.01),
         "hip": PDGains(kp=800.0, kd=80.0, max_torque=300.0, armature=0.02),
-        "knee": PDGains(kp=800.0, kd=80.0, max_torque=300.0, armature=0.02),
-        "ankle": PDGains(kp=500.0, kd=50.0, max_torque=200.0, armature=0.02),
+        "knee": PDGains(kp=2500.0, kd=250.0, max_torque=750.0, armature=0.02),
+        "ankle": PDGains(kp=700.0, kd=140.0, max_torque=250.0, armature=0.02),
     }
 )
 
@@ -457,6 +519,16 @@ def _body_geometry(
     return out
 
 
+def gain_scale(body_mass: float, stature: float) -> float:
+    """Factor on the gains and torque limits for a body of this mass (kg) and stature (m): the
+    ratio of its m g h to the default body's (BMI 24 at the default bones' stature), so that
+    every body has the same stiffness relative to the gravity torques it must resist (measured:
+    ankles at kp 700 held the default body and fell the sample's 1.58 m fighters, kp 500 the
+    reverse; tests/test_standing.py)."""
+    default = BoneLengths().stature
+    return body_mass * stature / (DEFAULT_BMI * default**3)
+
+
 def _body_masses(body_mass: float, glove_mass: float) -> dict[str, float]:
     """kg per body: Winter's fractions of `body_mass`, plus the glove on each hand."""
     masses = {}
@@ -509,6 +581,11 @@ def _boxer_tree(
 
     geometry = _body_geometry(bones, glove_radius, color)
     masses = _body_masses(mass, glove_mass)
+    scale = gain_scale(mass, bones.stature)
+    gains = {
+        group: replace(g, kp=g.kp * scale, kd=g.kd * scale, max_torque=g.max_torque * scale)
+        for group, g in gains.items()
+    }
     joints_of = {j.body: j for j in JOINT_LAYOUT}
 
     root = ET.Element("mujoco", model=name)
@@ -547,6 +624,7 @@ def _boxer_tree(
                 "contype": str(contype),
                 "conaffinity": str(conaffinity),
                 "condim": "3",
+                "solref": _fmt(CONTACT_SOLREF),
             }
             if geom.fromto is not None:
                 attributes["fromto"] = _fmt(geom.fromto)
@@ -573,13 +651,15 @@ def _boxer_tree(
     for joint in JOINT_LAYOUT:
         gain = gains[joint.group]
         for hinge in joint.hinges:
+            lo, hi = JOINT_RANGES_DEG[hinge]
+            lo = math.radians(lo) - (KNEE_LOCK_RAD if joint.group == "knee" else 0.0)
             ET.SubElement(
                 actuators,
                 "position",
                 name=prefix + hinge,
                 joint=prefix + hinge,
                 kp=_fmt(gain.kp),
-                inheritrange="1",
+                ctrlrange=_fmt((lo, math.radians(hi))),
                 forcerange=_fmt((-gain.max_torque, gain.max_torque)),
             )
     return root
@@ -613,7 +693,8 @@ def boxer_mjcf(
         body_mass: kg without gloves; default BMI 24 at the bones' stature.
         glove_mass: kg of each glove, added to the hand (10 oz = 0.28 kg).
         glove_radius: radius of the glove sphere in metres, centred on the knuckles.
-        gains: PD gains per joint group (keys: the JointSpec groups).
+        gains: PD gains per joint group (keys: the JointSpec groups) for the default
+            body; kp, kd and torque limits are scaled by `gain_scale` for this one.
         contype, conaffinity: collision bit masks of every geom (see module docstring).
 
     Returns:
@@ -664,6 +745,7 @@ def single_scene_mjcf(
         contype="0",
         conaffinity=str(2**31 - 1),
         condim="3",
+        solref=_fmt(CONTACT_SOLREF),
     )
     worldbody.insert(0, floor)
     worldbody.insert(0, ET.Element("light", name="light", pos="0 0 4", dir="0 0 -1"))
