@@ -42,7 +42,9 @@ def punch(assets) -> ReferenceMotions:
 
 
 def _env(**config) -> ArenaEnv:
-    config = {"num_envs": 2, "threads": 1, **config}
+    """An environment that starts episodes with the reference's velocities unless told: these
+    tests check what the reference's motion does."""
+    config = {"num_envs": 2, "threads": 1, "reset_velocity": "reference", **config}
     return ArenaEnv(EnvConfig(**config), np.random.default_rng(0))
 
 
@@ -135,22 +137,29 @@ def test_reset_places_both_fighters_at_the_reference_frame(punch):
             # One horizontal shift for both, centring the pelvises on the origin; all else equal.
             assert q1[:2] - punch.qpos1[frame, :2] == pytest.approx(shift, abs=1e-12)
             assert (q0[:2] + q1[:2]) / 2 == pytest.approx([0.0, 0.0], abs=1e-12)
-            assert np.array_equal(q0[2:], punch.qpos0[frame, 2:])
-            assert np.array_equal(q1[2:], punch.qpos1[frame, 2:])
+            assert np.array_equal(q0[3:], punch.qpos0[frame, 3:])
+            assert np.array_equal(q1[3:], punch.qpos1[frame, 3:])
             assert np.array_equal(data.qvel[agents[0].qvel], punch.qvel0[frame])
             assert np.array_equal(data.qvel[agents[1].qvel], punch.qvel1[frame])
+            # Heights change only to put each fighter's lowest point on the floor.
+            for agent in range(2):
+                mine = np.flatnonzero(env.index.agent_of_geom == agent)
+                gap = _floor_distances(env.model, data, mine).min()
+                assert gap == pytest.approx(0.0, abs=1e-9)
             assert _floor_distances(env.model, data, fighters).min() >= -1e-9
 
 
-def test_reset_lifts_a_fighter_out_of_the_floor_and_draws_frames_from_the_rng(punch):
-    sunk = ReferenceMotions(
-        punch.qpos0 - np.eye(35)[2] * 0.2, punch.qvel0, punch.qpos1, punch.qvel1
-    )
-    with _env(num_envs=3) as env:
-        env.reset([0, 1, 2], sunk, frames=[5, 6, 7])
-        mine = np.flatnonzero(env.index.agent_of_geom == 0)
-        for data in env.datas:
-            assert _floor_distances(env.model, data, mine).min() == pytest.approx(0.0, abs=1e-9)
+def test_reset_grounds_a_sunk_or_floating_fighter_and_draws_frames_from_the_rng(punch):
+    for offset in (-0.2, 0.3):  # sunk into the floor, then floating as lifted footage can be
+        moved = ReferenceMotions(
+            punch.qpos0 + np.eye(35)[2] * offset, punch.qvel0, punch.qpos1, punch.qvel1
+        )
+        with _env(num_envs=3) as env:
+            env.reset([0, 1, 2], moved, frames=[5, 6, 7])
+            mine = np.flatnonzero(env.index.agent_of_geom == 0)
+            for data in env.datas:
+                gap = _floor_distances(env.model, data, mine).min()
+                assert gap == pytest.approx(0.0, abs=1e-9)
     draws = []
     for _ in range(2):
         with _env(num_envs=8) as env:
@@ -158,6 +167,40 @@ def test_reset_lifts_a_fighter_out_of_the_floor_and_draws_frames_from_the_rng(pu
             draws.append(np.array([d.qpos[3:7].copy() for d in env.datas]))
     assert np.array_equal(draws[0], draws[1])  # one seed, one draw
     assert len({tuple(q) for q in draws[0]}) > 1  # frames differ between environments
+
+
+def test_reset_velocities_are_zeroed_clipped_or_kept(punch):
+    fast = ReferenceMotions(punch.qpos0, punch.qvel0 * 10, punch.qpos1, punch.qvel1 * 10)
+    frames = [3, 20]
+    got = {}
+    for mode in ("zero", "clip", "reference"):
+        with _env(reset_velocity=mode, reset_speed_limit=2.0) as env:
+            env.reset([0, 1], fast, frames=frames)
+            got[mode] = np.array([d.qvel[env.index.agents[0].qvel] for d in env.datas])
+    assert not got["zero"].any()
+    assert np.array_equal(got["reference"], fast.qvel0[frames])
+    assert np.array_equal(got["clip"], np.clip(fast.qvel0[frames], -2.0, 2.0))
+    assert np.abs(fast.qvel0[frames]).max() > 2.0  # the clip did clip
+    with pytest.raises(ValueError, match="reset_velocity"):
+        EnvConfig(reset_velocity="half")
+
+
+def test_a_share_of_resets_starts_standing_where_the_frame_stands(punch):
+    with _env(num_envs=64, standing_share=0.5) as env:
+        env.reset(np.arange(64), punch)
+        agents = env.index.agents
+        hinges = np.array([d.qpos[agents[0].qpos][7:] for d in env.datas])
+        standing = ~hinges.any(axis=1)
+        assert 16 < standing.sum() < 48
+        for data in np.array(env.datas)[standing]:
+            for agent in agents:
+                q = data.qpos[agent.qpos]
+                assert not q[7:].any() and not data.qvel[agent.qvel].any()
+                assert np.linalg.norm(q[4:6]) == pytest.approx(0.0, abs=1e-12)  # yaw only
+            mine = np.flatnonzero(env.index.agent_of_geom == 0)
+            assert _floor_distances(env.model, data, mine).min() == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(ValueError, match="standing_share"):
+        EnvConfig(standing_share=1.5)
 
 
 def test_centred_pair_and_facing_reference_geometry(punch):
@@ -331,13 +374,14 @@ def test_threaded_stepping_is_bitwise_sequential_stepping(punch):
         results = [env.step(a) for a in actions]
         threaded = [(d.qpos.copy(), d.qvel.copy()) for d in env.datas]
         model, ctrlrange = env.model, env.model.actuator_ctrlrange
+        substeps = env.config.substeps
     # The obviously correct way: one MjData at a time, mj_step after mj_step.
     for k, (qpos, qvel) in enumerate(start):
         data = mujoco.MjData(model)
         data.qpos[:], data.qvel[:] = qpos, qvel
         for a in actions:
             data.ctrl[:] = np.clip(action_to_joint_targets(a[k]).reshape(-1), *ctrlrange.T)
-            for _ in range(2):
+            for _ in range(substeps):
                 mujoco.mj_step(model, data)
         assert np.array_equal(data.qpos, threaded[k][0])
         assert np.array_equal(data.qvel, threaded[k][1])

@@ -70,7 +70,7 @@ def test_one_iteration_reports_every_term(demos):
         "motion_accuracy_real",
         "interaction0_accuracy_fake",
         "motion_gradient_penalty",
-        "episode_length_s",
+        "episode_age_s",
         "falls_per_min",
         "damage_received_n",
         "env_steps_per_s",
@@ -81,6 +81,23 @@ def test_one_iteration_reports_every_term(demos):
     assert 0 <= metrics["reward_motion"] <= TINY.discriminator.max_reward
     assert trainer.iteration == 1
     assert not torch.equal(before, _parameters(trainer)), "nothing was learned"
+
+
+def test_episode_length_is_the_mean_length_of_the_episodes_that_ended(demos):
+    # Episodes of 3 steps in an iteration of 8: every environment ends at least two episodes,
+    # and the running ones are younger than the ended ones.
+    short = dataclasses.replace(TINY, env=dataclasses.replace(TINY.env, episode_s=0.1))
+    trainer = Trainer(short, demos)
+    try:
+        metrics = trainer.iterate()
+        ended = trainer.finished_steps
+    finally:
+        trainer.close()
+    assert len(ended) >= 2 * short.env.num_envs
+    assert ended.max() == 3 and ended.min() >= 1
+    assert metrics["episode_length_s"] == pytest.approx(ended.mean() / 30)
+    assert metrics["episodes_ended"] == len(ended)
+    assert metrics["episode_age_s"] < metrics["episode_length_s"] + 1e-9
 
 
 @pytest.mark.parametrize("task", ["none", "heading"])
@@ -108,7 +125,8 @@ def test_resumed_run_matches_the_uninterrupted_one(demos, task):
         assert torch.equal(_parameters(resumed), final)
     finally:
         resumed.close()
-    timing = {k for k in expected[0] if k.endswith("_s") and k != "episode_length_s"}
+    episodes = {"episode_length_s", "episode_age_s"}
+    timing = {k for k in expected[0] if k.endswith("_s") and k not in episodes}
     timing.add("env_steps_per_s")
     for want, have in zip(expected[1:], got, strict=True):
         assert {k: v for k, v in have.items() if k not in timing} == {

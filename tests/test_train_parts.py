@@ -4,6 +4,7 @@ two short learning runs (a discriminator on synthetic motions, PPO on a one-step
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -221,6 +222,7 @@ def test_reward_schedule_and_combination():
         control_task="damage_min",
         interaction_start=10,
         control_start=20,
+        w_alive=0.0,
     )
     assert reward_weights(config, 0) == pytest.approx((1.0, 0.0, 0.0))
     assert reward_weights(config, 10) == pytest.approx((0.2, 0.8, 0.0))  # MAAIP §5.2 weights
@@ -243,6 +245,13 @@ def test_reward_schedule_and_combination():
     )
     with pytest.raises(ValueError, match="control reward is needed"):
         combine_rewards(m, i, None, config=config, iteration=20)
+    # Every step lived earns w_alive on top of eq 4's sum.
+    alive = dataclasses.replace(config, w_alive=0.1)
+    torch.testing.assert_close(
+        combine_rewards(m, i, c, config=alive, iteration=25), 0.1 * m + 0.4 * i + 0.5 * c + 0.1
+    )
+    with pytest.raises(ValueError, match="w_alive"):
+        dataclasses.replace(config, w_alive=-1.0)
 
 
 # --- GAE and PPO ---------------------------------------------------------------------------

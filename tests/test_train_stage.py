@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -43,7 +44,7 @@ def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
     curves = query(
         sample_run,
         "SELECT count(DISTINCT iteration) FROM train_iterations WHERE key = ? "
-        "AND name = 'episode_length_s'",
+        "AND name = 'reward_total'",
         [summary["key"]],
     )
     assert curves == [(2,)]
@@ -55,13 +56,13 @@ def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
     code, out, _ = run_cli(capsys, *curves, "--json")
     rows = json.loads(out)
     assert code == 0 and [r["iterations"] for r in rows] == ["0-0", "1-1"]
-    lengths = query(
+    falls = query(
         sample_run,
-        "SELECT value FROM train_iterations WHERE key = ? AND name = 'episode_length_s' "
+        "SELECT value FROM train_iterations WHERE key = ? AND name = 'falls_per_min' "
         "ORDER BY iteration",
         [summary["key"]],
     )
-    assert [r["episode_length_s"] for r in rows] == [v for (v,) in lengths]
+    assert [r["falls_per_min"] for r in rows] == [v for (v,) in falls]
     code, _, err = run_cli(capsys, "--data", str(sample_run), "curves", "--run", "zzz")
     assert code == 2 and "matches no training run" in err
 
@@ -130,3 +131,18 @@ def test_a_killed_run_resumes_where_it_stopped(sample_run, dataset_key):
     resumed = curves("killed")
     assert [r[0] for r in resumed if r[1] == "reward_total"] == [0, 1, 2, 3]
     assert resumed == curves("whole")
+
+
+def test_a_run_with_a_time_budget_ends_at_the_first_checkpoint_after_it(sample_run, dataset_key):
+    paths = data_paths(sample_run)
+    budget = dataclasses.replace(TINY, iterations=1000, minutes=1e-6)
+    out = train(
+        db=paths.db, artifacts=paths.artifacts, dataset_key=dataset_key, key="timed", config=budget
+    )
+    # The budget ran out in the first iteration; the run stops at the checkpoint after two.
+    assert out.rows["train_policies"][0][2] == 2 and out.metrics["iterations"] == 2
+    assert query(sample_run, "SELECT iteration FROM train_checkpoints WHERE key = 'timed'") == [
+        (2,)
+    ]
+    with pytest.raises(ValueError, match="train.minutes"):
+        dataclasses.replace(TINY, minutes=-1.0)

@@ -9,7 +9,6 @@ humanoids with the fighters' own bone lengths.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import humanoid_index
 from models.humanoid.observations import SELF_DIM, body_states, observation
 from tasks.dataset.stage import ROLES
-from tasks.dataset.store import dataset_info, load_transitions
+from tasks.dataset.store import dataset_info, load_transitions, upstream_lift_key
 from tasks.errors import BadInput
 from tasks.lift.motion import RATE, velocities
 from tasks.lift.store import load_motion
@@ -66,12 +65,7 @@ def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Dem
     frames: list[tuple[np.ndarray, ...]] = []
     bones, most = None, -1
     for video_id, key in info.members:
-        upstream = con.execute(
-            "SELECT upstream FROM stage_outputs WHERE stage = 'dataset' AND video_id = ? "
-            "AND key = ?",
-            [video_id, key],
-        ).fetchone()
-        lift_key = json.loads(upstream[0]).get("lift") if upstream else None
+        lift_key = upstream_lift_key(con, video_id, key)
         if lift_key is None:  # extra single-actor clips: no interaction
             continue
         clips = con.execute(

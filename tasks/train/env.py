@@ -103,6 +103,7 @@ from models.humanoid.observations import (
 from tasks.config import setting
 
 STEPPINGS = ("rollout", "threads")
+RESET_VELOCITIES = ("zero", "clip", "reference")
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
@@ -112,9 +113,11 @@ class EnvConfig:
 
     policy_hz: int = setting(30, "Policy queries per simulated second (MAAIP §5.1: 30 Hz).")
     substeps: int = setting(
-        2,
+        4,
         "Physics steps per policy step; the timestep is 1 / (policy_hz * substeps): 2 gives "
-        "the paper's 60 Hz physics (§5.1), 4 gives 120 Hz.",
+        "the paper's 60 Hz physics (§5.1), 4 gives 120 Hz, the default: holding the rest pose "
+        "with action noise 0.02 (tests/test_standing.py), the default body fell in 2.2-3.3 s "
+        "at 60 Hz, where at 120 Hz it stands 30 s.",
     )
     episode_s: float = setting(
         10.0, "Seconds after which an episode times out (not terminal for bootstrapping)."
@@ -124,6 +127,24 @@ class EnvConfig:
         "A fighter whose head sphere's centre is below this height (m) has fallen, as has one "
         "touching the floor with anything but its feet and shins. Standing, the default head is "
         "at 1.67 m; a deep duck brings it to about 1.2 m.",
+    )
+    reset_velocity: str = setting(
+        "zero",
+        "Velocities an episode starts with: 'zero' (the lifted ones are noisy: joint speeds of "
+        "6 rad/s at the 95th percentile on the demo, 26 at most), 'clip' (the reference's, each "
+        "speed clipped to reset_speed_limit) or 'reference' (as lifted). On the demo's frames, "
+        "which lean (centre of mass 13-15 cm from the feet's midpoint), resting, holding the "
+        "frame or playing the clip fell in 0.74-0.84 s with any of the three.",
+    )
+    reset_speed_limit: float = setting(
+        3.0, "With reset_velocity 'clip': the largest joint and root speed kept (rad/s, m/s)."
+    )
+    standing_share: float = setting(
+        0.5,
+        "Share (0-1) of episode starts from the rest pose, both fighters standing where the drawn "
+        "reference frame has them (AMP's hybrid initialisation); the rest start from the frames. "
+        "The demo's frames are mid-stride and lean: holding any of them, or going to the rest "
+        "targets from it, fell in 0.8 s, so without standing starts few episodes teach balance.",
     )
     num_envs: int = setting(64, "N: environments stepped together, each with both agents.")
     threads: int = setting(2, "Worker threads that step the environments (cores to use).")
@@ -143,6 +164,19 @@ class EnvConfig:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ValueError(f"EnvConfig.{name} must be a positive number, got {value!r}")
+        if self.reset_velocity not in RESET_VELOCITIES:
+            raise ValueError(
+                f"EnvConfig.reset_velocity must be one of {RESET_VELOCITIES}, "
+                f"got {self.reset_velocity!r}"
+            )
+        if not (math.isfinite(self.reset_speed_limit) and self.reset_speed_limit > 0):
+            raise ValueError(
+                f"EnvConfig.reset_speed_limit must be positive, got {self.reset_speed_limit!r}"
+            )
+        if not (math.isfinite(self.standing_share) and 0 <= self.standing_share <= 1):
+            raise ValueError(
+                f"EnvConfig.standing_share must be in [0, 1], got {self.standing_share!r}"
+            )
         if self.stepping not in STEPPINGS:
             raise ValueError(
                 f"EnvConfig.stepping must be one of {STEPPINGS}, got {self.stepping!r}"
@@ -282,6 +316,28 @@ def geom_bottoms(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) 
         bad = [int(g) for g in geoms[np.isnan(bottom)]]
         raise ValueError(f"geom_bottoms handles spheres, capsules and boxes; geoms {bad} are not")
     return bottom
+
+
+def start_velocities(qvel: np.ndarray, mode: str, limit: float) -> np.ndarray:
+    """Velocities (n, 34) to start episodes with, from the reference's (`EnvConfig.reset_velocity`):
+    zeros, the reference's clipped to +-`limit` per coordinate, or the reference's as they are."""
+    if mode == "zero":
+        return np.zeros_like(qvel)
+    if mode == "clip":
+        return np.clip(qvel, -limit, limit)
+    return qvel.copy()
+
+
+def rest_pose_like(qpos: np.ndarray) -> np.ndarray:
+    """The humanoid's rest pose (every hinge at 0, upright) where each of ``qpos`` (n, 35) stands,
+    facing its heading; the height is left to the caller's grounding."""
+    out = np.zeros_like(qpos)
+    out[:, ROOT_POS] = qpos[:, ROOT_POS]
+    yaw = heading_yaw(qpos[:, ROOT_QUAT])
+    out[:, ROOT_QUAT] = np.stack(
+        [np.cos(yaw / 2), np.zeros_like(yaw), np.zeros_like(yaw), np.sin(yaw / 2)], axis=-1
+    )
+    return out
 
 
 def centred_pair(qpos0: np.ndarray, qpos1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -548,7 +604,9 @@ class ArenaEnv:
         Each environment gets a frame drawn uniformly with the env's Generator (or the given
         `frames`), both fighters placed as in it, shifted horizontally so that the midpoint of
         their pelvises is the origin; a fighter whose lowest geom would be below the floor is
-        lifted until it touches z = 0. Velocities are the reference's.
+        moved up or down until its lowest point touches z = 0. Velocities follow
+        `EnvConfig.reset_velocity`; a share `EnvConfig.standing_share` of starts puts both
+        fighters in the rest pose instead (`rest_pose_like`).
 
         Args:
             env_ids: indices of the environments, or a (N,) bool mask.
@@ -577,7 +635,15 @@ class ArenaEnv:
                     f"got {frames!r}"
                 )
         qpos0, qpos1 = centred_pair(reference.qpos0[picks], reference.qpos1[picks])
-        qvel = (reference.qvel0[picks], reference.qvel1[picks])
+        qvel = [
+            start_velocities(v[picks], self.config.reset_velocity, self.config.reset_speed_limit)
+            for v in (reference.qvel0, reference.qvel1)
+        ]
+        if self.config.standing_share > 0:
+            standing = self.rng.random(len(ids)) < self.config.standing_share
+            for qpos, v in zip((qpos0, qpos1), qvel, strict=True):
+                qpos[standing] = rest_pose_like(qpos[standing])
+                v[standing] = 0.0
         agents = self.index.agents
         mine = [np.flatnonzero(self.index.agent_of_geom == a) for a in range(NUM_AGENTS)]
         for k, i in enumerate(ids):
@@ -587,10 +653,10 @@ class ArenaEnv:
                 data.qpos[agents[a].qpos] = qpos[k]
                 data.qvel[agents[a].qvel] = qvel[a][k]
             mujoco.mj_kinematics(self.model, data)
+            # Each fighter's lowest point on the floor: a lifted frame may float or sink, and a
+            # start in the air is a drop the policy did not choose.
             for a in range(NUM_AGENTS):
-                lowest = geom_bottoms(self.model, data, mine[a]).min()
-                if lowest < 0:
-                    data.qpos[agents[a].qpos_start + 2] -= lowest
+                data.qpos[agents[a].qpos_start + 2] -= geom_bottoms(self.model, data, mine[a]).min()
             _refresh(self.model, data)
         self.elapsed[ids] = 0
         return self.observe(ids)

@@ -253,8 +253,9 @@ def combine_rewards(
     config: RewardConfig,
     iteration: int,
 ) -> Tensor:
-    """r = w^M r^M + w^I r^I (+ w^C r^C), MAAIP eq 4 plus the control reward of §4.5,
-    with the weights of :func:`reward_weights`. All rewards have the same shape."""
+    """r = w^M r^M + w^I r^I (+ w^C r^C) + w_alive, MAAIP eq 4 plus the control reward of §4.5,
+    with the weights of :func:`reward_weights`, and a constant reward for every step lived
+    (`RewardConfig.w_alive`, not in the paper). All rewards have the same shape."""
     w_m, w_i, w_c = reward_weights(config, iteration)
     if motion.shape != interaction.shape:
         raise ValueError(
@@ -270,7 +271,7 @@ def combine_rewards(
                 f"control reward must have shape {tuple(motion.shape)}, got {tuple(control.shape)}"
             )
         total = total + w_c * control
-    return total
+    return total + config.w_alive
 
 
 def gae(

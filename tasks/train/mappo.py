@@ -132,6 +132,7 @@ class Trainer:
         self.task_rng = np.random.default_rng([config.seed, 1])
         self.targets = np.zeros((self.env.num_envs, 2))
         self.obs = self._reset(np.arange(self.env.num_envs))
+        self.finished_steps = np.zeros(0, dtype=int)
         self.iteration = 0
         self.signature = _signature(config, demos)
 
@@ -162,6 +163,7 @@ class Trainer:
         n, horizon = self.env.num_envs, self.config.ppo.horizon
         agents = torch.arange(2, device=self.device).repeat(n)
         parts: dict[str, list] = {k: [] for k in Rollout.__dataclass_fields__}
+        finished: list[np.ndarray] = []
         for _ in range(horizon):
             obs = self._tensor(self.obs)
             task = self.task_observation()
@@ -188,8 +190,10 @@ class Trainer:
             self.obs = result.observation
             done = np.flatnonzero(result.done)
             if done.size:
+                finished.append(self.env.elapsed[done].copy())
                 self.obs = self.obs.copy()
                 self.obs[done] = self._reset(done)
+        self.finished_steps = np.concatenate(finished) if finished else np.zeros(0, dtype=int)
         return Rollout(**{k: torch.stack(v) if v else None for k, v in parts.items()})
 
     # ------------------------------------------------------------------ rewards
@@ -371,7 +375,14 @@ class Trainer:
         seconds = sum(timings.values())
         sim_minutes = steps / self.env.config.policy_hz / 60
         w_m, w_i, w_c = reward_weights(self.config.reward, self.iteration)
+        hz = self.env.config.policy_hz
+        # Episodes that ended in this iteration, by their whole length; an iteration in which
+        # none ended has no such mean and leaves the metric out (the running episodes' mean
+        # age is `episode_age_s`, about half of it).
+        lengths = self.finished_steps
+        finished = {"episode_length_s": float(lengths.mean()) / hz} if lengths.size else {}
         metrics = {
+            **finished,
             **{f"reward_{k}": float(v.mean()) for k, v in terms.items()},
             **d_stats,
             **p_stats,
@@ -380,7 +391,7 @@ class Trainer:
             "falls_per_min": float(rollout.fell.any(-1).sum()) / sim_minutes,
             "unstable_episodes": float(rollout.unstable.sum()),
             "episodes_ended": float((rollout.terminated | rollout.truncated).sum()),
-            "episode_length_s": float(self.env.elapsed.mean()) / self.env.config.policy_hz,
+            "episode_age_s": float(self.env.elapsed.mean()) / hz,
             "damage_received_n": float(rollout.damage.mean()),
             "w_motion": w_m,
             "w_interaction": w_i,

@@ -13,6 +13,7 @@ time with the cpu preset).
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from collections.abc import Callable
@@ -165,6 +166,7 @@ def train(
             disable=not sys.stderr.isatty(),
         )
         start = time.perf_counter()
+        deadline = start + config.minutes * 60 if config.minutes > 0 else math.inf
         pending: list[tuple[int, dict]] = []
         final = None
         while trainer.iteration < total:
@@ -172,15 +174,19 @@ def train(
             metrics = trainer.iterate()
             pending.append((iteration, metrics))
             bar.update(1)
-            bar.set_postfix(ep_s=f"{metrics['episode_length_s']:.2f}")
+            if "episode_length_s" in metrics:
+                bar.set_postfix(ep_s=f"{metrics['episode_length_s']:.2f}")
             if trainer.iteration % config.checkpoint_every == 0:
                 final = _save(db, artifacts, key, dataset_key, trainer, pending)
                 pending = []
+                if time.perf_counter() >= deadline:
+                    break
             if stop is not None and stop(trainer.iteration):
                 raise KeyboardInterrupt(f"stopped at iteration {trainer.iteration}")
         bar.close()
         if pending or final is None:
             final = _save(db, artifacts, key, dataset_key, trainer, pending)
+        total = trainer.iteration
     finally:
         trainer.close()
     with connect(db, read_only=True) as con:
