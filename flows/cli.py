@@ -874,12 +874,16 @@ def _schedule(args, data_root: Path) -> int:
 
 
 def _demo(args, data_root: Path) -> int:
-    from storage.assets import SAMPLE_VIDEO
+    from storage.assets import BOXING_CLIPS, SAMPLE_VIDEO
     from storage.paths import data_paths
 
     _pull(data_root)
-    sample = data_paths(data_root).assets / SAMPLE_VIDEO
+    assets = data_paths(data_root).assets
+    sample = assets / SAMPLE_VIDEO
     args.config, args.until = None, None
+    # The sample is two people walking: DeepMimic's punch, retargeted onto both fighters, joins
+    # the motion prior's data so that the demo opponent has punches to learn.
+    args.cfg__dataset__extra_clips = str(assets / BOXING_CLIPS)
     return _process(
         args,
         data_root,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 
 from prefect import flow
@@ -9,11 +10,13 @@ from prefect.runtime import flow_run
 
 from flows.config import from_tables
 from flows.runs import StageSummary, reuse_or_run
+from models.humanoid.boxer import BoneLengths
 from storage.db import connect
 from storage.files import sha256_file
 from storage.keys import digest, stage_key
 from storage.paths import data_paths
 from tasks.dataset.stage import STAGE, dataset_code, dataset_key
+from tasks.dataset.store import candidate_members, member_bones
 from tasks.dataset.task import assemble_task, dataset_task, extra_clips_task
 from tasks.errors import BadInput
 from tasks.ingest.outputs import load_ingest
@@ -49,20 +52,24 @@ def dataset_flow(
     return StageSummary(video_id, ingest.path, STAGE, key, state, result.seconds, result.notes)
 
 
-def _extra_clips(data_root: str, folder: str, force: bool) -> tuple[str, str]:
-    """The extra clips' dataset output: (its pseudo video id, key), computed when missing."""
+def _extra_clips(
+    data_root: str, folder: str, bones: list[BoneLengths], force: bool
+) -> tuple[str, str]:
+    """The extra clips' dataset output on the fighters' ``bones``: (its pseudo video id, key),
+    computed when missing."""
     path = Path(folder)
     if not path.is_dir():
         raise BadInput(folder, "not a folder (dataset.extra_clips)")
     files = {p.name: sha256_file(p) for p in sorted(path.glob("*.txt"))}
     if not files:
         raise BadInput(folder, "no *.txt motion clips in this folder (dataset.extra_clips)")
-    video_id = "extra-" + digest(files)[:20]
-    key = stage_key(STAGE, {"extra_clips": "files"}, dataset_code(), {"files": files})
+    upstream = {"files": files, "bones": [asdict(b) for b in bones]}
+    video_id = "extra-" + digest(upstream)[:20]
+    key = stage_key(STAGE, {"extra_clips": "files"}, dataset_code(), upstream)
 
     def run(refresh: bool) -> StageResult:
         task = extra_clips_task.with_options(refresh_cache=refresh)
-        return task(data_root, str(path.resolve()), files, video_id, key, force=refresh)
+        return task(data_root, str(path.resolve()), files, bones, video_id, key, force=refresh)
 
     reuse_or_run(data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run)
     return video_id, key
@@ -77,7 +84,12 @@ def assemble_flow(
     The summary's key is the dataset key training takes.
     """
     settings = from_tables(config or {}).dataset
-    extra = _extra_clips(data_root, settings.extra_clips, force) if settings.extra_clips else None
+    extra = None
+    if settings.extra_clips:
+        with connect(data_paths(data_root).db, read_only=True) as con:
+            members = candidate_members(con, adversary, settings, dataset_code())
+            bones = member_bones(con, members)
+        extra = _extra_clips(data_root, settings.extra_clips, bones, force)
     key, members, new = assemble_task(data_root, adversary, settings, extra)
     notes = (f"dataset {key} of {adversary}: {len(members)} outputs",)
     return StageSummary(

@@ -12,7 +12,7 @@ import subprocess
 import sys
 import tempfile
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from storage.files import sha256_file, write_atomic
@@ -118,16 +118,29 @@ WHEELS: tuple[Wheel, ...] = (
 # Test-only motion capture (`ringside assets pull --dev`): DeepMimic clips, synthetic ground truth
 # for the lift stage.
 _MOTIONS = "pybullet_data/data/motions"
-DEV_WHEELS: tuple[Wheel, ...] = (
+_PYBULLET = ("pybullet==3.2.7", "Zlib", "pybullet-3.2.7.dist-info/LICENSE.txt")
+PUNCH_SHA256 = "1ab4b654cecdb4ff3b2a4bf4086e50397bef28435bb59ab3aedd6a6bdc926fde"
+# Boxing motion for the demo's motion prior (`dataset.extra_clips`): the bundled footage is two
+# people walking, so the demo opponent would have no punch to learn without it.
+BOXING_CLIPS = "motions/boxing"
+WHEELS += (
     Wheel(
-        requirement="pybullet==3.2.7",
-        licence="Zlib",
-        licence_member="pybullet-3.2.7.dist-info/LICENSE.txt",
+        *_PYBULLET,
         assets=(
             Asset(
                 f"{_MOTIONS}/humanoid3d_punch.txt",
-                "dev/motions/humanoid3d_punch.txt",
-                "1ab4b654cecdb4ff3b2a4bf4086e50397bef28435bb59ab3aedd6a6bdc926fde",
+                f"{BOXING_CLIPS}/humanoid3d_punch.txt",
+                PUNCH_SHA256,
+            ),
+        ),
+    ),
+)
+DEV_WHEELS: tuple[Wheel, ...] = (
+    Wheel(
+        *_PYBULLET,
+        assets=(
+            Asset(
+                f"{_MOTIONS}/humanoid3d_punch.txt", "dev/motions/humanoid3d_punch.txt", PUNCH_SHA256
             ),
             Asset(
                 f"{_MOTIONS}/humanoid3d_kick.txt",
@@ -205,7 +218,14 @@ def pull(root: Path, *, dev: bool = False, log=print) -> list[Path]:
     ``dev`` adds the test-only assets (DEV_WHEELS). Idempotent: files already there with the
     pinned hash are kept and nothing is downloaded.
     """
-    wheels = WHEELS + DEV_WHEELS if dev else WHEELS
+    chosen = WHEELS + DEV_WHEELS if dev else WHEELS
+    # One download per wheel, whichever lists name it (pybullet's is about 100 MB).
+    merged: dict[str, Wheel] = {}
+    for w in chosen:
+        if w.requirement in merged:
+            w = replace(w, assets=merged[w.requirement].assets + w.assets)
+        merged[w.requirement] = w
+    wheels = tuple(merged.values())
     for wheel in wheels:
         missing = [a for a in wheel.assets if not _present(root, a)]
         licence = root / "licenses" / f"{wheel.requirement.split('==')[0]}-{wheel.licence}.txt"

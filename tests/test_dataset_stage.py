@@ -27,6 +27,7 @@ from tasks.dataset.store import (
     count_transitions,
     dataset_info,
     load_transitions,
+    member_bones,
     record_dataset,
 )
 from tasks.errors import BadInput
@@ -258,8 +259,14 @@ def test_extra_single_actor_clips_join_the_dataset(capsys, sample_run, sample_vi
     lengths = [len(retarget(load_deepmimic(p))) for p in sorted(folder.glob("*.txt"))]
     with connect(sample_run / "ringside.duckdb", read_only=True) as con:
         extra = load_transitions(con, key, kind="single", agent=2)
-        assert len(extra) == sum(n - 1 for n in lengths)
-        assert len(dataset_info(con, key).members) == 2
+        members = dataset_info(con, key).members
+        bones = member_bones(con, [m for m in members if not m[0].startswith("extra-")])
+        assert len(members) == 2 and len(bones) == 2  # the sample's two fighters
+        # Every clip on each fighter's own body: its standing root height is that body's.
+        assert len(extra) == len(bones) * sum(n - 1 for n in lengths)
+        first = extra.obs[: lengths[0] - 1, 0]  # root height (o^self's first number)
+        second = extra.obs[sum(n - 1 for n in lengths) :][: lengths[0] - 1, 0]
+        assert abs(np.median(first) - np.median(second)) > 0.005
         assert count_transitions(con, key, kind="single", agent=0) > 0
 
     code, _, err = run_cli(capsys, *base, "--dataset-extra-clips", str(sample_run / "nothing"))

@@ -388,26 +388,31 @@ def _metrics(
     return {k: float(v) for k, v in metrics.items() if math.isfinite(v)}
 
 
-def extra_clip_output(folder: Path, *, key: str, video_id: str) -> StageOutput:
-    """Single-actor clips from the DeepMimic-format motion files in ``folder`` (agent 2).
-
-    Each file is retargeted to the default humanoid at 30 Hz (`tasks.lift.synthetic.retarget`).
+def extra_clip_output(
+    folder: Path, bones: Sequence[BoneLengths], *, key: str, video_id: str
+) -> StageOutput:
+    """Single-actor clips (agent 2) from the DeepMimic-format motion files in ``folder``, each
+    retargeted (`tasks.lift.synthetic.retarget`, 30 Hz) onto every body in ``bones`` (the
+    dataset's fighters), so that the motion prior sees them on the humanoids it judges; the
+    default body when ``bones`` is empty.
     """
     files = sorted(folder.glob("*.txt"))
     if not files:
         raise BadInput(str(folder), "no *.txt motion clips in this folder (dataset.extra_clips)")
-    model = _model(BoneLengths())
-    index = humanoid_index(model)
     clips, parts = [], []
-    for number, path in enumerate(files):
-        qpos = retarget(load_deepmimic(path))
-        qvel = velocities(model, qpos, RATE)
-        clip = Clip("single", EXTRA, number, "train", 0, len(qpos))
-        own = self_observation(body_states(model, qpos, qvel, index))
-        part = _columns(clip, EXTRA_AGENT, own[:-1], None, own[1:])
-        part["clip"][:] = number
-        clips.append(clip)
-        parts.append(part)
+    for body in bones or [BoneLengths()]:
+        model = _model(body)
+        index = humanoid_index(model)
+        for path in files:
+            number = len(clips)
+            qpos = retarget(load_deepmimic(path), body)
+            qvel = velocities(model, qpos, RATE)
+            clip = Clip("single", EXTRA, number, "train", 0, len(qpos))
+            own = self_observation(body_states(model, qpos, qvel, index))
+            part = _columns(clip, EXTRA_AGENT, own[:-1], None, own[1:])
+            part["clip"][:] = number
+            clips.append(clip)
+            parts.append(part)
     transitions = _concat(parts)
     return StageOutput(
         rows={

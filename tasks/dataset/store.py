@@ -15,12 +15,14 @@ from dataclasses import dataclass
 import duckdb
 import numpy as np
 
+from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OPPONENT_DIM, SELF_DIM
 from storage.db import transaction, utcnow
 from storage.keys import digest, stable_json
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.stage import AGENTS, STAGE
 from tasks.dataset.statistics import FighterStatistics, combine_videos
+from tasks.lift.store import load_bones
 
 
 class UnknownDataset(KeyError):
@@ -48,6 +50,32 @@ def candidate_members(
             [STAGE, stable_json(config), code, adversary],
         ).fetchall()
     ]
+
+
+def upstream_lift_key(con: duckdb.DuckDBPyConnection, video_id: str, key: str) -> str | None:
+    """The lift output dataset output ``key`` of ``video_id`` was made from; None for outputs
+    that come from no lift (extra clips)."""
+    row = con.execute(
+        "SELECT upstream FROM stage_outputs WHERE stage = ? AND video_id = ? AND key = ?",
+        [STAGE, video_id, key],
+    ).fetchone()
+    return json.loads(row[0]).get("lift") if row else None
+
+
+def member_bones(
+    con: duckdb.DuckDBPyConnection, members: list[tuple[str, str]]
+) -> list[BoneLengths]:
+    """The bones of every fighter of the ``members`` (video_id, dataset output key) that come
+    from footage, in member and role order, each set once."""
+    found: list[BoneLengths] = []
+    for video_id, key in members:
+        lift_key = upstream_lift_key(con, video_id, key)
+        if lift_key is None:
+            continue
+        for _, bones in sorted(load_bones(con, video_id, lift_key).items()):
+            if bones not in found:
+                found.append(bones)
+    return found
 
 
 def assembled_key(adversary: str, config: DatasetConfig, members: list[tuple[str, str]]) -> str:

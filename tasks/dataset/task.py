@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
+from models.humanoid.boxer import BoneLengths
 from storage.db import connect
 from storage.paths import data_paths
 from tasks.dataset.config import DatasetConfig
@@ -68,9 +70,16 @@ def dataset_task(
 
 @stage_task("dataset-extra-clips")
 def extra_clips_task(
-    data_root: str, folder: str, files: dict[str, str], video_id: str, key: str, force: bool
+    data_root: str,
+    folder: str,
+    files: dict[str, str],
+    bones: list[BoneLengths],
+    video_id: str,
+    key: str,
+    force: bool,
 ) -> StageResult:
-    """The user's extra single-actor clips (``files``: name -> SHA-256) as one dataset output."""
+    """The user's extra single-actor clips (``files``: name -> SHA-256), retargeted onto each
+    of the fighters' ``bones``, as one dataset output."""
     paths = data_paths(data_root)
     return run_stage(
         db=paths.db,
@@ -79,9 +88,9 @@ def extra_clips_task(
         key=key,
         config={"extra_clips": folder},
         code=dataset_code(),
-        upstream={"files": files},
+        upstream={"files": files, "bones": [asdict(b) for b in bones]},
         run_id=str(flow_run.id),
-        compute=lambda: extra_clip_output(Path(folder), key=key, video_id=video_id),
+        compute=lambda: extra_clip_output(Path(folder), bones, key=key, video_id=video_id),
         force=force,
     )
 

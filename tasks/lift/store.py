@@ -11,19 +11,33 @@ from tasks.lift.motion import FighterMotion
 from tasks.lift.series import LiftSeries, cleanup_series
 
 
-def load_motion(
+def _bone_rows(
     con: duckdb.DuckDBPyConnection, video_id: str, lift_key: str
-) -> dict[str, FighterMotion]:
-    """Each fighter's lifted motion and bone lengths from lift output ``lift_key``; a fighter
-    with no ``lift_motion`` rows is left out."""
+) -> dict[str, dict[str, float]]:
     bones: dict[str, dict[str, float]] = {}
     for role, bone, length in con.execute(
         "SELECT role, bone, length_m FROM lift_bones WHERE key = ? AND video_id = ?",
         [lift_key, video_id],
     ).fetchall():
         bones.setdefault(role, {})[bone] = length
+    return bones
+
+
+def load_bones(
+    con: duckdb.DuckDBPyConnection, video_id: str, lift_key: str
+) -> dict[str, BoneLengths]:
+    """Each fighter's bone lengths from lift output ``lift_key``, by role."""
+    rows = _bone_rows(con, video_id, lift_key)
+    return {role: BoneLengths(**lengths) for role, lengths in rows.items()}
+
+
+def load_motion(
+    con: duckdb.DuckDBPyConnection, video_id: str, lift_key: str
+) -> dict[str, FighterMotion]:
+    """Each fighter's lifted motion and bone lengths from lift output ``lift_key``; a fighter
+    with no ``lift_motion`` rows is left out."""
     fighters = {}
-    for role, lengths in bones.items():
+    for role, lengths in _bone_rows(con, video_id, lift_key).items():
         columns = con.execute(
             "SELECT step, qpos, qvel, joints, contact_left, contact_right FROM lift_motion "
             "WHERE key = ? AND video_id = ? AND role = ? ORDER BY step",
