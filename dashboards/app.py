@@ -104,6 +104,7 @@ EVALUATION_TILES = {
     "style_score": "Style: trained adversary",
     "style_score_untrained": "Style: untrained policy",
     "style_score_opponent": "Style: trained partner",
+    "style_score_still": "Style: standing still in guard",
     "falls_per_min": "Falls per minute",
     "onnx_max_abs_diff": "ONNX max difference",
 }

@@ -53,7 +53,12 @@ def test_evaluate_fills_every_table_caches_and_reruns_identically(capsys, sample
     for name in REQUIRED:
         assert name in metrics and math.isfinite(metrics[name]), name
     assert metrics["onnx_max_abs_diff"] < 1e-5
-    for name in ("style_score", "style_score_untrained", "style_score_opponent"):
+    for name in (
+        "style_score",
+        "style_score_untrained",
+        "style_score_opponent",
+        "style_score_still",
+    ):
         assert 0.0 <= metrics[name] <= 1.0
 
     # Table 1: this run (imitation only) with each agent's damage.

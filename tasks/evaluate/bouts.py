@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from models.humanoid.boxer import BoneLengths
-from models.humanoid.kinematics import NUM_ACTUATED
+from models.humanoid.kinematics import NUM_ACTUATED, joint_targets_to_action
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, block_slices
 from tasks.train.env import ArenaEnv, EnvConfig, ReferenceMotions
 from tasks.train.losses import heading_reward
@@ -103,6 +103,24 @@ def torch_actor(policy: Policy, agent: int) -> Actor:
         given = None if task is None else torch.from_numpy(np.asarray(task, dtype=np.float32))
         with torch.no_grad():
             return policy(obs, agent, given).double().numpy()
+
+    return act
+
+
+def still_actor(reference_qpos: np.ndarray) -> Actor:
+    """A fighter holding its guard pose and standing still, the baseline a trained policy must
+    beat to show it moves like the adversary rather than merely stays up: the PD targets of the
+    median of each hinge over its reference frames (the pose it keeps most, its guard), held
+    whatever it observes.
+
+    Args:
+        reference_qpos: (M, 35) the fighter's reference frames (`ReferenceMotions.qpos0`).
+    """
+    hinges = np.median(np.asarray(reference_qpos, dtype=np.float64)[:, 7:], axis=0)
+    action = joint_targets_to_action(hinges)
+
+    def act(observation: np.ndarray, task: np.ndarray | None) -> np.ndarray:
+        return np.broadcast_to(action, (len(observation), NUM_ACTUATED)).copy()
 
     return act
 

@@ -14,9 +14,11 @@ same tables:
 3. Heading (MAAIP Table 2): the normalised heading return of every heading run on the dataset
    (this one included, if it is one), with or without the single motion prior; when there is
    none, a note says so and the table stays empty.
-4. Style and boxing metrics (`tasks.evaluate.metrics`) of three simulated fighters: the
-   trained adversary ('adversary'), the untrained policy's agent 0 ('untrained') and the
-   trained partner ('opponent'), each against the adversary's real statistics.
+4. Style and boxing metrics (`tasks.evaluate.metrics`) of four simulated fighters: the
+   trained adversary ('adversary'), the untrained policy's agent 0 ('untrained'), the
+   trained partner ('opponent') and agent 0 holding its guard pose, standing still
+   ('still', `still_actor`: the number a policy that only stays up would score), each
+   against the adversary's real statistics.
 5. The adversary's opponent folder (`export_opponent`: ONNX policy, MJCF, manifest) with
    onnxruntime's parity against torch on observations recorded in the bouts, and the first
    `evaluate.video_seconds` of the trained episodes, played one after another, rendered to MP4
@@ -42,7 +44,7 @@ from tasks.config import build
 from tasks.dataset.config import DatasetConfig, PunchConfig
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import dataset_info
-from tasks.evaluate.bouts import Bouts, HeadingTask, simulate, torch_actor
+from tasks.evaluate.bouts import Bouts, HeadingTask, simulate, still_actor, torch_actor
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.export import (
     TrainedPolicy,
@@ -61,8 +63,13 @@ from tasks.train.networks import Policy, make_networks
 
 __all__ = ["STAGE", "EvaluateInputs", "evaluate", "load_inputs"]
 
-# The three simulated fighters compared with the adversary: (bouts, agent).
-POLICIES = {"adversary": ("trained", 0), "untrained": ("untrained", 0), "opponent": ("trained", 1)}
+# The simulated fighters compared with the adversary: (bouts, agent).
+POLICIES = {
+    "adversary": ("trained", 0),
+    "untrained": ("untrained", 0),
+    "opponent": ("trained", 1),
+    "still": ("still", 0),
+}
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,7 +131,7 @@ def heading_task(config: TrainConfig) -> HeadingTask | None:
 
 
 def _bouts(
-    policy: Policy,
+    policy: Policy | None,
     run: TrainedPolicy,
     reference: ReferenceMotions,
     *,
@@ -132,8 +139,14 @@ def _bouts(
     frames: int,
     seed: int,
 ) -> Bouts:
+    """Bouts of ``policy``'s two agents, or with None of both fighters standing still in their
+    guard pose (`still_actor`)."""
+    if policy is None:
+        actors = (still_actor(reference.qpos0), still_actor(reference.qpos1))
+    else:
+        actors = (torch_actor(policy, 0), torch_actor(policy, 1))
     return simulate(
-        (torch_actor(policy, 0), torch_actor(policy, 1)),
+        actors,
         reference=reference,
         bones=run.bones,
         env_config=run.config.env,
@@ -201,6 +214,7 @@ def evaluate(
     bouts = {
         "trained": _bouts(run.policy, run, inputs.reference, **size),
         "untrained": _bouts(untrained_policy(run.config), run, inputs.reference, **size),
+        "still": _bouts(None, run, inputs.reference, **size),
     }
     model = mujoco.MjModel.from_xml_string(arena_mjcf(run.bones, timestep=run.config.env.timestep))
     style, boxing, scores, fighters = [], [], {}, {}
@@ -287,10 +301,13 @@ def evaluate(
         "style_score": scores["adversary"],
         "style_score_untrained": scores["untrained"],
         "style_score_opponent": scores["opponent"],
+        "style_score_still": scores["still"],
         # As training counts them: episodes ended by a fall per simulated minute.
         "falls_per_min": float(trained.fell.any(axis=1).sum()) / trained.minutes,
         "falls_per_min_untrained": float(bouts["untrained"].fell.any(axis=1).sum())
         / bouts["untrained"].minutes,
+        "falls_per_min_still": float(bouts["still"].fell.any(axis=1).sum())
+        / bouts["still"].minutes,
         "episode_length_s": float(trained.steps.mean()) / trained.policy_hz,
         "damage_received_n": float(trained.damage[:, 0].mean()),
         "damage_dealt_n": float(trained.damage[:, 1].mean()),
