@@ -2,8 +2,8 @@
 
 The demonstrations are DeepMimic's punch clip performed by two facing fighters
 (`facing_reference`), so the benchmark needs no processed footage. Measured, best of 3 each:
-- raw physics: `ArenaEnv.step_physics` with zero actions (N environments x the default substeps of both
-  fighters, no observations, no learning);
+- raw physics: `ArenaEnv.step_physics` with zero actions (N environments x the default
+  substeps of both fighters, no observations, no learning);
 - end to end: `Trainer.iterate` (policy inference, environment steps with observations,
   rewards from the discriminators, discriminator and PPO updates), environment steps per
   second of wall time, with the split of an iteration's time.
