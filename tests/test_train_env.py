@@ -42,9 +42,15 @@ def punch(assets) -> ReferenceMotions:
 
 
 def _env(**config) -> ArenaEnv:
-    """An environment that starts episodes with the reference's velocities unless told: these
-    tests check what the reference's motion does."""
-    config = {"num_envs": 2, "threads": 1, "reset_velocity": "reference", **config}
+    """An environment that starts every episode at a reference frame with its velocities unless
+    told: these tests check what the reference's motion does."""
+    config = {
+        "num_envs": 2,
+        "threads": 1,
+        "reset_velocity": "reference",
+        "standing_share": 0.0,
+        **config,
+    }
     return ArenaEnv(EnvConfig(**config), np.random.default_rng(0))
 
 
