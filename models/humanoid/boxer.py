@@ -27,9 +27,8 @@ Design decisions:
   (kd = 0.3 kp) stood 30 s in 127 of 128 trials of the default body (8 seeds x 16
   arenas; one fell at 29.2 s), all 512 of the sample's bodies alone and paired, and
   126 of 128 of a 1.96 m body; with kd 140, 1 of 64 of the default body fell at
-  10.7 s. Stiffer ankles
-  turn the ankles' own target noise into lean and fell sooner (kp 1000: 18 s on
-  average). The gains are the default body's, scaled to each body's m g h
+  10.7 s. Stiffer ankles turn the ankles' own target noise into lean and fell
+  sooner (kp 1000: 18 s on average). The gains are the default body's, scaled to each body's m g h
   (`gain_scale`): on the sample's 1.58 m fighters, unscaled kp 700 ankles lost 3-7
   of 32 trials, kp 500 none.
 - Contact stiffness `CONTACT_SOLREF`: the stiffest MuJoCo allows at 120 Hz (a time

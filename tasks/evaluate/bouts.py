@@ -87,6 +87,12 @@ class Bouts:
         """Simulated minutes over all episodes."""
         return float(self.steps.sum()) / self.policy_hz / 60.0
 
+    @property
+    def falls_per_min(self) -> float:
+        """Episodes ended by a fall (of either fighter) per simulated minute, as training
+        counts them."""
+        return float(self.fell.any(axis=1).sum()) / self.minutes
+
     def episode_qpos(self, episode: int) -> np.ndarray:
         """(frames[episode], Q) the episode's valid qpos rows."""
         return self.qpos[episode, : self.frames[episode]]

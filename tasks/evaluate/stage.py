@@ -44,7 +44,7 @@ from tasks.config import build
 from tasks.dataset.config import DatasetConfig, PunchConfig
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import dataset_info
-from tasks.evaluate.bouts import Bouts, HeadingTask, simulate, still_actor, torch_actor
+from tasks.evaluate.bouts import Actor, Bouts, HeadingTask, simulate, still_actor, torch_actor
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.export import (
     TrainedPolicy,
@@ -130,8 +130,18 @@ def heading_task(config: TrainConfig) -> HeadingTask | None:
     return HeadingTask(target_speed=reward.heading_speed, scale=reward.heading_scale)
 
 
+def _agents(policy: Policy) -> tuple[Actor, Actor]:
+    """Both agents of ``policy``, acting with their mean actions."""
+    return torch_actor(policy, 0), torch_actor(policy, 1)
+
+
+def _still_pair(reference: ReferenceMotions) -> tuple[Actor, Actor]:
+    """Both fighters holding their guard pose, standing still (`still_actor`)."""
+    return still_actor(reference.qpos0), still_actor(reference.qpos1)
+
+
 def _bouts(
-    policy: Policy | None,
+    actors: tuple[Actor, Actor],
     run: TrainedPolicy,
     reference: ReferenceMotions,
     *,
@@ -139,12 +149,6 @@ def _bouts(
     frames: int,
     seed: int,
 ) -> Bouts:
-    """Bouts of ``policy``'s two agents, or with None of both fighters standing still in their
-    guard pose (`still_actor`)."""
-    if policy is None:
-        actors = (still_actor(reference.qpos0), still_actor(reference.qpos1))
-    else:
-        actors = (torch_actor(policy, 0), torch_actor(policy, 1))
     return simulate(
         actors,
         reference=reference,
@@ -212,9 +216,9 @@ def evaluate(
     head = (key, run.run_key)
     size = {"episodes": config.episodes, "frames": config.episode_frames, "seed": config.seed}
     bouts = {
-        "trained": _bouts(run.policy, run, inputs.reference, **size),
-        "untrained": _bouts(untrained_policy(run.config), run, inputs.reference, **size),
-        "still": _bouts(None, run, inputs.reference, **size),
+        "trained": _bouts(_agents(run.policy), run, inputs.reference, **size),
+        "untrained": _bouts(_agents(untrained_policy(run.config)), run, inputs.reference, **size),
+        "still": _bouts(_still_pair(inputs.reference), run, inputs.reference, **size),
     }
     model = mujoco.MjModel.from_xml_string(arena_mjcf(run.bones, timestep=run.config.env.timestep))
     style, boxing, scores, fighters = [], [], {}, {}
@@ -245,7 +249,7 @@ def evaluate(
         damage += _damage_rows(
             head,
             other,
-            _bouts(other.policy, other, inputs.reference, **size),
+            _bouts(_agents(other.policy), other, inputs.reference, **size),
             config.episode_frames,
         )
     if not damage_runs:
@@ -257,7 +261,7 @@ def evaluate(
     heading = []
     for other in heading_runs:
         played = _bouts(
-            other.policy,
+            _agents(other.policy),
             other,
             inputs.reference,
             episodes=config.heading_episodes,
@@ -303,11 +307,9 @@ def evaluate(
         "style_score_opponent": scores["opponent"],
         "style_score_still": scores["still"],
         # As training counts them: episodes ended by a fall per simulated minute.
-        "falls_per_min": float(trained.fell.any(axis=1).sum()) / trained.minutes,
-        "falls_per_min_untrained": float(bouts["untrained"].fell.any(axis=1).sum())
-        / bouts["untrained"].minutes,
-        "falls_per_min_still": float(bouts["still"].fell.any(axis=1).sum())
-        / bouts["still"].minutes,
+        "falls_per_min": trained.falls_per_min,
+        "falls_per_min_untrained": bouts["untrained"].falls_per_min,
+        "falls_per_min_still": bouts["still"].falls_per_min,
         "episode_length_s": float(trained.steps.mean()) / trained.policy_hz,
         "damage_received_n": float(trained.damage[:, 0].mean()),
         "damage_dealt_n": float(trained.damage[:, 1].mean()),
