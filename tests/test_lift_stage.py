@@ -54,7 +54,15 @@ def test_sample_after_cleanup(sample_run: Path):
     key = latest_key(sample_run)
     assert m["floor_penetration_max_mm"] < 10
     assert m["inter_fighter_penetration_max_mm"] < 10
-    assert m["foot_skating_cm_per_frame"] < m["foot_skating_cm_per_frame_before"]
+    for role in ("adversary", "opponent"):
+        # On the floor while standing: the sample's adversary was lifted 31 cm up in the air.
+        assert m[f"{role}_foot_height_median_cm"] < 2.0
+        assert (
+            m[f"{role}_contact_slide_cm_per_frame"] < m[f"{role}_contact_slide_cm_per_frame_before"]
+        )
+    # Height-weighted skating counts feet on the floor fully, so pinning feet that hovered a
+    # few cm can raise it slightly (measured 0.06 cm/frame before and after): it stays small.
+    assert m["foot_skating_cm_per_frame"] < 0.1
     assert m["bone_length_std_mm"] < 5
     assert 0.5 < m["fighter_distance_mean_m"] < 3.0
     # 100 frames at 60 fps are 1.65 s: steps 0..49 at 30 Hz.

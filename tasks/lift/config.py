@@ -77,6 +77,11 @@ class LiftConfig:
     contact_speed_m_s: float = setting(
         0.6, "... and its sole's midpoint moves horizontally slower than this (m/s)."
     )
+    floor_settle_s: float = setting(
+        0.5,
+        "A fighter whose lowest point stays above the floor longer than this (s) is lowered "
+        "onto it in the cleanup (a hop shorter than this keeps its flight); 0 turns it off.",
+    )
     contact_min_frames: int = setting(
         3, "Contact runs shorter than this many frames are dropped, and gaps shorter are filled."
     )

@@ -139,13 +139,15 @@ class Cleaned:
         contacts: (T, 2) bool, left and right foot in contact as the cleanup used them.
         metrics: name -> value, before and after (``*_before``, ``*_after``):
             ``floor_penetration_mm`` (deepest geom below the floor, max over frames),
+            ``foot_height_cm`` (median over frames of the lower foot's lowest point),
             ``foot_skating_cm_per_frame`` (`tasks.lift.metrics.foot_skating_cm_per_frame`,
             the height-weighted FSE, on the heel-toe midpoints of the humanoid's feet),
             ``contact_slide_cm_per_frame`` (mean horizontal slide of those midpoints for
             feet in contact in two consecutive frames, by the contacts used),
             ``jitter_m_s2`` (`tasks.lift.metrics.jitter_m_s2` of the landmarks),
             ``interpenetration_mm`` (deepest overlap with the other fighter, max over
-            frames; only with one); and ``contact_share``.
+            frames; only with one); and ``contact_share`` and ``floor_settle_cm`` (median
+            drop of `settle_on_floor`).
     """
 
     qpos: np.ndarray
@@ -1543,6 +1545,26 @@ def lift_above_floor(model: mujoco.MjModel, qpos: np.ndarray, half: int) -> np.n
     return out
 
 
+def settle_on_floor(
+    model: mujoco.MjModel, qpos: np.ndarray, half: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lower a fighter who floats onto the floor: nobody stands in the air for long.
+
+    The root comes down by a smooth lower envelope of the lowest geom's height (a running min
+    then a running mean over 2 half + 1 frames, the mirror of `_max_then_mean`), so a hop
+    shorter than the window keeps its flight and no frame goes below the floor for it.
+
+    Returns the lowered qpos and the drop per frame (T,), metres (>= 0); half 0 lowers nothing.
+    """
+    if half <= 0:
+        return qpos.copy(), np.zeros(len(qpos))
+    clearance = np.maximum(lowest_points(geom_poses(model, qpos)).min(1), 0.0)
+    drop = -_max_then_mean(-clearance, half)
+    out = qpos.copy()
+    out[:, 2] -= drop
+    return out, drop
+
+
 def sole_positions(skeleton: Skeleton, qpos: np.ndarray) -> np.ndarray:
     """(T, 2, 3) midpoint of each foot's heel and toe sites (left, right)."""
     _, _, _, sites = skeleton.forward(*qpos_to_pose(qpos))
@@ -1584,6 +1606,7 @@ def _motion_metrics(
     slide = contact_slide(soles, contacts)
     return {
         "floor_penetration_mm": float(floor_depth(model, qpos).max() * 1000),
+        "foot_height_cm": float(np.median(_foot_lowest(geom_poses(model, qpos)).min(1)) * 100),
         "foot_skating_cm_per_frame": (foot_skating_cm_per_frame(soles) if len(qpos) >= 2 else 0.0),
         "contact_slide_cm_per_frame": (
             float(np.nanmean(slide) * 100) if np.isfinite(slide).any() else 0.0
@@ -1605,7 +1628,8 @@ def cleanup(
     """Remove from one fighter's humanoid motion what a body cannot do.
 
     In order:
-    1. jitter: `smooth_qpos`, hinges kept in their ranges;
+    1. jitter: `smooth_qpos`, hinges kept in their ranges; a fighter floating above the floor
+       for longer than `config.floor_settle_s` lowered onto it (`settle_on_floor`);
     2. contacts: `contacts` joined with those MuJoCo's foot geoms show (lowest box corner
        below `config.contact_height_m`, sole slower than `config.contact_speed_m_s`),
        cleaned of short runs (`clean_runs`);
@@ -1656,13 +1680,19 @@ def cleanup(
     skeleton = Skeleton.from_model(model)
     out = smooth_qpos(q, config.smooth_sigma_frames, skeleton.ranges)
     out[:, 7:] = np.clip(out[:, 7:], skeleton.ranges[:, 0], skeleton.ranges[:, 1])
+    out, drop = settle_on_floor(model, out, round(config.floor_settle_s * fps / 2))
     poses = geom_poses(model, out)
     soles = sole_positions(skeleton, out)
     speed = horizontal_speed(soles, fps)
     seen = (_foot_lowest(poses) < config.contact_height_m) & (speed < config.contact_speed_m_s)
     used = clean_runs(c | seen, config.contact_min_frames)
-    before = _motion_metrics(model, skeleton, q, used, fps)
+    # Measured at the floor: a floating foot's skating weighs nothing, which would flatter it.
+    settled = q.copy()
+    settled[:, 2] -= drop
+    before = _motion_metrics(model, skeleton, settled, used, fps)
+    before["foot_height_cm"] = _motion_metrics(model, skeleton, q, used, fps)["foot_height_cm"]
     metrics = {f"{k}_before": v for k, v in before.items()}
+    metrics["floor_settle_cm"] = float(np.median(drop) * 100)
 
     if other_qpos is not None:
         other_poses = geom_poses(other_model, other_q)

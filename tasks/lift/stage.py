@@ -321,6 +321,9 @@ _CLEANUP_NAMES = {
     "contact_slide_cm_per_frame_after": "contact_slide_cm_per_frame",
     "contact_slide_cm_per_frame_before": "contact_slide_cm_per_frame_before",
     "contact_share": "contact_share",
+    "foot_height_cm_after": "foot_height_median_cm",
+    "foot_height_cm_before": "foot_height_median_cm_before",
+    "floor_settle_cm": "floor_settle_cm",
     "floor_penetration_mean_mm": "floor_penetration_mean_mm",
 }
 
