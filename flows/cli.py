@@ -63,7 +63,7 @@ def _config_flags(parser: argparse.ArgumentParser) -> None:
                 "--" + "-".join(path).replace("_", "-"),
                 dest="cfg__" + "__".join(path),
                 metavar="VALUE",
-                help=f"{f.metadata['help']} (default {f.default})",
+                help=f"{f.metadata['help']} (default {f.default})".replace("%", "%%"),
             )
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import os
@@ -16,7 +17,7 @@ import pytest
 from conftest import count, moving_box_frames, run_cli, write_video
 
 import tasks.ingest.stage
-from flows.cli import main
+from flows.cli import build_parser, main
 from storage.db import connect
 
 
@@ -324,7 +325,7 @@ def test_status_and_metrics_on_an_empty_data_dir(tmp_path, capsys):
 KILLED_MID_STAGE = """
 import sys, time
 import tasks.ingest.stage as stage
-from flows.cli import main
+from flows.cli import build_parser, main
 
 def stalled(path, config):
     print("mid-stage", flush=True)
@@ -401,3 +402,13 @@ def test_killed_mid_stage_loses_nothing_and_rerun_finishes(
     assert code == 0
     assert [s["state"] for s in json.loads(out)] == ["cached", "done"]
     assert count(db, "SELECT count(*) FROM videos") == 2
+
+
+def test_every_command_prints_its_help(capsys):
+    """Settings' help texts hold '%' (argparse's format character): each command's --help works."""
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    for name in commands.choices:
+        with pytest.raises(SystemExit) as stop:
+            main([name, "--help"])
+        assert stop.value.code == 0, name
+        assert "usage: ringside" in capsys.readouterr().out

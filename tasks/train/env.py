@@ -120,7 +120,9 @@ class EnvConfig:
         "at 60 Hz, where at 120 Hz it stands 30 s.",
     )
     episode_s: float = setting(
-        10.0, "Seconds after which an episode times out (not terminal for bootstrapping)."
+        20.0,
+        "Seconds after which an episode times out (not terminal for bootstrapping); long enough "
+        "that a policy's mean episode length can show it stays up past 10 s.",
     )
     fall_height_m: float = setting(
         0.8,
