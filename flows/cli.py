@@ -894,6 +894,15 @@ def _demo(args, data_root: Path) -> int:
     )
 
 
+def _drop_tracebacks(error: BaseException | None) -> None:
+    """Let go of the frames an error raised in a flow holds: Prefect keeps the exception in the
+    run's state, its frames keep DuckDB objects alive to the interpreter's exit, and DuckDB's
+    bindings then print dozens of `nanobind: leaked ...` lines after our one-line error."""
+    while error is not None:
+        error.__traceback__ = None
+        error = error.__cause__ or error.__context__
+
+
 def main(argv: list[str] | None = None) -> int:
     raw = sys.argv[1:] if argv is None else argv
     # Settings must be in the environment before the parser's imports reach Prefect.
@@ -956,9 +965,11 @@ def main(argv: list[str] | None = None) -> int:
             return _demo(args, data_root)
     except (BadInput, ValueError, FileNotFoundError) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
+        _drop_tracebacks(error)
         return EXIT_BAD_INPUT
     except (AssetError, DatabaseBusy) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
+        _drop_tracebacks(error)
         return EXIT_FAILED
     raise AssertionError(f"unhandled command {args.command}")
 

@@ -19,7 +19,8 @@ from tasks.train.task import train_key, train_task
 def train_flow(
     data_root: str, dataset_key: str, config: dict | None = None, force: bool = False
 ) -> StageSummary:
-    """Train the two fighters' policies on dataset ``dataset_key`` (`ringside datasets`).
+    """Train the two fighters' policies on dataset ``dataset_key`` (`ringside datasets`; a
+    prefix of a key will do).
 
     The settings and the dataset are checked before anything is computed.
     """
@@ -32,6 +33,7 @@ def train_flow(
             info = dataset_info(con, dataset_key)
         except UnknownDataset as error:
             raise BadInput(f"--dataset {dataset_key}", str(error)) from None
+    dataset_key = info.dataset_key  # the whole key, where a prefix was given
     key = train_key(settings, dataset_key)
 
     def run(refresh: bool) -> StageResult:

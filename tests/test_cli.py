@@ -412,3 +412,19 @@ def test_every_command_prints_its_help(capsys):
             main([name, "--help"])
         assert stop.value.code == 0, name
         assert "usage: ringside" in capsys.readouterr().out
+
+
+def test_an_error_in_a_flow_is_one_line_and_nothing_after_it(tmp_path):
+    """An unknown dataset fails inside the train flow; the user reads one line (no `nanobind:
+    leaked` reports at exit from the DuckDB objects the failed run's frames held)."""
+    (tmp_path / "data").mkdir()
+    with connect(tmp_path / "data" / "ringside.duckdb"):
+        pass
+    done = subprocess.run(
+        [sys.executable, "-m", "flows.cli", "--data", str(tmp_path / "data"), "train", "--dataset",
+         "nope"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [done.stderr.splitlines()[0]], done.stderr
+    assert "no dataset 'nope'" in done.stderr

@@ -191,6 +191,7 @@ def test_transitions_round_trip_through_duckdb(tmp_path, pair):
             (t["kind"] == "single").sum()
         )
         assert dataset_info(con, key).members == (("v1", "k1"),)
+        assert dataset_info(con, key[:8]).dataset_key == key  # a prefix names it too
         with pytest.raises(UnknownDataset, match="no dataset 'nope'; known: " + key):
             load_transitions(con, "nope", kind="single")
         with pytest.raises(ValueError, match="agent 0 or 1"):

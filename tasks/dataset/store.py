@@ -117,17 +117,21 @@ class DatasetInfo:
 
 
 def dataset_info(con: duckdb.DuckDBPyConnection, dataset_key: str) -> DatasetInfo:
-    """What dataset ``dataset_key`` is; UnknownDataset (listing the known keys) if none."""
-    row = con.execute(
-        "SELECT adversary, config, created_at FROM datasets WHERE dataset_key = ?",
+    """What dataset ``dataset_key`` (or the one key it is a prefix of) is; UnknownDataset
+    (listing the known keys) if none or several match."""
+    rows = con.execute(
+        "SELECT dataset_key, adversary, config, created_at FROM datasets "
+        "WHERE starts_with(dataset_key, ?) ORDER BY dataset_key",
         [dataset_key],
-    ).fetchone()
-    if row is None:
+    ).fetchall()
+    if len(rows) != 1:
         known = [r[0] for r in con.execute("SELECT dataset_key FROM datasets").fetchall()]
+        problem = "no dataset" if not rows else "several datasets start with"
         raise UnknownDataset(
-            f"no dataset {dataset_key!r}; known: {', '.join(known) or 'none'} "
+            f"{problem} {dataset_key!r}; known: {', '.join(known) or 'none'} "
             f"(`ringside datasets` lists them)"
         )
+    dataset_key, *row = rows[0]
     members = con.execute(
         "SELECT video_id, key FROM dataset_members WHERE dataset_key = ? ORDER BY video_id",
         [dataset_key],
