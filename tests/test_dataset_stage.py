@@ -17,7 +17,14 @@ from models.humanoid.kinematics import (
     matrix_to_quat,
     quat_to_matrix,
 )
-from models.humanoid.observations import body_states, observation, self_observation
+from models.humanoid.observations import (
+    OPPONENT_BLOCKS,
+    SELF_BLOCKS,
+    block_slices,
+    body_states,
+    observation,
+    self_observation,
+)
 from storage.db import connect
 from storage.records import OutputRecord, insert_columns, write_output
 from tasks.dataset.config import DatasetConfig
@@ -248,6 +255,24 @@ def test_demo_dataset_tables_metrics_and_key(capsys, sample_run, sample_video):
     assert summary["lift"]["state"] == "cached" and summary["dataset"]["state"] == "done"
     new_key = summary["dataset-assemble"]["key"]
     assert new_key != keys[0] and set(_dataset_keys(capsys, sample_run)) == {new_key, keys[0]}
+
+
+def test_every_transition_is_one_a_boxer_can_make(sample_run):
+    """Bounds no boxer exceeds, on every transition of every dataset of the sample's run: the
+    lift's gates (tasks/lift/gates.py) keep anything else out of the dataset."""
+    rows = query(sample_run, "SELECT self, opp, next_self FROM dataset_transitions")
+    assert rows
+    own = block_slices(SELF_BLOCKS)
+    theirs = block_slices(OPPONENT_BLOCKS)
+    pelvis_velocity = slice(
+        own["body_linear_velocities"].start, own["body_linear_velocities"].start + 3
+    )
+    for self_obs, opp, next_self in rows:
+        for obs in (np.asarray(self_obs), np.asarray(next_self)):
+            assert 0.4 < obs[own["root_height"]][0] < 1.4  # pelvis height, metres
+            assert np.linalg.norm(obs[pelvis_velocity]) < 8.0  # lift.gates.max_root_speed_m_s
+        if opp is not None:
+            assert np.linalg.norm(np.asarray(opp)[theirs["root_position"]]) < 10.0
 
 
 def test_extra_single_actor_clips_join_the_dataset(capsys, sample_run, sample_video, assets):

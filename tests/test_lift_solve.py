@@ -470,6 +470,28 @@ def test_cleanup_puts_feet_on_the_floor_without_skating(
     np.testing.assert_allclose(result.points, keypoint_positions(scene, result.qpos))
 
 
+def test_a_floating_fighter_is_settled_on_the_floor_and_a_hop_is_kept(
+    scene: mujoco.MjModel, truth: dict[str, np.ndarray]
+) -> None:
+    """Lifted 30 cm into the air (the sample's adversary was 31 cm up) with a 0.2 s hop of a
+    further 10 cm: the cleanup puts him back on the floor and leaves the hop in the air."""
+    qpos = truth["qpos"].copy()
+    hop = slice(60, 66)  # 6 frames at 30 fps
+    qpos[:, 2] += 0.3
+    qpos[hop, 2] += 0.1
+    contacts = np.zeros_like(truth["contacts"])  # as for the sample's: the lift saw none
+    result = cleanup(scene, qpos, contacts, fps=FPS)
+    lowest = lowest_points(geom_poses(scene, result.qpos)).min(1)
+    assert result.metrics["foot_height_cm_before"] > 29
+    assert result.metrics["foot_height_cm_after"] < 2
+    assert result.metrics["floor_settle_cm"] == pytest.approx(30, abs=2)
+    assert np.median(lowest) < 0.02 and lowest.min() > -0.01
+    assert lowest[hop].min() > 0.03 and lowest[hop].max() > 0.07  # still in the air
+    np.testing.assert_allclose(result.settle, 0.3, atol=0.03)
+    off = cleanup(scene, qpos, contacts, fps=FPS, config=LiftConfig(floor_settle_s=0))
+    assert off.metrics["foot_height_cm_after"] > 25 and not off.settle.any()
+
+
 def _turned(qpos: np.ndarray, yaw: float, offset: np.ndarray) -> np.ndarray:
     """A motion turned by `yaw` about z, then moved by `offset`."""
     out = qpos.copy()

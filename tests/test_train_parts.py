@@ -159,6 +159,27 @@ def test_discriminator_losses_match_the_equations():
         gail_discriminator_loss(d, real[:, :2], fake, gp_weight=0.0)
 
 
+def test_instance_noise_blurs_the_inputs_but_not_the_reported_accuracy():
+    d = Discriminator(3, hidden=(8,), generator=_generator(4)).double()
+    real = torch.randn(4, 3, generator=_generator(5), dtype=torch.float64) + 2
+    fake = torch.randn(6, 3, generator=_generator(6), dtype=torch.float64)
+    noisy, stats = gail_discriminator_loss(
+        d, real, fake, gp_weight=0.0, input_noise=0.7, generator=_generator(7)
+    )
+    draws = _generator(7)
+    z_real = d.normalize(real) + 0.7 * torch.randn(4, 3, generator=draws, dtype=torch.float64)
+    z_fake = d.normalize(fake) + 0.7 * torch.randn(6, 3, generator=draws, dtype=torch.float64)
+    sig = torch.sigmoid
+    with torch.no_grad():
+        bce = -(sig(d.logits(z_real)).log().mean() + (1 - sig(d.logits(z_fake))).log().mean())
+        lr, lf = d(real), d(fake)
+    assert noisy.item() == pytest.approx(bce.item(), rel=1e-10)
+    assert stats.accuracy_real == (lr > 0).double().mean().item()
+    assert stats.accuracy_fake == (lf < 0).double().mean().item()
+    clean, _ = gail_discriminator_loss(d, real, fake, gp_weight=0.0)
+    assert clean.item() != pytest.approx(noisy.item())
+
+
 def test_replay_buffer_is_a_fifo_and_samples_reproducibly():
     buffer = ReplayBuffer(5, 2)
     with pytest.raises(ValueError, match="empty"):

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass, field, fields
 
 from tasks.config import setting
+from tasks.lift.gates import GateConfig
 
 
 @dataclass(frozen=True)
@@ -160,6 +161,7 @@ class LiftStageConfig:
         10, "A fighter seen in fewer frames of a shot is not lifted in that shot."
     )
     solve: LiftConfig = field(default_factory=LiftConfig)
+    gates: GateConfig = field(default_factory=GateConfig)
 
     def __post_init__(self) -> None:
         if not 1.0 < self.fov_deg < 179.0:

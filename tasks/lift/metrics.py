@@ -233,7 +233,7 @@ def foot_skating_cm_per_frame(foot_positions: np.ndarray, *, height: float = 0.0
     if not (np.isfinite(height) and height > 0):
         raise ValueError(f"height must be a positive threshold in metres, got {height!r}")
     d = np.linalg.norm(f[1:, :, :2] - f[:-1, :, :2], axis=-1)  # (T-1, 2)
-    h = np.maximum((f[1:, :, 2] + f[:-1, :, 2]) / 2, 0.0)
+    h = np.clip((f[1:, :, 2] + f[:-1, :, 2]) / 2, 0.0, height)  # the weight is 0 from height up
     weight = np.where(h < height, 2.0 - np.exp2(h / height), 0.0)
     skate = d * weight
     if not np.isfinite(skate).any():

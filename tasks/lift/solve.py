@@ -137,6 +137,7 @@ class Cleaned:
             angular velocity (pelvis frame), hinge rates; central differences.
         points: (T, 33, 3) the humanoid's sites standing for the BlazePose landmarks, metres.
         contacts: (T, 2) bool, left and right foot in contact as the cleanup used them.
+        settle: (T,) how far `settle_on_floor` lowered the root in each frame, metres.
         metrics: name -> value, before and after (``*_before``, ``*_after``):
             ``floor_penetration_mm`` (deepest geom below the floor, max over frames),
             ``foot_height_cm`` (median over frames of the lower foot's lowest point),
@@ -154,6 +155,7 @@ class Cleaned:
     qvel: np.ndarray
     points: np.ndarray
     contacts: np.ndarray
+    settle: np.ndarray
     metrics: dict[str, float]
 
 
@@ -1718,6 +1720,7 @@ def cleanup(
         qvel=velocities(model, out, fps),
         points=keypoint_positions(model, out),
         contacts=used,
+        settle=drop,
         metrics=metrics,
     )
 

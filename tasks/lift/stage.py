@@ -24,13 +24,30 @@ from models.humanoid.kinematics import NQ, NV
 from storage.artifacts import put_bytes
 from storage.keys import code_version, stage_key
 from tasks.errors import BadInput
-from tasks.lift.camera import Camera, fov_intrinsics, ground_fighters, read_calibration
+from tasks.lift.camera import (
+    Camera,
+    fov_intrinsics,
+    ground_fighters,
+    read_calibration,
+    root_translations,
+)
 from tasks.lift.config import LiftStageConfig
-from tasks.lift.metrics import bone_length_std_mm
+from tasks.lift.gates import (
+    REASONS,
+    GateConfig,
+    depth_jumps,
+    floating,
+    shot_problem,
+    too_far,
+    too_fast,
+)
+from tasks.lift.gates import notes as gate_notes
+from tasks.lift.metrics import HIPS, bone_length_std_mm
 from tasks.lift.motion import RATE, FighterMotion, resample
 from tasks.lift.series import fighter_distance
 from tasks.lift.solve import (
     Cleaned,
+    Lifted3D,
     cleanup,
     cleanup_pair,
     fit_humanoid,
@@ -122,6 +139,69 @@ def _parked(qpos: np.ndarray) -> np.ndarray:
     return far
 
 
+def _median_distance(spans: dict[str, tuple[int, int]], roots: list[np.ndarray]) -> float | None:
+    """Median distance (m) between the two fighters' placed pelvises over the frames both are
+    seen; None with fewer than two fighters or no shared frame."""
+    if len(spans) < 2:
+        return None
+    (a0, b0), (a1, b1) = spans.values()
+    lo, hi = max(a0, a1), min(b0, b1)
+    if hi <= lo:
+        return None
+    gap = np.linalg.norm(roots[0][lo - a0 : hi - a0] - roots[1][lo - a1 : hi - a1], axis=-1)
+    gap = gap[np.isfinite(gap)]
+    return float(np.median(gap)) if len(gap) else None
+
+
+def _gate_placement(
+    track: FighterTrack, a: int, b: int, K: np.ndarray, gates: GateConfig
+) -> tuple[FighterTrack, np.ndarray, np.ndarray]:
+    """The track with the frames of [a, b) refused (as unseen) whose metric skeleton, placed
+    along the camera rays (`root_translations`), lies too far away or jumps in depth: such
+    frames would bend the floor and the lift of every other frame. Returns the gated track
+    (a copy) and the refused frames' masks over the whole video, (F,) far and (F,) fast."""
+    roots = np.full((len(track.keypoints), 3), np.nan)
+    roots[a:b] = root_translations(track.keypoints[a:b], track.confidence[a:b], track.world[a:b], K)
+    far = np.zeros(len(roots), bool)
+    fast = np.zeros(len(roots), bool)
+    far[a:b] = too_far(roots[a:b], np.zeros(3), gates)
+    fast[a:b] = depth_jumps(roots[a:b], gates)
+    bad = far | fast
+    keypoints, confidence, world = (
+        track.keypoints.copy(),
+        track.confidence.copy(),
+        track.world.copy(),
+    )
+    keypoints[bad], confidence[bad], world[bad] = np.nan, 0.0, np.nan
+    return FighterTrack(keypoints, confidence, world), far, fast
+
+
+def _believed(
+    lifted: Lifted3D, good: np.ndarray, min_frames: int
+) -> tuple[int, Lifted3D, np.ndarray] | None:
+    """The lifted span trimmed to its first and last believed frame, with the points of the
+    frames in between that are not believed drawn straight from their believed neighbours (so
+    the humanoid fit and the cleanup never see them; they are dropped after). Returns the
+    offset of the first frame kept, the trimmed motion and its believed mask; None when fewer
+    than ``min_frames`` frames are believed."""
+    kept = np.flatnonzero(good)
+    if len(kept) < min_frames:
+        return None
+    first, last = int(kept[0]), int(kept[-1]) + 1
+    points = lifted.points[first:last].copy()
+    mask = good[first:last]
+    frames = np.arange(len(points))
+    flat = points.reshape(len(points), -1)
+    for column in range(flat.shape[1]):
+        flat[~mask, column] = np.interp(frames[~mask], frames[mask], flat[mask, column])
+    trimmed = dataclasses.replace(
+        lifted,
+        points=flat.reshape(points.shape),
+        contacts=lifted.contacts[first:last] & mask[:, None],
+    )
+    return first, trimmed, mask
+
+
 def _clean_shot(fitted: dict, fps: float, config: LiftStageConfig) -> dict[str, Cleaned]:
     """Each fitted fighter of a shot cleaned up in MuJoCo, the two together when both are there.
 
@@ -162,6 +242,7 @@ def _clean_shot(fitted: dict, fps: float, config: LiftStageConfig) -> dict[str, 
             qvel=cleaned.qvel[a:b],
             points=cleaned.points[a:b],
             contacts=cleaned.contacts[a:b],
+            settle=cleaned.settle[a:b],
         )
     return out
 
@@ -193,22 +274,41 @@ def lift_video(
     change_mm: dict[str, list[float]] = {r: [] for r in fighters}
     cleanup_metrics: dict[str, list[dict[str, float]]] = {r: [] for r in fighters}
     camera_rows = []
+    gates = config.gates
+    rejected = dict.fromkeys(REASONS, 0)
+    fighter_frames = 0
+    notes: list[str] = []
     for shot, start, end in shots:
-        spans = {
-            r: s
-            for r, t in fighters.items()
-            if (s := _segment(t, start, end, config.min_frames)) is not None
-        }
+        K, source = _camera_for_shot(config, size, calibration)
+        gated, refused, spans = {}, {}, {}
+        for role, track in fighters.items():
+            seen = _segment(track, start, end, config.min_frames)
+            if seen is None:
+                continue
+            fighter_frames += seen[1] - seen[0]
+            gated[role], far, fast = _gate_placement(track, *seen, K, gates)
+            refused[role] = far | fast
+            rejected["depth"] += int(far.sum())
+            rejected["speed"] += int((fast & ~far).sum())
+            span = _segment(gated[role], start, end, config.min_frames)
+            if span is None:
+                rejected["short"] += int((seen[1] - seen[0]) - refused[role].sum())
+                continue
+            spans[role] = span
         if not spans:
             continue
-        K, source = _camera_for_shot(config, size, calibration)
         inputs = {
-            r: (fighters[r].keypoints[a:b], fighters[r].confidence[a:b], fighters[r].world[a:b])
+            r: (gated[r].keypoints[a:b], gated[r].confidence[a:b], gated[r].world[a:b])
             for r, (a, b) in spans.items()
         }
         camera, roots = ground_fighters(list(inputs.values()), K, size)
+        problem = shot_problem(float(camera.centre[2]), _median_distance(spans, roots), gates)
+        if problem is not None:
+            rejected["shot"] += sum(b - a for a, b in spans.values())
+            notes.append(f"shot {shot} left out: {problem}")
+            continue
         camera_rows.append((shot, source, camera))
-        fitted = {}
+        fitted, believed = {}, {}
         for (role, (a, b)), root in zip(spans.items(), roots, strict=True):
             lifted = lift_fighter(
                 *inputs[role],
@@ -219,6 +319,18 @@ def lift_video(
                 config=config.solve,
                 root_init=root,
             )
+            hips = lifted.points[:, list(HIPS)].mean(1)
+            far, fast = too_far(hips, camera.centre, gates), too_fast(hips, fps, gates)
+            earlier = refused[role][a:b]  # refused before the lift, which bridged them
+            far, fast = far & ~earlier, fast & ~far & ~earlier
+            rejected["depth"] += int(far.sum())
+            rejected["speed"] += int(fast.sum())
+            kept = _believed(lifted, ~(far | fast | earlier), config.min_frames)
+            if kept is None:
+                rejected["short"] += int((~far & ~fast & ~earlier).sum())
+                continue
+            first, lifted, believed[role] = kept
+            a, b = a + first, a + first + len(lifted.points)
             fitted[role] = (
                 a,
                 b,
@@ -228,10 +340,21 @@ def lift_video(
             lifted_std[role].append(bone_length_std_mm(lifted.points))
             if role not in bones or b - a > bones[role][0]:
                 bones[role] = (b - a, lifted.bones)
+        if not fitted:
+            continue
         for role, cleaned in _clean_shot(fitted, fps, config).items():
             a, b, lifted, _ = fitted[role]
+            fine = believed[role]
+            high = floating(cleaned.settle, gates) & fine
+            fast = too_fast(cleaned.qpos[:, :3], fps, gates) & fine & ~high
+            bad = high | fast | ~fine
+            rejected["floating"] += int(high.sum())
+            rejected["speed"] += int(fast.sum())
             qpos[role][a:b], qvel[role][a:b] = cleaned.qpos, cleaned.qvel
             joints[role][a:b], contacts[role][a:b] = cleaned.points, cleaned.contacts
+            for array in (qpos[role], qvel[role], joints[role]):
+                array[a:b][bad] = np.nan
+            contacts[role][a:b][bad] = False
             change_mm[role].append(
                 float(np.nanmean(np.linalg.norm(cleaned.points - lifted.points, axis=-1)) * 1000)
             )
@@ -248,6 +371,9 @@ def lift_video(
         )
 
     metrics = _metrics(qpos, cleanup_metrics, lifted_std, change_mm)
+    metrics.update({f"frames_rejected_{reason}": float(n) for reason, n in rejected.items()})
+    metrics["frames_rejected"] = float(sum(rejected.values()))
+    notes += gate_notes(rejected, fighter_frames, gates)
     motion = {
         role: resample(
             qpos[role], joints[role], contacts[role], fps=fps, rate=RATE, bones=bones[role][1]
@@ -281,7 +407,7 @@ def lift_video(
         ],
         "lift_media": [(key, video_id, "video", video_artifact)],
     }
-    return StageOutput(rows, metrics)
+    return StageOutput(rows, metrics, tuple(notes))
 
 
 def _pitch_deg(camera: Camera) -> float:

@@ -221,6 +221,12 @@ class DiscriminatorConfig:
         "one core each).",
     )
     learning_rate: float = setting(2e-5, "Adam learning rate of the discriminators.")
+    input_noise: float = setting(
+        0.0,
+        "Standard deviation of Gaussian noise added to both sides' normalised inputs in each "
+        "discriminator update (instance noise, so that no feature tells the footage apart "
+        "exactly); accuracies are logged on the inputs as they are. 0 is off.",
+    )
     max_reward: float = setting(
         9.21,
         "GAIL style reward -log(1 - D) is clipped to [0, max_reward]; 9.21 = -log(1e-4), i.e. "
@@ -237,7 +243,7 @@ class DiscriminatorConfig:
                 f"train.discriminator.loss must be one of {list(DISCRIMINATOR_LOSSES)}, got "
                 f"{self.loss!r}"
             )
-        for name in ("gp_weight", "logit_reg"):
+        for name in ("gp_weight", "logit_reg", "input_noise"):
             value = getattr(self, name)
             if not (_finite(value) and value >= 0):
                 raise ValueError(f"train.discriminator.{name} must be non-negative, got {value}")

@@ -75,11 +75,19 @@ def _discriminator_loss(
     *,
     gp_weight: float,
     logit_reg: float,
+    input_noise: float = 0.0,
+    generator: torch.Generator | None = None,
 ) -> tuple[Tensor, DiscriminatorStats]:
     _check_pair(d, real, fake)
-    z_real = d.normalize(real).detach().requires_grad_(gp_weight > 0)
+    clean_real, clean_fake = d.normalize(real).detach(), d.normalize(fake).detach()
+    z_real, z_fake = clean_real, clean_fake
+    if input_noise > 0:
+        # Instance noise: both sides blurred alike, so no feature separates them exactly.
+        z_real = z_real + input_noise * _normal(z_real, generator)
+        z_fake = z_fake + input_noise * _normal(z_fake, generator)
+    z_real = z_real.requires_grad_(gp_weight > 0)
     logit_real = d.logits(z_real)
-    logit_fake = d.logits(d.normalize(fake).detach())
+    logit_fake = d.logits(z_fake)
     fit = objective(logit_real, logit_fake)
     if gp_weight > 0:
         (grad,) = torch.autograd.grad(logit_real.sum(), z_real, create_graph=True)
@@ -88,6 +96,9 @@ def _discriminator_loss(
         penalty = torch.zeros((), dtype=fit.dtype, device=fit.device)
     weight_norm = d.output_weight.square().sum()
     loss = fit + gp_weight * penalty + logit_reg * weight_norm
+    if input_noise > 0:  # accuracies are reported on the samples as they are, never blurred
+        with torch.no_grad():
+            logit_real, logit_fake = d.logits(clean_real), d.logits(clean_fake)
     stats = DiscriminatorStats(
         loss=loss.item(),
         objective=fit.item(),
@@ -101,6 +112,10 @@ def _discriminator_loss(
     return loss, stats
 
 
+def _normal(like: Tensor, generator: torch.Generator | None) -> Tensor:
+    return torch.randn(like.shape, generator=generator, dtype=like.dtype).to(like.device)
+
+
 def _cross_entropy(logit_real: Tensor, logit_fake: Tensor) -> Tensor:
     # -E log D(real) - E log(1 - D(fake)), D = sigmoid(l); -log sigmoid(l) = softplus(-l).
     return F.softplus(-logit_real).mean() + F.softplus(logit_fake).mean()
@@ -111,7 +126,14 @@ def _least_squares(out_real: Tensor, out_fake: Tensor) -> Tensor:
 
 
 def gail_discriminator_loss(
-    d: Discriminator, real: Tensor, fake: Tensor, *, gp_weight: float, logit_reg: float = 0.0
+    d: Discriminator,
+    real: Tensor,
+    fake: Tensor,
+    *,
+    gp_weight: float,
+    logit_reg: float = 0.0,
+    input_noise: float = 0.0,
+    generator: torch.Generator | None = None,
 ) -> tuple[Tensor, DiscriminatorStats]:
     """MAAIP eqs 7-8: -E_real log D - E_fake log(1 - D) + w_gp E_real ||grad D||^2.
 
@@ -121,15 +143,31 @@ def gail_discriminator_loss(
     grad_phi D; following AMP, whose penalty MAAIP adopts, it is taken on the discriminator's
     raw output, and in normalised units so that no feature dominates by its scale). Its
     weight is w_gp as written in eqs 7-8 (no 1/2). ``logit_reg`` adds logit_reg ||W_out||^2.
-    Returns the loss to minimise and logging scalars.
+    ``input_noise`` > 0 adds N(0, input_noise^2) to every normalised input of both sides
+    (instance noise, drawn from ``generator``); the reported accuracies and logits are those
+    of the inputs as given. Returns the loss to minimise and logging scalars.
     """
     return _discriminator_loss(
-        d, real, fake, _cross_entropy, gp_weight=gp_weight, logit_reg=logit_reg
+        d,
+        real,
+        fake,
+        _cross_entropy,
+        gp_weight=gp_weight,
+        logit_reg=logit_reg,
+        input_noise=input_noise,
+        generator=generator,
     )
 
 
 def lsgan_discriminator_loss(
-    d: Discriminator, real: Tensor, fake: Tensor, *, gp_weight: float, logit_reg: float = 0.0
+    d: Discriminator,
+    real: Tensor,
+    fake: Tensor,
+    *,
+    gp_weight: float,
+    logit_reg: float = 0.0,
+    input_noise: float = 0.0,
+    generator: torch.Generator | None = None,
 ) -> tuple[Tensor, DiscriminatorStats]:
     """MAAIP eq 12: E_real (d - 1)^2 + E_fake (d + 1)^2, d the raw output ("logit").
 
@@ -138,7 +176,14 @@ def lsgan_discriminator_loss(
     d > 0 as "demonstration", the midpoint of the targets +-1.
     """
     return _discriminator_loss(
-        d, real, fake, _least_squares, gp_weight=gp_weight, logit_reg=logit_reg
+        d,
+        real,
+        fake,
+        _least_squares,
+        gp_weight=gp_weight,
+        logit_reg=logit_reg,
+        input_noise=input_noise,
+        generator=generator,
     )
 
 
@@ -149,11 +194,22 @@ DISCRIMINATOR_LOSS_FUNCTIONS = {
 
 
 def discriminator_loss(
-    d: Discriminator, real: Tensor, fake: Tensor, *, config: DiscriminatorConfig
+    d: Discriminator,
+    real: Tensor,
+    fake: Tensor,
+    *,
+    config: DiscriminatorConfig,
+    generator: torch.Generator | None = None,
 ) -> tuple[Tensor, DiscriminatorStats]:
-    """The loss ``config.loss`` names, with its gradient penalty and logit weights."""
+    """The loss ``config.loss`` names, with its gradient penalty, logit weight and input noise."""
     return DISCRIMINATOR_LOSS_FUNCTIONS[config.loss](
-        d, real, fake, gp_weight=config.gp_weight, logit_reg=config.logit_reg
+        d,
+        real,
+        fake,
+        gp_weight=config.gp_weight,
+        logit_reg=config.logit_reg,
+        input_noise=config.input_noise,
+        generator=generator,
     )
 
 

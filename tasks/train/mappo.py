@@ -276,7 +276,11 @@ class Trainer:
                 k = disc.samples_per_update
                 real_k = real[torch.randint(len(real), (k,), generator=self.generator)]
                 loss, s = discriminator_loss(
-                    d, real_k, buffer.sample(k, generator=self.generator), config=disc
+                    d,
+                    real_k,
+                    buffer.sample(k, generator=self.generator),
+                    config=disc,
+                    generator=self.generator,
                 )
                 opt.zero_grad()
                 loss.backward()
