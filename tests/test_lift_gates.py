@@ -7,17 +7,20 @@ import dataclasses
 import numpy as np
 import pytest
 
+from tasks.lift.camera import write_calibration
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.gates import (
     GateConfig,
     depth_jumps,
     floating,
     notes,
+    one_person,
     shot_problem,
     too_far,
     too_fast,
 )
 from tasks.lift.metrics import HIPS
+from tasks.lift.stage import FighterTrack, lift_video
 from tasks.lift.synthetic import evaluate_lift, make_case
 
 GATES = GateConfig()
@@ -38,6 +41,14 @@ def test_frame_gates():
     # Placements 300, 60, 7, 3.1, 3.0, 2.9 m away: the first four frames jump in depth.
     placed = np.array([[0.0, 0.0, d] for d in (300.0, 60.0, 7.0, 3.1, 3.0, 2.9)])
     np.testing.assert_array_equal(depth_jumps(placed, GATES), [1, 1, 1, 1, 0, 0])
+
+
+def test_one_person_gate():
+    body = np.random.default_rng(0).uniform(0, 300, (4, 33, 2))
+    beside = body + [200.0, 0.0]
+    beside[1] = body[1] + 3.0
+    beside[2] = np.nan  # unseen: not flagged
+    np.testing.assert_array_equal(one_person(body, beside, GATES), [0, 1, 0, 0])
 
 
 def test_shot_gate_names_the_problem():
@@ -81,3 +92,38 @@ def test_a_person_emerging_far_off_is_refused_not_lifted(assets, tmp_path):
     )
     ungated = evaluate_lift(bad, off, tmp_path)
     assert ungated["frames_rejected"] == 0 and ungated["output_mpjpe_mm"] > 1000
+
+
+def test_one_person_tracked_as_both_fighters_is_refused(assets, tmp_path):
+    """In a crowd the pose stage once put both roles on one woman for 170 frames. Here the
+    opponent is a second walker 1/5 of the image to the side, except for 16 frames where his
+    track jumps onto the adversary: those frames are dropped for both, counted and noted."""
+    case = make_case("walk", 0, assets)
+    inputs = case.inputs
+    shifted = inputs.keypoints_2d + [case.size[0] / 5, 0.0]
+    shifted[10:26] = inputs.keypoints_2d[10:26] + 1.0  # one pixel off: the same body
+    calibration = tmp_path / "calibration.json"
+    write_calibration(calibration, case.K, np.zeros(5), case.size, 0.0)
+    frames = len(case.points)
+    output = lift_video(
+        {
+            "adversary": FighterTrack(
+                inputs.keypoints_2d, inputs.confidence, inputs.world_landmarks
+            ),
+            "opponent": FighterTrack(shifted, inputs.confidence, inputs.world_landmarks),
+        },
+        key="k",
+        video_id="v",
+        fps=case.fps,
+        size=case.size,
+        shots=[(0, 0, frames)],
+        config=LiftStageConfig(),
+        calibration=calibration,
+        artifacts=tmp_path / "artifacts",
+    )
+    m = output.metrics
+    assert m["frames_rejected_one_person"] == 2 * 16
+    assert m["adversary_frames_lifted"] == m["opponent_frames_lifted"] == frames - 16
+    steps = output.rows["lift_motion"]["step"][output.rows["lift_motion"]["role"] == "adversary"]
+    assert not set(range(10, 26)) & set(steps.tolist())
+    assert any("dropped as implausible: one_person" in note for note in output.notes)

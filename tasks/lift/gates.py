@@ -6,6 +6,9 @@ the floor is found under the wrong feet. The lift stage judges each fighter's fr
 shot with the bounds of `GateConfig` and drops what fails (the dataset stage cuts its clips at
 the gaps), counting it per reason as `frames_rejected_<reason>` metrics:
 
+- ``one_person``: both roles on one person (the tracker followed one body twice): their 2D
+  keypoints closer, at the median over the joints, than `one_person_share` of the body's
+  height in the image; both fighters' frames are dropped, as either may be the wrong one;
 - ``depth``: the pelvis further from the camera than `max_depth_m`;
 - ``speed``: where a skeleton is first placed, its distance from the camera changing by more
   than a factor `max_depth_ratio` from one frame to the next; once lifted, the pelvis moving
@@ -23,19 +26,26 @@ the gaps), counting it per reason as `frames_rejected_<reason>` metrics:
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from tasks.config import setting
 
-REASONS = ("depth", "speed", "floating", "shot", "short")
+REASONS = ("one_person", "depth", "speed", "floating", "shot", "short")
 
 
 @dataclass(frozen=True)
 class GateConfig:
     """Bounds on what a lifted boxer can be: frames and shots outside them are dropped."""
 
+    one_person_share: float = setting(
+        0.1,
+        "Two fighters whose 2D keypoints lie closer than this share of the body's height in the "
+        "image (median over the joints) are one person tracked twice (the sample's two walkers "
+        "never come closer than 0.41).",
+    )
     max_depth_m: float = setting(
         40.0,
         "A fighter's pelvis further than this from the camera (m) is not believed (a ringside "
@@ -74,13 +84,25 @@ class GateConfig:
             raise ValueError(
                 f"lift.gates.max_depth_ratio must be > 1, got {self.max_depth_ratio!r}"
             )
-        for name in ("max_depth_m", "max_root_speed_m_s", "max_floor_settle_m",
+        for name in ("one_person_share", "max_depth_m", "max_root_speed_m_s", "max_floor_settle_m",
                      "max_camera_height_m", "max_fighter_distance_m"):  # fmt: skip
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
                 raise ValueError(f"lift.gates.{name} must be a positive number, got {value!r}")
         if not 0.0 <= self.note_share <= 1.0:
             raise ValueError(f"lift.gates.note_share must be in [0, 1], got {self.note_share!r}")
+
+
+def one_person(first: np.ndarray, second: np.ndarray, config: GateConfig) -> np.ndarray:
+    """(F,) bool: frames in which two fighters' 2D keypoints (F, J, 2 pixels, NaN where unseen)
+    lie on one body: median joint distance under `one_person_share` of the first's height in
+    the image. Frames where either is unseen are not flagged."""
+    a, b = np.asarray(first, dtype=np.float64), np.asarray(second, dtype=np.float64)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN frames: unseen, not flagged
+        apart = np.nanmedian(np.linalg.norm(a - b, axis=-1), axis=1)
+        height = np.nanmax(a[..., 1], axis=1) - np.nanmin(a[..., 1], axis=1)
+    return np.nan_to_num(apart / height, nan=np.inf) < config.one_person_share
 
 
 def too_far(roots: np.ndarray, camera_centre: np.ndarray, config: GateConfig) -> np.ndarray:

@@ -37,6 +37,7 @@ from tasks.lift.gates import (
     GateConfig,
     depth_jumps,
     floating,
+    one_person,
     shot_problem,
     too_far,
     too_fast,
@@ -154,19 +155,20 @@ def _median_distance(spans: dict[str, tuple[int, int]], roots: list[np.ndarray])
 
 
 def _gate_placement(
-    track: FighterTrack, a: int, b: int, K: np.ndarray, gates: GateConfig
+    track: FighterTrack, a: int, b: int, K: np.ndarray, gates: GateConfig, refused: np.ndarray
 ) -> tuple[FighterTrack, np.ndarray, np.ndarray]:
-    """The track with the frames of [a, b) refused (as unseen) whose metric skeleton, placed
-    along the camera rays (`root_translations`), lies too far away or jumps in depth: such
-    frames would bend the floor and the lift of every other frame. Returns the gated track
-    (a copy) and the refused frames' masks over the whole video, (F,) far and (F,) fast."""
+    """The track with the frames of [a, b) refused (as unseen) that ``refused`` (F,) names or
+    whose metric skeleton, placed along the camera rays (`root_translations`), lies too far
+    away or jumps in depth: such frames would bend the floor and the lift of every other
+    frame. Returns the gated track (a copy) and the masks over the whole video, (F,) far and
+    (F,) fast."""
     roots = np.full((len(track.keypoints), 3), np.nan)
     roots[a:b] = root_translations(track.keypoints[a:b], track.confidence[a:b], track.world[a:b], K)
     far = np.zeros(len(roots), bool)
     fast = np.zeros(len(roots), bool)
     far[a:b] = too_far(roots[a:b], np.zeros(3), gates)
     fast[a:b] = depth_jumps(roots[a:b], gates)
-    bad = far | fast
+    bad = far | fast | refused
     keypoints, confidence, world = (
         track.keypoints.copy(),
         track.confidence.copy(),
@@ -278,6 +280,9 @@ def lift_video(
     rejected = dict.fromkeys(REASONS, 0)
     fighter_frames = 0
     notes: list[str] = []
+    twice = np.zeros(frames, bool)
+    if all(r in fighters for r in ROLES):
+        twice = one_person(*(fighters[r].keypoints for r in ROLES), gates)
     for shot, start, end in shots:
         K, source = _camera_for_shot(config, size, calibration)
         gated, refused, spans = {}, {}, {}
@@ -286,10 +291,11 @@ def lift_video(
             if seen is None:
                 continue
             fighter_frames += seen[1] - seen[0]
-            gated[role], far, fast = _gate_placement(track, *seen, K, gates)
-            refused[role] = far | fast
-            rejected["depth"] += int(far.sum())
-            rejected["speed"] += int((fast & ~far).sum())
+            gated[role], far, fast = _gate_placement(track, *seen, K, gates, twice)
+            refused[role] = twice | far | fast
+            rejected["one_person"] += int(twice[seen[0] : seen[1]].sum())
+            rejected["depth"] += int((far & ~twice).sum())
+            rejected["speed"] += int((fast & ~far & ~twice).sum())
             span = _segment(gated[role], start, end, config.min_frames)
             if span is None:
                 rejected["short"] += int((seen[1] - seen[0]) - refused[role].sum())
