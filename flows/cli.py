@@ -7,8 +7,10 @@ directory before anything imports it.
 from __future__ import annotations
 
 import argparse
+import atexit
 import dataclasses
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -894,15 +896,6 @@ def _demo(args, data_root: Path) -> int:
     )
 
 
-def _drop_tracebacks(error: BaseException | None) -> None:
-    """Let go of the frames an error raised in a flow holds: Prefect keeps the exception in the
-    run's state, its frames keep DuckDB objects alive to the interpreter's exit, and DuckDB's
-    bindings then print dozens of `nanobind: leaked ...` lines after our one-line error."""
-    while error is not None:
-        error.__traceback__ = None
-        error = error.__cause__ or error.__context__
-
-
 def main(argv: list[str] | None = None) -> int:
     raw = sys.argv[1:] if argv is None else argv
     # Settings must be in the environment before the parser's imports reach Prefect.
@@ -965,14 +958,28 @@ def main(argv: list[str] | None = None) -> int:
             return _demo(args, data_root)
     except (BadInput, ValueError, FileNotFoundError) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
-        _drop_tracebacks(error)
         return EXIT_BAD_INPUT
     except (AssetError, DatabaseBusy) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
-        _drop_tracebacks(error)
         return EXIT_FAILED
     raise AssertionError(f"unhandled command {args.command}")
 
 
+def run() -> None:
+    """The `ringside` command: `main`, and after an error an exit without the interpreter's
+    teardown. An error raised inside a Prefect flow stays referenced by Prefect's run state,
+    frames and all, until that teardown, where DuckDB's bindings then report each object
+    still alive: dozens of `nanobind: leaked ...` lines after our one line. The logs are sent
+    to Prefect's server first, then the exit handlers run (Prefect stops that server in one)."""
+    code = main()
+    if code != 0:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        logging.shutdown()
+        atexit._run_exitfuncs()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()
