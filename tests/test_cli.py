@@ -228,6 +228,10 @@ def bad_input(kind: str, folder: Path, sample: Path) -> tuple[Path, str]:
     if kind == "no_frames":
         written = write_video(folder / "written.mp4", moving_box_frames(20, (200, 60, 20)))
         return _zeroed_frames(written), "has no decodable video frames"
+    if kind == "one_frame":
+        return write_video(folder / "one.mp4", moving_box_frames(1, (200, 60, 20))), (
+            "has 1 frame; at least 10 are needed (ingest.min_frames)"
+        )
     raise AssertionError(kind)
 
 
@@ -262,7 +266,8 @@ def populated(tmp_path_factory, sample_video) -> Path:
 
 
 @pytest.mark.parametrize(
-    "kind", ["missing", "directory", "empty", "text", "third", "faststart_third", "no_frames"]
+    "kind",
+    ["missing", "directory", "empty", "text", "third", "faststart_third", "no_frames", "one_frame"],
 )
 def test_bad_input_is_one_clear_line_and_changes_nothing(
     kind, tmp_path, capsys, populated, sample_video

@@ -50,11 +50,22 @@ class IngestConfig:
         "called truncated.",
     )
     thumbnail_width: int = setting(320, "Width (pixels) of the still stored for each shot.")
+    min_frames: int = setting(
+        10,
+        "A video with fewer decodable frames is refused at ingest: the lift needs a fighter in "
+        "10 frames (lift.min_frames) and the dataset a clip of 1 s.",
+    )
 
     def __post_init__(self) -> None:
         if not 0.0 < self.cut_threshold <= 1.0:
             raise ValueError(f"ingest.cut_threshold must be in (0, 1], got {self.cut_threshold}")
-        for name in ("min_shot_frames", "histogram_width", "chunk_frames", "thumbnail_width"):
+        for name in (
+            "min_shot_frames",
+            "histogram_width",
+            "chunk_frames",
+            "thumbnail_width",
+            "min_frames",
+        ):
             if getattr(self, name) < 1:
                 raise ValueError(f"ingest.{name} must be at least 1, got {getattr(self, name)}")
         if not 0.0 <= self.truncation_tolerance < 1.0:

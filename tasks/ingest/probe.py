@@ -228,6 +228,12 @@ def scan_video(path: Path, config: IngestConfig) -> Scan:
         )
     if not math.isfinite(fps) or fps <= 0:
         raise BadInput(str(path), f"declares no usable frame rate (fps={fps})")
+    if decoded < config.min_frames:
+        raise BadInput(
+            str(path),
+            f"has {decoded} frame{'s' if decoded != 1 else ''}; at least {config.min_frames} "
+            "are needed (ingest.min_frames)",
+        )
 
     ends = [start for start, _, _ in cuts[1:]] + [decoded]
     shots = [
