@@ -13,12 +13,14 @@ between them. Last line: ``multiview_pa_mpjpe_mm: N mm``.
 from __future__ import annotations
 
 import itertools
+import os
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering, as `ringside` sets it
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._common import FPS, FRAMES, SIZE, sample_fighters  # noqa: E402

@@ -10,11 +10,13 @@ fighter (frames lifted, summed over the fighters, over the seconds).
 
 from __future__ import annotations
 
+import os
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering, as `ringside` sets it
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tasks.lift.stage as lift  # noqa: E402
