@@ -8,9 +8,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import moving_box_frames, query, run_cli, write_video
+from conftest import moving_box_frames, query, read_video, run_cli, write_video
 
 import tasks.pose.task
+from flows.cli import main
 from storage.artifacts import artifact_path
 
 
@@ -212,3 +213,24 @@ def test_chunks_run_on_a_dask_cluster(tmp_path, capsys, sample_video, monkeypatc
     sql = "SELECT DISTINCT frame, raw_x FROM pose_keypoints ORDER BY frame, raw_x"
     assert len(query(data, sql)) == 200
     assert query(data, sql) == query(processed, sql)
+
+
+def test_overlay_starts_where_the_fighters_appear(tmp_path, sample_video):
+    """Fighters who appear late in a video are on the review overlay, however short it is:
+    1 s of an empty ring, then the sample; an overlay of 0.5 s starts on the sample's part."""
+    _, sample = read_video(sample_video)
+    empty = [np.full_like(sample[0], 90) for _ in range(60)]
+    video = write_video(tmp_path / "late.mp4", empty + sample, fps=60.0)
+    data = tmp_path / "data"
+    code = main(
+        ["--data", str(data), "process", str(video), "--adversary", "A", "--until", "pose",
+         "--pose-overlay-seconds", "0.5"]
+    )  # fmt: skip
+    assert code == 0
+    ((start, name),) = query(data, "SELECT frame, artifact FROM pose_media WHERE kind = 'overlay'")
+    assert start >= 60
+    _, drawn = read_video(artifact_path(data / "artifacts", name))
+    assert len(drawn) == 30
+    # The skeletons are drawn: the overlay differs from the footage it was drawn on.
+    footage = cv2.resize(sample[start - 60], drawn[0].shape[1::-1], interpolation=cv2.INTER_AREA)
+    assert np.abs(drawn[0].astype(int) - footage.astype(int)).mean() > 1.0

@@ -61,7 +61,9 @@ class PoseConfig:
         "chosen (occlusions longer than the tracker survives).",
     )
     overlay_seconds: float = setting(
-        20.0, "Seconds of the review overlay video to render from the start (0: the whole video)."
+        20.0,
+        "Seconds of the review overlay video, from where the fighters are first seen (0: the "
+        "whole video).",
     )
     overlay_max_side: int = setting(960, "Long side (pixels) of the review overlay video.")
     stills: int = setting(4, "PNG stills of the overlay, spread over the video.")

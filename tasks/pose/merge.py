@@ -126,7 +126,9 @@ def merge_chunks(spans: list[ChunkSpan], chunks: list[ChunkTracks]) -> VideoTrac
         keep = chunk.det_frame >= span.start
         dets.append((chunk.det_frame[keep], chunk.det_box[keep], chunk.det_score[keep]))
         previous, previous_span = rows, span
-    merged = {name: np.concatenate([p[name] for p in parts]) for name in parts[0]}
+    # A chunk where nobody was seen has no joint axis to speak of (J = 0): it adds no rows.
+    seen = [p for p in parts if len(p["obs_frame"])] or parts[:1]
+    merged = {name: np.concatenate([p[name] for p in seen]) for name in parts[0]}
     return VideoTracks(
         det_frame=np.concatenate([d[0] for d in dets]),
         det_box=np.concatenate([d[1] for d in dets]),

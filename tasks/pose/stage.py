@@ -361,26 +361,32 @@ def render_overlay(
     config: PoseConfig,
     artifacts: Path,
 ) -> list[tuple]:
-    """The overlay MP4 of the first ``overlay_seconds`` and the PNG stills, stored as artifacts.
+    """The overlay MP4 of ``overlay_seconds`` from where the fighters are first seen (together
+    if they ever are: the review must show the skeletons the later stages use, however late in
+    the video they appear) and the PNG stills, stored as artifacts.
 
-    Returns ``pose_media`` rows without their key and video id: (kind, frame, artifact).
+    Returns ``pose_media`` rows without their key and video id: (kind, frame, artifact); the
+    overlay's frame is the video frame it starts at.
     """
     import cv2
 
     media = []
-    count = (
-        frames if config.overlay_seconds <= 0 else min(frames, round(config.overlay_seconds * fps))
+    seen = np.array([np.isfinite(f.keypoints).any(axis=(1, 2)) for f in fighters.values()])
+    both = np.flatnonzero(seen.all(axis=0))
+    anyone = np.flatnonzero(seen.any(axis=0))
+    start = int(both[0] if len(both) else anyone[0] if len(anyone) else 0)
+    end = (
+        frames
+        if config.overlay_seconds <= 0
+        else min(frames, start + round(config.overlay_seconds * fps))
     )
     out_size = overlay_size(*size, config.overlay_max_side)
     with tempfile.TemporaryDirectory(prefix="ringside-overlay-") as tmp:
         path = Path(tmp) / "overlay.mp4"
         with H264Writer(path, out_size, fps) as writer:
-            for index, frame in read_frames(video, 0, count):
+            for index, frame in read_frames(video, start, end):
                 writer.write(draw_people(frame, _people_at(index, fighters)))
-        media.append(("overlay", 0, put_bytes(artifacts, path.read_bytes(), ".mp4")))
-    both = np.flatnonzero(
-        np.all([np.isfinite(f.keypoints).any(axis=(1, 2)) for f in fighters.values()], axis=0)
-    )
+        media.append(("overlay", start, put_bytes(artifacts, path.read_bytes(), ".mp4")))
     pool = both if len(both) else np.arange(frames)
     for index in (
         sorted(set(pool[np.linspace(0, len(pool) - 1, config.stills).round().astype(int)].tolist()))
