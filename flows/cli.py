@@ -12,6 +12,7 @@ import dataclasses
 import json
 import logging
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -22,7 +23,11 @@ EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 
 
-def prepare_environment(data_root: Path, *, verbose: bool) -> None:
+# The commands that run Prefect flows, which need Prefect's API.
+FLOW_COMMANDS = frozenset({"process", "rerun", "pick", "train", "evaluate", "demo"})
+
+
+def prepare_environment(data_root: Path, *, verbose: bool, command: str | None = None) -> None:
     """Prefect settings Ringside needs, unless the user has set them: its home (ephemeral
     server database, cached results) inside the data directory, no telemetry, a quiet console."""
     os.environ["RINGSIDE_DATA"] = str(data_root)
@@ -49,6 +54,11 @@ def prepare_environment(data_root: Path, *, verbose: bool) -> None:
         # While `ringside serve` runs on this data directory, every run reports to its server
         # and shows in its UI; otherwise Prefect starts an ephemeral server per command.
         api = served_api(data_root)
+        if api is None and command in FLOW_COMMANDS:
+            from flows.serve import private_server
+
+            # Not Prefect's temporary server: a killed command would leave that one running.
+            api = private_server(data_root)
         if api is not None:
             os.environ["PREFECT_API_URL"] = api
 
@@ -902,11 +912,14 @@ def main(argv: list[str] | None = None) -> int:
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--data", type=Path)
     pre.add_argument("--verbose", action="store_true")
-    known, _ = pre.parse_known_args(raw)
+    known, rest = pre.parse_known_args(raw)
     from storage.paths import data_paths
 
     data_root = data_paths(known.data).root
-    prepare_environment(data_root, verbose=known.verbose)
+    command = next((word for word in rest if not word.startswith("-")), None)
+    if "-h" in rest or "--help" in rest:
+        command = None  # help needs no server
+    prepare_environment(data_root, verbose=known.verbose, command=command)
 
     args = build_parser().parse_args(raw)
     from storage.assets import AssetError
@@ -971,14 +984,28 @@ def run() -> None:
     frames and all, until that teardown, where DuckDB's bindings then report each object
     still alive: dozens of `nanobind: leaked ...` lines after our one line. The logs are sent
     to Prefect's server first, then the exit handlers run (Prefect stops that server in one)."""
+    signal.signal(signal.SIGTERM, _stop)
     code = main()
     if code != 0:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        logging.shutdown()
-        atexit._run_exitfuncs()
-        os._exit(code)
+        _leave(code)
     sys.exit(code)
+
+
+def _leave(code: int) -> None:
+    sys.stdout.flush()
+    sys.stderr.flush()
+    logging.shutdown()
+    atexit._run_exitfuncs()
+    os._exit(code)
+
+
+def _stop(signum: int, _frame) -> None:
+    """SIGTERM: one line, Prefect's server stopped, out (what is committed stays committed)."""
+    print(
+        "ringside: error: stopped by SIGTERM; the same command picks up where it stopped",
+        file=sys.stderr,
+    )
+    _leave(128 + signum)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import imageio_ffmpeg
@@ -433,3 +434,71 @@ def test_an_error_in_a_flow_is_one_line_and_nothing_after_it(tmp_path):
     assert done.returncode == 2
     assert done.stderr.splitlines() == [done.stderr.splitlines()[0]], done.stderr
     assert "no dataset 'nope'" in done.stderr
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_a_command_killed_with_sigkill_leaves_no_prefect_server(tmp_path, sample_video):
+    """`kill -9` gives the command no chance to stop anything: the Prefect server it started
+    goes with it (Prefect's own temporary server stayed, about 257 MB each)."""
+    command = subprocess.Popen(
+        [sys.executable, "-m", "flows.cli", "--data", str(tmp_path / "data"), "process",
+         str(sample_video), "--adversary", "A"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    servers: list[int] = []
+    deadline = time.monotonic() + 120
+    while not servers and time.monotonic() < deadline and command.poll() is None:
+        servers = _children(command.pid)
+        time.sleep(0.2)
+    time.sleep(5)  # the server is up and the command at work
+    servers = _children(command.pid)
+    assert servers and command.poll() is None, "the command started no server"
+    command.kill()
+    command.wait()
+    deadline = time.monotonic() + 10
+    while any(_alive(pid) for pid in servers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(_alive(pid) for pid in servers)
+
+
+def test_sigterm_stops_a_command_in_one_line_within_5_s(tmp_path, sample_video):
+    command = subprocess.Popen(
+        [sys.executable, "-m", "flows.cli", "--data", str(tmp_path / "data"), "process",
+         str(sample_video), "--adversary", "A"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    deadline = time.monotonic() + 120
+    while not _children(command.pid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(5)
+    servers = _children(command.pid)
+    assert servers and command.poll() is None
+    command.terminate()
+    stopped = time.monotonic()
+    _, err = command.communicate(timeout=30)
+    assert time.monotonic() - stopped < 5.0
+    assert command.returncode != 0
+    assert err.splitlines() == [
+        "ringside: error: stopped by SIGTERM; the same command picks up where it stopped"
+    ]
+    assert not any(_alive(pid) for pid in servers)
