@@ -108,7 +108,7 @@ def torch_actor(policy: Policy, agent: int) -> Actor:
         obs = torch.from_numpy(np.asarray(observation, dtype=np.float32))
         given = None if task is None else torch.from_numpy(np.asarray(task, dtype=np.float32))
         with torch.no_grad():
-            return policy(obs, agent, given).double().numpy()
+            return policy(obs, agent, given)[:, :NUM_ACTUATED].double().numpy()
 
     return act
 

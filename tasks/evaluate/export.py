@@ -32,7 +32,7 @@ from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent
 from tasks.evaluate.store import RunInfo, resolve_run
 from tasks.train.config import TrainConfig
 from tasks.train.env import EnvConfig
-from tasks.train.networks import Policy
+from tasks.train.networks import ACTION_DIM, Policy, action_stds, policy_outputs
 
 ONNX_OPSET = 17
 
@@ -83,7 +83,8 @@ def load_trained(artifacts: Path, info: RunInfo, metrics: dict[str, float]) -> T
     state = torch.load(io.BytesIO(read_bytes(artifacts, info.artifact)), weights_only=False)
     policy = Policy(
         hidden=config.network.hidden_sizes,
-        action_std=config.ppo.action_std,
+        action_std=action_stds(config),
+        action_dim=policy_outputs(config),
         task_dim=config.reward.task_observation_dim,
         observation_clip=config.network.observation_clip,
     )
@@ -103,7 +104,8 @@ class _Acting(nn.Module):
         self.policy, self.agent = policy, agent
 
     def forward(self, observation: torch.Tensor, task: torch.Tensor | None = None):
-        return self.policy(observation, self.agent, task)
+        # The PD targets only: a residual-force assist (if trained with one) is gone by then.
+        return self.policy(observation, self.agent, task)[:, :ACTION_DIM]
 
 
 def policy_onnx(policy: Policy, agent: int) -> bytes:
@@ -201,7 +203,7 @@ def onnx_max_abs_diff(
     obs = np.asarray(observations, dtype=np.float32)
     given = None if task is None else np.asarray(task, dtype=np.float32)
     with torch.no_grad():
-        expected = policy(
-            torch.from_numpy(obs), agent, None if given is None else torch.from_numpy(given)
+        expected = _Acting(policy, agent)(
+            torch.from_numpy(obs), None if given is None else torch.from_numpy(given)
         ).numpy()
     return float(np.abs(opponent.act(obs, given) - expected).max())

@@ -259,6 +259,105 @@ class DiscriminatorConfig:
 
 
 @dataclass(frozen=True)
+class AssistConfig:
+    """Residual force control (Yuan and Kitani, NeurIPS 2020; Vid2Player3D uses it too): the
+    policy outputs a wrench on its own pelvis besides its 28 PD targets, penalised, and the
+    wrench is scaled down to nothing during the run, so that the fighters learn the footage's
+    motion first and balance it on their own after. Not in MAAIP."""
+
+    force: float = setting(
+        0.0,
+        "Residual force on each pelvis per unit of the policy's assist outputs, as a share of "
+        "the fighter's weight m g; 0 turns the assist off (the policy has 28 outputs, else 34).",
+    )
+    torque: float = setting(
+        0.5, "Residual torque per unit of the assist's torque outputs, as a share of m g x 1 m."
+    )
+    std: float = setting(
+        0.2, "Exploration std of the policy's assist outputs (in the units above)."
+    )
+    full_until: int = setting(
+        0, "Iteration until which the assist is at full strength; it then falls linearly."
+    )
+    zero_at: int = setting(
+        1000,
+        "Iteration from which the assist is zero (the policy's assist outputs are ignored).",
+    )
+    penalty: float = setting(
+        0.5,
+        "Weight w of the assist penalty -w (|F|^2 + |T|^2) / (m g)^2 (torque over m g x 1 m) "
+        "added to each step's reward.",
+    )
+
+    def __post_init__(self) -> None:
+        for name in ("force", "torque", "penalty"):
+            value = getattr(self, name)
+            if not (_finite(value) and value >= 0):
+                raise ValueError(f"train.assist.{name} must be non-negative, got {value}")
+        if not (_finite(self.std) and self.std > 0):
+            raise ValueError(f"train.assist.std must be positive, got {self.std}")
+        if self.full_until < 0 or self.zero_at <= self.full_until:
+            raise ValueError(
+                "train.assist needs 0 <= full_until < zero_at, got "
+                f"full_until {self.full_until} and zero_at {self.zero_at}"
+            )
+
+    @property
+    def on(self) -> bool:
+        return self.force > 0
+
+    def scale(self, iteration: int) -> float:
+        """The assist's strength at ``iteration``: 1, then falling linearly to 0 at zero_at."""
+        if not self.on or iteration >= self.zero_at:
+            return 0.0
+        if iteration <= self.full_until:
+            return 1.0
+        return (self.zero_at - iteration) / (self.zero_at - self.full_until)
+
+
+@dataclass(frozen=True)
+class CloningConfig:
+    """Behaviour cloning from the demonstrations (not in MAAIP): the policy's mean is fitted to
+    the PD targets that reach each demonstration's next pose (its next observation's joint
+    angles), before training (a warm start) and as a loss added to PPO's that fades out (as in
+    DAPG, Rajeswaran et al. 2018)."""
+
+    pretrain_steps: int = setting(
+        0, "Adam steps of behaviour cloning before the first iteration; 0 is no warm start."
+    )
+    pretrain_learning_rate: float = setting(1e-3, "Adam learning rate of the warm start.")
+    weight: float = setting(
+        0.0,
+        "Weight of the cloning loss (mean squared error of the mean action, radians^2) added to "
+        "each PPO minibatch's loss at iteration 0; it falls linearly to 0 at `until`.",
+    )
+    until: int = setting(500, "Iteration from which the cloning loss is off.")
+    batch: int = setting(256, "Demonstrations per cloning step.")
+    legs: bool = setting(
+        False,
+        "Clone the hips', knees' and ankles' targets too; false clones the spine, neck and "
+        "arms only, and leaves the legs to reinforcement learning.",
+    )
+
+    def __post_init__(self) -> None:
+        for name in ("pretrain_learning_rate", "weight"):
+            value = getattr(self, name)
+            if not (_finite(value) and value >= 0):
+                raise ValueError(f"train.cloning.{name} must be non-negative, got {value}")
+        for name in ("pretrain_steps", "until"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"train.cloning.{name} must be >= 0, got {getattr(self, name)}")
+        if self.batch < 1:
+            raise ValueError(f"train.cloning.batch must be at least 1, got {self.batch}")
+
+    def weight_at(self, iteration: int) -> float:
+        """The cloning loss's weight at ``iteration``."""
+        if iteration >= self.until:
+            return 0.0
+        return self.weight * (1 - iteration / self.until)
+
+
+@dataclass(frozen=True)
 class PPOConfig:
     """MAPPO (MAAIP §4.5, Algorithm 1 line 21): GAE(lambda) advantages, TD(lambda) value
     targets, clipped surrogate, a Gaussian policy with a fixed standard deviation (§4.4)."""
@@ -279,6 +378,17 @@ class PPOConfig:
         "in the action's units (radians of PD targets). AMP's 0.055 = exp(-2.9) fells a body "
         "holding its rest pose in about 2 s; with 0.02 it stands 30 s (tests/test_standing.py).",
     )
+    arm_action_std: float = setting(
+        0.0,
+        "Exploration std of the shoulders' and elbows' actions instead of action_std (radians); "
+        "arm noise costs no balance, where leg noise fells the body. 0 uses action_std.",
+    )
+    target_kl: float = setting(
+        0.0,
+        "Adaptive learning rate: after each iteration the rate is divided by 1.5 when the mean "
+        "approximate KL of its minibatches exceeded twice this, multiplied by 1.5 when it was "
+        "below half (within 1e-6..1e-3); 0 keeps learning_rate fixed.",
+    )
     value_coef: float = setting(0.5, "Weight of the value loss in the PPO loss.")
     horizon: int = setting(32, "T: steps collected per environment per iteration.")
     max_grad_norm: float = setting(1.0, "Gradients are clipped to this global norm.")
@@ -291,6 +401,12 @@ class PPOConfig:
             raise ValueError(f"train.ppo.gamma must be in (0, 1], got {self.gamma}")
         if not 0 <= self.gae_lambda <= 1:
             raise ValueError(f"train.ppo.gae_lambda must be in [0, 1], got {self.gae_lambda}")
+        if not (_finite(self.arm_action_std) and self.arm_action_std >= 0):
+            raise ValueError(
+                f"train.ppo.arm_action_std must be non-negative, got {self.arm_action_std}"
+            )
+        if not (_finite(self.target_kl) and self.target_kl >= 0):
+            raise ValueError(f"train.ppo.target_kl must be non-negative, got {self.target_kl}")
         for name in ("clip_coef", "learning_rate", "action_std", "max_grad_norm"):
             value = getattr(self, name)
             if not (_finite(value) and value > 0):
@@ -331,6 +447,8 @@ class TrainConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     discriminator: DiscriminatorConfig = field(default_factory=DiscriminatorConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
+    assist: AssistConfig = field(default_factory=AssistConfig)
+    cloning: CloningConfig = field(default_factory=CloningConfig)
     env: EnvConfig = field(default_factory=EnvConfig)
 
     def __post_init__(self) -> None:

@@ -17,8 +17,14 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.kinematics import humanoid_index
-from models.humanoid.observations import SELF_DIM, body_states, observation
+from models.humanoid.kinematics import humanoid_index, joint_targets_to_action
+from models.humanoid.observations import (
+    OBSERVATION_DIM,
+    SELF_DIM,
+    body_states,
+    joint_angles,
+    observation,
+)
 from tasks.dataset.stage import ROLES
 from tasks.dataset.store import dataset_info, load_transitions, upstream_lift_key
 from tasks.errors import BadInput
@@ -134,3 +140,44 @@ def clip_demonstrations(
     model = mujoco.MjModel.from_xml_string(boxer_mjcf(bones[0]))
     reference = facing_reference(qpos, velocities(model, qpos, RATE))
     return demonstrations_from_reference(reference, bones, key=f"clip:{clip}")
+
+
+@dataclass(frozen=True, eq=False)
+class ClonedActions:
+    """Behaviour cloning's samples: what each demonstration's fighter observed and the PD-target
+    actions that reach its next pose.
+
+    Attributes:
+        obs: (B, 274) observations o_t. Single-actor transitions have no opponent: theirs is the
+            mean opponent block of the interaction transitions (a typical opponent).
+        agent: (B,) the agent each row is cloned for (single-actor rows appear for both).
+        actions: (B, 28) the actions whose hinge targets are the next observation's joint angles.
+    """
+
+    obs: np.ndarray
+    agent: np.ndarray
+    actions: np.ndarray
+
+
+def cloned_actions(demos: Demonstrations) -> ClonedActions:
+    """Behaviour cloning samples from every demonstration transition (`ClonedActions`)."""
+    obs, agents, nxt = [], [], []
+    for agent, rows in enumerate(demos.interaction):
+        obs.append(rows[:, :OBSERVATION_DIM])
+        agents.append(np.full(len(rows), agent))
+        nxt.append(rows[:, OBSERVATION_DIM:])
+    opponent = np.concatenate(obs)[:, SELF_DIM:].mean(axis=0)
+    single = np.concatenate(
+        [demos.motion[:, :SELF_DIM], np.broadcast_to(opponent, (len(demos.motion), len(opponent)))],
+        axis=1,
+    )
+    for agent in range(2):
+        obs.append(single)
+        agents.append(np.full(len(single), agent))
+        nxt.append(demos.motion[:, SELF_DIM:])
+    next_self = np.concatenate(nxt)
+    return ClonedActions(
+        obs=np.concatenate(obs).astype(np.float32),
+        agent=np.concatenate(agents),
+        actions=joint_targets_to_action(joint_angles(next_self)).astype(np.float32),
+    )

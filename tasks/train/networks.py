@@ -24,11 +24,20 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from models.humanoid.kinematics import NUM_ACTUATED
+from models.humanoid.kinematics import JOINT_LAYOUT, NUM_ACTUATED
 from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
 from tasks.train.config import NUM_AGENTS, TrainConfig
 
 ACTION_DIM = NUM_ACTUATED  # 28, as in MAAIP §4.2
+# The hips', knees' and ankles' actions, the last in the layout.
+LEG_ACTIONS = slice(
+    min(JOINT_LAYOUT[i].action.start for i, j in enumerate(JOINT_LAYOUT) if j.group == "hip"),
+    ACTION_DIM,
+)
+# The shoulders' and elbows' actions: exploring them costs no balance (`PPOConfig.arm_action_std`).
+ARM_ACTIONS: tuple[int, ...] = tuple(
+    i for j in JOINT_LAYOUT if j.group in ("shoulder", "elbow") for i in range(28)[j.action]
+)
 MOTION_INPUT_DIM = 2 * SELF_DIM  # (o^self_t, o^self_t+1), eqs 5 and 7
 INTERACTION_INPUT_DIM = OBSERVATION_DIM + SELF_DIM  # (o_t, o^self_t+1), eqs 6 and 8
 
@@ -140,7 +149,7 @@ class Policy(nn.Module):
         self,
         *,
         hidden: Sequence[int],
-        action_std: float,
+        action_std: float | Sequence[float],
         obs_dim: int = OBSERVATION_DIM,
         action_dim: int = ACTION_DIM,
         task_dim: int = 0,
@@ -148,16 +157,15 @@ class Policy(nn.Module):
         generator: torch.Generator | None = None,
     ):
         super().__init__()
-        if not action_std > 0:
+        std = torch.as_tensor(action_std, dtype=torch.float64).expand(action_dim).clone()
+        if not bool((std > 0).all()):
             raise ValueError(f"action_std must be positive, got {action_std}")
         self.obs_dim, self.action_dim, self.task_dim = obs_dim, action_dim, task_dim
         self.norm = RunningNorm(obs_dim, clip=observation_clip)
         self.net = mlp(
             obs_dim + NUM_AGENTS + task_dim, hidden, action_dim, generator=generator, out_gain=0.01
         )
-        self.register_buffer(
-            "std", torch.full((action_dim,), float(action_std), dtype=torch.float64)
-        )
+        self.register_buffer("std", std)
 
     def _inputs(self, obs: Tensor, agent: Tensor | int, task: Tensor | None) -> Tensor:
         check_features(obs, "obs", self.obs_dim)
@@ -316,6 +324,26 @@ class Networks:
     interaction: tuple[Discriminator, ...]
 
 
+ASSIST_DIM = 6  # a force and a torque on the pelvis (`tasks.train.config.AssistConfig`)
+
+
+def policy_outputs(config: TrainConfig) -> int:
+    """The policy's outputs: the 28 PD-target actions, then the assist's wrench if it has one.
+    Only the first 28 act once training is over."""
+    return ACTION_DIM + (ASSIST_DIM if config.assist.on else 0)
+
+
+def action_stds(config: TrainConfig) -> tuple[float, ...]:
+    """The fixed exploration std of each policy output (`policy_outputs`): `ppo.action_std`,
+    `ppo.arm_action_std` on the shoulders and elbows, `assist.std` on the assist's outputs."""
+    ppo = config.ppo
+    stds = [ppo.action_std] * ACTION_DIM
+    if ppo.arm_action_std > 0:
+        for i in ARM_ACTIONS:
+            stds[i] = ppo.arm_action_std
+    return (*stds, *([config.assist.std] * (policy_outputs(config) - ACTION_DIM)))
+
+
 def make_networks(config: TrainConfig, *, generator: torch.Generator) -> Networks:
     """All networks with the sizes in ``config``, initialised from ``generator``."""
     hidden = config.network.hidden_sizes
@@ -324,7 +352,8 @@ def make_networks(config: TrainConfig, *, generator: torch.Generator) -> Network
     return Networks(
         policy=Policy(
             hidden=hidden,
-            action_std=config.ppo.action_std,
+            action_std=action_stds(config),
+            action_dim=policy_outputs(config),
             task_dim=task_dim,
             observation_clip=clip,
             generator=generator,
