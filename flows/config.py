@@ -7,13 +7,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from models.maaip.config import TrainConfig
 from tasks.config import apply_overrides, build, defaults_toml, read_toml
 from tasks.dataset.config import DatasetConfig
 from tasks.evaluate.config import EvaluateConfig
 from tasks.ingest.config import IngestConfig
 from tasks.lift.config import LiftStageConfig
 from tasks.pose.config import PoseConfig
-from tasks.train.config import TrainConfig
 
 # Stage name -> its config class, in pipeline order. A stage joins here when it exists.
 SECTIONS: dict[str, type] = {

@@ -1,1 +1,2 @@
-"""What is learned or simulated: pose backends now; the humanoid, arena and networks later."""
+"""What is learned or simulated: pose backends, the boxer humanoid, and MAAIP (its arena,
+environment, networks, losses and demonstrations)."""

@@ -33,11 +33,14 @@ def digest(value: Any) -> str:
 
 
 def code_version(*packages: str) -> str:
-    """Hash of every Python source file of ``packages``: editing a stage's code changes its keys."""
+    """Hash of every Python source file of ``packages`` (a name may also be a single module):
+    editing a stage's code changes its keys."""
     h = hashlib.sha256()
     for package in packages:
-        folder = Path(import_module(package).__file__).parent
-        for path in sorted(folder.rglob("*.py")):
+        source = Path(import_module(package).__file__)
+        folder = source.parent
+        paths = sorted(folder.rglob("*.py")) if source.name == "__init__.py" else [source]
+        for path in paths:
             h.update(f"{package}/{path.relative_to(folder).as_posix()}".encode())
             h.update(b"\0")
             h.update(path.read_bytes())

@@ -18,11 +18,6 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 
-def setting(default: Any, help: str) -> Any:
-    """A config field with its default and the sentence that documents it."""
-    return dataclasses.field(default=default, metadata={"help": help})
-
-
 def field_types(cls: type) -> dict[str, type]:
     hints = typing.get_type_hints(cls)
     return {f.name: hints[f.name] for f in dataclasses.fields(cls)}

@@ -118,9 +118,9 @@ def test_time_in_guard_needs_both_wrists_above_the_shoulders():
 
 
 def test_bouts_repeat_exactly_and_stop_at_a_fall(assets):
+    from models.maaip.config import NetworkConfig, TrainConfig
     from tasks.evaluate.bouts import simulate, torch_actor
     from tasks.evaluate.stage import untrained_policy
-    from tasks.train.config import NetworkConfig, TrainConfig
     from tasks.train.data import clip_demonstrations
 
     demos = clip_demonstrations(assets, "punch")

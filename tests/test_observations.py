@@ -6,8 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
+import models.maaip.env as train_env
 import tasks.dataset.stage as dataset_stage
-import tasks.train.env as train_env
 from models.humanoid import observations as obs
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import (

@@ -17,21 +17,21 @@ from conftest import read_video, run_cli
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OBSERVATION_DIM
-from storage.files import sha256_file
-from tasks.errors import BadInput
-from tasks.evaluate.export import export_opponent, onnx_max_abs_diff, policy_onnx
-from tasks.evaluate.opponent import load_opponent
-from tasks.evaluate.spar import Partner, spar
-from tasks.train.config import (
+from models.maaip.config import (
     DiscriminatorConfig,
     NetworkConfig,
     PPOConfig,
     TrainConfig,
 )
+from models.maaip.env import EnvConfig
+from models.maaip.networks import Policy
+from storage.files import sha256_file
+from tasks.errors import BadInput
+from tasks.evaluate.export import export_opponent, onnx_max_abs_diff, policy_onnx
+from tasks.evaluate.opponent import load_opponent
+from tasks.evaluate.spar import Partner, spar
 from tasks.train.data import clip_demonstrations
-from tasks.train.env import EnvConfig
 from tasks.train.mappo import Trainer
-from tasks.train.networks import Policy
 
 REPO = Path(__file__).resolve().parent.parent
 ARTIFACTS = REPO / "data" / "test-artifacts" / "spar"

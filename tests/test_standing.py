@@ -16,9 +16,10 @@ from conftest import query
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ, NV
+from models.maaip.demonstrations import facing_reference
+from models.maaip.env import ArenaEnv, EnvConfig
 from storage.db import connect
 from tasks.lift.store import load_motion
-from tasks.train.env import ArenaEnv, EnvConfig, facing_reference
 
 NOISE_STD = 0.02
 SECONDS = 30.0

@@ -164,6 +164,9 @@ def test_stage_keys_follow_config_code_and_upstream():
 def test_code_version_hashes_the_stage_sources():
     assert code_version("tasks.ingest") == code_version("tasks.ingest")
     assert code_version("tasks.ingest") != code_version("storage")
+    # A single module hashes that file alone, not its package.
+    assert code_version("models.maaip.arena") != code_version("models.maaip")
+    assert code_version("models.maaip.arena") == code_version("models.maaip.arena")
 
 
 def test_process_killed_inside_a_transaction_leaves_the_old_output(tmp_path: Path):

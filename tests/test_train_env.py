@@ -1,5 +1,5 @@
-"""The two-fighter arena (models.humanoid.arena) and the batched training environment
-(tasks.train.env): placement, observations, falls, damage, batched stepping, bad inputs."""
+"""The two-fighter arena (models.maaip.arena) and the batched training environment
+(models.maaip.env): placement, observations, falls, damage, batched stepping, bad inputs."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from models.humanoid.arena import DAMAGE_BODIES, arena_index, arena_mjcf
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import (
     HINGE_NAMES,
@@ -19,16 +18,16 @@ from models.humanoid.kinematics import (
     joint_targets_to_action,
 )
 from models.humanoid.observations import body_state, observation, self_observation
-from tasks.lift.motion import velocities
-from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
-from tasks.train.env import (
+from models.maaip.arena import DAMAGE_BODIES, arena_index, arena_mjcf
+from models.maaip.demonstrations import ReferenceMotions, facing_reference
+from models.maaip.env import (
     ArenaEnv,
     EnvConfig,
-    ReferenceMotions,
     centred_pair,
-    facing_reference,
     geom_bottoms,
 )
+from tasks.lift.motion import velocities
+from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 
 SMALL = BoneLengths().scaled(0.9)
 

@@ -10,15 +10,16 @@ import torch
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import heading_yaw
-from tasks.train.config import (
+from models.maaip.config import (
     DiscriminatorConfig,
     NetworkConfig,
     PPOConfig,
     RewardConfig,
     TrainConfig,
 )
-from tasks.train.data import Demonstrations, clip_demonstrations
-from tasks.train.env import EnvConfig
+from models.maaip.demonstrations import Demonstrations
+from models.maaip.env import EnvConfig
+from tasks.train.data import clip_demonstrations
 from tasks.train.mappo import CheckpointMismatch, Trainer
 
 TINY = TrainConfig(

@@ -1,4 +1,4 @@
-"""The MAAIP training parts (tasks/train/networks.py, losses.py, config.py) against trusted
+"""The MAAIP training parts (models/maaip/networks.py, losses.py, config.py) against trusted
 answers: hand-computed GAE, finite differences, numpy statistics, torch.distributions, and
 two short learning runs (a discriminator on synthetic motions, PPO on a one-step bandit)."""
 
@@ -12,16 +12,15 @@ import pytest
 import torch
 
 from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
-from tasks.config import build
-from tasks.train.config import (
+from models.maaip.config import (
     DiscriminatorConfig,
     NetworkConfig,
     PPOConfig,
     RewardConfig,
     TrainConfig,
 )
-from tasks.train.env import EnvConfig
-from tasks.train.losses import (
+from models.maaip.env import EnvConfig
+from models.maaip.losses import (
     PPOBatch,
     combine_rewards,
     damage_reward,
@@ -35,8 +34,7 @@ from tasks.train.losses import (
     reward_weights,
     style_reward,
 )
-from tasks.train.mappo import training_device
-from tasks.train.networks import (
+from models.maaip.networks import (
     ACTION_DIM,
     INTERACTION_INPUT_DIM,
     MOTION_INPUT_DIM,
@@ -47,6 +45,8 @@ from tasks.train.networks import (
     RunningNorm,
     make_networks,
 )
+from tasks.config import build
+from tasks.train.mappo import training_device
 
 
 @pytest.fixture(autouse=True)

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from conftest import TINY_TRAIN_FLAGS, query, run_cli
 
+from models.maaip.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
+from models.maaip.env import EnvConfig
 from storage.paths import data_paths
 from tasks.evaluate.opponent import load_opponent
-from tasks.train.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
-from tasks.train.env import EnvConfig
 from tasks.train.run import train
 
 TINY = TrainConfig(

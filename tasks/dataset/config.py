@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from tasks.config import setting
+from models.settings import setting
 
 # The MSc thesis's actor (Saarland 2021, §3.1): 1.90 m tall, recorded at 60 Hz. His arm
 # (shoulder to wrist) is taken as 0.332 of his height, the upper arm plus forearm of Winter's

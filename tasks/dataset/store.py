@@ -17,12 +17,14 @@ import numpy as np
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OPPONENT_DIM, SELF_DIM
+from models.maaip.demonstrations import Demonstrations, ReferenceMotions
 from storage.db import transaction, utcnow
 from storage.keys import digest, stable_json
 from tasks.dataset.config import DatasetConfig
-from tasks.dataset.stage import AGENTS, STAGE
+from tasks.dataset.stage import AGENTS, ROLES, STAGE
 from tasks.dataset.statistics import FighterStatistics, combine_videos
-from tasks.lift.store import load_bones
+from tasks.errors import BadInput
+from tasks.lift.store import load_bones, load_motion
 
 
 class UnknownDataset(KeyError):
@@ -287,3 +289,55 @@ def load_transitions(
     if at != total:
         raise RuntimeError(f"dataset {dataset_key} changed while it was read ({at} of {total})")
     return Transitions(obs, next_self)
+
+
+def _pairs(con: duckdb.DuckDBPyConnection, dataset_key: str, kind: str, agent) -> np.ndarray:
+    found = load_transitions(con, dataset_key, kind=kind, agent=agent)
+    return np.concatenate([found.obs, found.next_self], axis=1)
+
+
+def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Demonstrations:
+    """Everything training needs from dataset ``dataset_key`` (its train split).
+
+    Raises:
+        UnknownDataset: no such dataset.
+        BadInput: the dataset has no interaction clip to learn from or start episodes in.
+    """
+    info = dataset_info(con, dataset_key)
+    motion = _pairs(con, dataset_key, "single", None)
+    interaction = tuple(_pairs(con, dataset_key, "interaction", a) for a in (0, 1))
+    frames: list[tuple[np.ndarray, ...]] = []
+    bones, most = None, -1
+    for video_id, key in info.members:
+        lift_key = upstream_lift_key(con, video_id, key)
+        if lift_key is None:  # extra single-actor clips: no interaction
+            continue
+        clips = con.execute(
+            "SELECT start_step, end_step FROM dataset_clips WHERE key = ? AND video_id = ? "
+            "AND kind = 'interaction' AND split = 'train' ORDER BY clip",
+            [key, video_id],
+        ).fetchall()
+        if not clips:
+            continue
+        fighters = load_motion(con, video_id, lift_key)
+        steps = np.concatenate([np.arange(a, b) for a, b in clips])
+        rows = {role: fighters[role].rows(steps) for role in ROLES}
+        frames.append(
+            tuple(getattr(fighters[r], f)[rows[r]] for r in ROLES for f in ("qpos", "qvel"))
+        )
+        if len(steps) > most:
+            most, bones = len(steps), (fighters[ROLES[0]].bones, fighters[ROLES[1]].bones)
+    if not frames or min(len(x) for x in interaction) == 0:
+        raise BadInput(
+            f"dataset {dataset_key}",
+            "has no interaction clips in its train split: nothing to learn interactions from "
+            "or to start episodes in (lower dataset.min_clip_s or add footage)",
+        )
+    q0, v0, q1, v1 = (np.concatenate([f[i] for f in frames]) for i in range(4))
+    return Demonstrations(
+        dataset_key=dataset_key,
+        motion=motion,
+        interaction=interaction,
+        reference=ReferenceMotions(qpos0=q0, qvel0=v0, qpos1=q1, qvel1=v1),
+        bones=bones,
+    )

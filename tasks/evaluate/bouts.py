@@ -23,9 +23,10 @@ import torch
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NUM_ACTUATED, joint_targets_to_action
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, block_slices
-from tasks.train.env import ArenaEnv, EnvConfig, ReferenceMotions
-from tasks.train.losses import heading_reward
-from tasks.train.networks import Policy
+from models.maaip.demonstrations import ReferenceMotions
+from models.maaip.env import ArenaEnv, EnvConfig
+from models.maaip.losses import heading_reward
+from models.maaip.networks import Policy
 
 # An agent's policy: (B, 274) observations [and (B, 2) heading task inputs, or None] -> (B, 28).
 Actor = Callable[[np.ndarray, np.ndarray | None], np.ndarray]
@@ -39,7 +40,7 @@ _RECORDED_STEPS = 16  # steps per episode whose observations are kept (for the O
 class HeadingTask:
     """MAAIP §5.4's target heading, as the run trained with it (`train.reward.heading_*`):
     each agent gets a target direction on the floor per episode, seen in its own heading frame,
-    and the reward of eq 11 (`tasks.train.losses.heading_reward`) on its root velocity."""
+    and the reward of eq 11 (`models.maaip.losses.heading_reward`) on its root velocity."""
 
     target_speed: float
     scale: float

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from tasks.config import setting
+from models.settings import setting
 
 
 def _whole(value: object) -> bool:

@@ -19,10 +19,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from models.humanoid.arena import arena_mjcf
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
+from models.maaip.arena import arena_mjcf
+from models.maaip.config import TrainConfig
+from models.maaip.env import EnvConfig
+from models.maaip.networks import ACTION_DIM, Policy, action_stds, policy_outputs
 from storage.artifacts import read_bytes
 from storage.db import connect
 from storage.files import sha256_file
@@ -30,9 +33,6 @@ from storage.records import output_metrics
 from tasks.config import build
 from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent
 from tasks.evaluate.store import RunInfo, resolve_run
-from tasks.train.config import TrainConfig
-from tasks.train.env import EnvConfig
-from tasks.train.networks import ACTION_DIM, Policy, action_stds, policy_outputs
 
 ONNX_OPSET = 17
 

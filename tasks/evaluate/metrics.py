@@ -48,9 +48,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from models.humanoid.arena import DEFAULT_PREFIXES, arena_index
 from models.humanoid.boxer import DEFAULT_STATURE, BoneLengths
 from models.humanoid.kinematics import keypoint_positions
+from models.maaip.arena import DEFAULT_PREFIXES, arena_index
 from models.pose.types import BLAZEPOSE_33
 from tasks.dataset.config import PunchConfig
 from tasks.dataset.labels import HANDS, KINDS, Punch, Step, label_punches, label_steps

@@ -1,6 +1,6 @@
 """Sparring: an exported opponent against a second fighter in MuJoCo, with onnxruntime only.
 
-`spar` steps one arena of the training environment (`tasks.train.env.ArenaEnv`, the same
+`spar` steps one arena of the training environment (`models.maaip.env.ArenaEnv`, the same
 physics, observations and fall rule the policy was trained with, read from the opponent's
 manifest) with the opponent in its own slot and the partner in the other. Both start standing
 at the arena's rest pose, 1.2 m apart and facing each other; a fall (or a blown-up simulation)
@@ -25,9 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV
+from models.maaip.demonstrations import ReferenceMotions
+from models.maaip.env import ArenaEnv, EnvConfig
 from tasks.evaluate.opponent import Opponent
 from tasks.lift.video import open_video, render_frame
-from tasks.train.env import ArenaEnv, EnvConfig, ReferenceMotions
 
 STILL = "still"
 

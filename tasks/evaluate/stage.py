@@ -36,14 +36,17 @@ import mujoco
 import numpy as np
 import torch
 
-from models.humanoid.arena import arena_mjcf
+from models.maaip.arena import arena_mjcf
+from models.maaip.config import TrainConfig
+from models.maaip.demonstrations import ReferenceMotions
+from models.maaip.networks import Policy, make_networks
 from storage.artifacts import put_bytes
 from storage.db import connect
 from storage.records import output_metrics
 from tasks.config import build
 from tasks.dataset.config import DatasetConfig, PunchConfig
 from tasks.dataset.statistics import FighterStatistics
-from tasks.dataset.store import dataset_info
+from tasks.dataset.store import dataset_info, load_demonstrations
 from tasks.evaluate.bouts import Actor, Bouts, HeadingTask, simulate, still_actor, torch_actor
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.export import (
@@ -56,10 +59,6 @@ from tasks.evaluate.opponent import FILES, MANIFEST, load_opponent
 from tasks.evaluate.store import DAMAGE_TASKS, STAGE, real_statistics, resolve_run
 from tasks.lift.video import render_bout
 from tasks.runner import StageOutput
-from tasks.train.config import TrainConfig
-from tasks.train.data import load_demonstrations
-from tasks.train.env import ReferenceMotions
-from tasks.train.networks import Policy, make_networks
 
 __all__ = ["STAGE", "EvaluateInputs", "evaluate", "load_inputs"]
 

@@ -15,7 +15,7 @@ from tasks.stage_task import stage_task
 
 
 def evaluate_code() -> str:
-    return code_version("tasks.evaluate", "tasks.train", "tasks.dataset", "models.humanoid")
+    return code_version("tasks.evaluate", "tasks.dataset", "models.humanoid", "models.maaip")
 
 
 def evaluate_upstream(run_key: str, compared: Sequence[str] = ()) -> dict:

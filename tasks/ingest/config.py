@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from tasks.config import setting
+from models.settings import setting
 from tasks.errors import BadInput
 
 # Trunk and glove colours analysts name, as RGB; anything else is given as #rrggbb.

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 
-from tasks.config import setting
+from models.settings import setting
 from tasks.lift.gates import GateConfig
 
 

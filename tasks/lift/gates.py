@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tasks.config import setting
+from models.settings import setting
 
 REASONS = ("one_person", "depth", "speed", "floating", "shot", "short")
 

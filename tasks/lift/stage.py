@@ -63,7 +63,7 @@ ROLES = ("adversary", "opponent")
 
 
 def lift_code() -> str:
-    return code_version("tasks.lift", "models.humanoid")
+    return code_version("tasks.lift", "models.humanoid", "models.maaip.arena")
 
 
 def lift_upstream(pose_key: str, calibration_sha: str | None) -> dict:

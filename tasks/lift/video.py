@@ -1,7 +1,7 @@
 """MuJoCo humanoids rendered offscreen to an H.264 MP4 that browsers play.
 
 `render_lift` is the lift stage's review video: both fighters' cleaned motion, each on a humanoid
-of its own bones, in the training arena (`models.humanoid.arena`: the adversary is agent 0, red;
+of its own bones, in the training arena (`models.maaip.arena`: the adversary is agent 0, red;
 the opponent agent 1, blue), seen from the side by a camera that follows them. `render_bout`
 renders a recorded arena motion from the arena's fixed "side" camera (the evaluate stage's bout
 video; `tasks.evaluate.spar` renders live bouts with `open_video` and `render_frame`).
@@ -22,9 +22,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from models.humanoid.arena import arena_mjcf
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ
+from models.maaip.arena import arena_mjcf
 from tasks.lift.motion import RATE, FighterMotion, gaussian_smooth, grid_steps
 
 VIDEO_SIZE = (640, 360)

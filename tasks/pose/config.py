@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from tasks.config import setting
+from models.settings import setting
 from tasks.pose.fighters import FighterConfig
 from tasks.pose.refine import RefineConfig
 from tasks.pose.tracking import TrackerConfig

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from tasks.config import setting
+from models.settings import setting
 from tasks.pose.tracking import (
     DESCRIPTOR_SIZE,
     HUE_BINS,

@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from tasks.config import setting
+from models.settings import setting
 
 # BlazePose joint names without their left/right word, by the limb that BlazePose tends to
 # mislabel as a unit. Each group decides alone, so a swap of the legs alone is seen (one

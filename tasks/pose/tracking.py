@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from models.pose.types import Detection
-from tasks.config import setting
+from models.settings import setting
 
 # ---------------------------------------------------------------------------------------------
 # Optimal assignment

@@ -30,10 +30,10 @@ import torch
 from torch import Tensor
 
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, SELF_DIM, block_slices
-from tasks.train.config import TrainConfig
-from tasks.train.data import Demonstrations, cloned_actions
-from tasks.train.env import ArenaEnv
-from tasks.train.losses import (
+from models.maaip.config import TrainConfig
+from models.maaip.demonstrations import Demonstrations, cloned_actions
+from models.maaip.env import ArenaEnv
+from models.maaip.losses import (
     PPOBatch,
     combine_rewards,
     damage_reward,
@@ -44,7 +44,7 @@ from tasks.train.losses import (
     reward_weights,
     style_reward_from_config,
 )
-from tasks.train.networks import ACTION_DIM, LEG_ACTIONS, ReplayBuffer, make_networks
+from models.maaip.networks import ACTION_DIM, LEG_ACTIONS, ReplayBuffer, make_networks
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]

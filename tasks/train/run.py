@@ -23,13 +23,13 @@ import duckdb
 import numpy as np
 from tqdm import tqdm
 
+from models.maaip.config import TrainConfig
 from storage.artifacts import artifact_path, put_bytes, read_bytes
 from storage.db import connect, transaction, utcnow
 from storage.records import insert_columns
+from tasks.dataset.store import load_demonstrations
 from tasks.errors import BadInput
 from tasks.runner import StageOutput
-from tasks.train.config import TrainConfig
-from tasks.train.data import load_demonstrations
 from tasks.train.mappo import Trainer
 
 STAGE = "train"

@@ -4,16 +4,16 @@ from __future__ import annotations
 
 from prefect.runtime import flow_run
 
+from models.maaip.config import TrainConfig
 from storage.keys import code_version, stage_key
 from storage.paths import data_paths
 from tasks.runner import StageResult, run_stage
 from tasks.stage_task import stage_task
-from tasks.train.config import TrainConfig
 from tasks.train.run import STAGE, train
 
 
 def train_code() -> str:
-    return code_version("tasks.train", "tasks.dataset", "models.humanoid")
+    return code_version("tasks.train", "tasks.dataset", "models.humanoid", "models.maaip")
 
 
 def train_key(config: TrainConfig, dataset_key: str) -> str:

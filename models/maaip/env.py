@@ -70,27 +70,14 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
-from models.humanoid.arena import (
-    DAMAGE_SENSOR_SLOTS,
-    NUM_AGENTS,
-    ArenaIndex,
-    SensorLayout,
-    arena_index,
-    arena_mjcf,
-)
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import (
-    NQ,
     NUM_ACTUATED,
-    NV,
     ROOT_POS,
     ROOT_QUAT,
     action_to_joint_targets,
-    axis_angle_matrix,
     heading_frame,
     heading_yaw,
-    matrix_to_quat,
-    quat_to_matrix,
 )
 from models.humanoid.observations import (
     FRAME_WIDTH,
@@ -100,7 +87,16 @@ from models.humanoid.observations import (
     observation,
     world_frames,
 )
-from tasks.config import setting
+from models.maaip.arena import (
+    DAMAGE_SENSOR_SLOTS,
+    NUM_AGENTS,
+    ArenaIndex,
+    SensorLayout,
+    arena_index,
+    arena_mjcf,
+)
+from models.maaip.demonstrations import ReferenceMotions
+from models.settings import setting
 
 STEPPINGS = ("rollout", "threads")
 RESET_VELOCITIES = ("zero", "clip", "reference")
@@ -195,54 +191,6 @@ class EnvConfig:
     def max_steps(self) -> int:
         """Policy steps in an episode that does not end early."""
         return max(1, round(self.episode_s * self.policy_hz))
-
-
-@dataclass(frozen=True, eq=False)
-class ReferenceMotions:
-    """Interaction frames to start episodes from (reference state initialisation).
-
-    Both fighters in one world frame, frame m of agent 0 with frame m of agent 1, as in the
-    dataset's interaction clips (`lift_motion` rows of both fighters at one step).
-
-    Attributes:
-        qpos0: (M, 35) agent 0's qpos (kinematics' layout).
-        qvel0: (M, 34) agent 0's qvel.
-        qpos1: (M, 35) agent 1's qpos.
-        qvel1: (M, 34) agent 1's qvel.
-    """
-
-    qpos0: np.ndarray
-    qvel0: np.ndarray
-    qpos1: np.ndarray
-    qvel1: np.ndarray
-
-    def __post_init__(self) -> None:
-        count = None
-        for name, width in (("qpos0", NQ), ("qvel0", NV), ("qpos1", NQ), ("qvel1", NV)):
-            array = np.array(getattr(self, name), dtype=np.float64)
-            if array.ndim != 2 or array.shape[1] != width or len(array) == 0:
-                raise ValueError(
-                    f"ReferenceMotions.{name} must have shape (M, {width}) with M >= 1, "
-                    f"got {array.shape}"
-                )
-            if count is not None and len(array) != count:
-                raise ValueError(
-                    f"ReferenceMotions.{name} has {len(array)} frames, qpos0 has {count}: "
-                    "every array needs one row per frame"
-                )
-            if not np.isfinite(array).all():
-                raise ValueError(f"ReferenceMotions.{name} must be finite")
-            if name.startswith("qpos") and np.any(
-                np.linalg.norm(array[:, ROOT_QUAT], axis=1) < 1e-6
-            ):
-                raise ValueError(f"ReferenceMotions.{name} has a zero root quaternion")
-            count = len(array)
-            array.setflags(write=False)
-            object.__setattr__(self, name, array)
-
-    @property
-    def num_frames(self) -> int:
-        return len(self.qpos0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -358,44 +306,6 @@ def centred_pair(qpos0: np.ndarray, qpos1: np.ndarray) -> tuple[np.ndarray, np.n
     out0[..., :2] -= shift
     out1[..., :2] -= shift
     return out0, out1
-
-
-def facing_reference(
-    qpos: np.ndarray, qvel: np.ndarray, *, distance: float = 1.2
-) -> ReferenceMotions:
-    """A synthetic interaction for tests and benchmarks: one motion performed by both fighters.
-
-    Agent 0 performs the motion as given; agent 1 performs it turned half a circle about the
-    vertical axis through the point `distance` / 2 in front of agent 0's pelvis at the first
-    frame, so that it starts `distance` in front of agent 0, facing it.
-
-    Args:
-        qpos: (M, 35) one fighter's qpos (e.g. a retargeted DeepMimic clip).
-        qvel: (M, 34) its qvel.
-        distance: pelvis-to-pelvis distance at the first frame, metres.
-
-    Returns:
-        The pair as ReferenceMotions.
-    """
-    q = np.array(qpos, dtype=np.float64)
-    v = np.array(qvel, dtype=np.float64)
-    if q.ndim != 2 or q.shape[1] != NQ:
-        raise ValueError(f"qpos must have shape (M, {NQ}), got {q.shape}")
-    if v.shape != (len(q), NV):
-        raise ValueError(f"qvel must have shape ({len(q)}, {NV}), got {v.shape}")
-    if not (math.isfinite(distance) and distance > 0):
-        raise ValueError(f"distance must be a positive number of metres, got {distance!r}")
-    turn = axis_angle_matrix((0.0, 0.0, 1.0), math.pi)
-    facing = heading_frame(q[0, ROOT_QUAT])[:, 0]
-    axis = q[0, ROOT_POS] + distance / 2 * facing
-    axis[2] = 0.0
-    q1, v1 = q.copy(), v.copy()
-    q1[:, ROOT_POS] = (q[:, ROOT_POS] - axis) @ turn.T + axis
-    q1[:, ROOT_QUAT] = matrix_to_quat(turn @ quat_to_matrix(q[:, ROOT_QUAT]))
-    # The root's linear velocity is in the world frame and turns with it; its angular velocity
-    # is in the pelvis frame (MuJoCo's free joint) and the hinge rates are local: unchanged.
-    v1[:, 0:3] = v[:, 0:3] @ turn.T
-    return ReferenceMotions(qpos0=q, qvel0=v, qpos1=q1, qvel1=v1)
 
 
 @dataclass(frozen=True, eq=False)

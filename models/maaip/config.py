@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from tasks.config import setting
-from tasks.train.env import EnvConfig
+from models.maaip.env import EnvConfig
+from models.settings import setting
 
 PRESETS: dict[str, tuple[int, ...]] = {
     # MAAIP §4.4: 3 hidden layers of 1024, 1024, 512 ReLU units.

@@ -10,7 +10,7 @@
 - :class:`RunningNorm`: running mean and variance of inputs, used by all of them.
 - :class:`ReplayBuffer`: a FIFO of policy transitions, the discriminators' negatives.
 
-All take their hidden sizes from :class:`~tasks.train.config.NetworkConfig` (the paper's
+All take their hidden sizes from :class:`~models.maaip.config.NetworkConfig` (the paper's
 1024-1024-512 ReLU or a smaller CPU preset) and a ``torch.Generator`` for their initial
 weights, so a seed fixes everything. Shape letters: B batch, F features, A = 28 actions.
 """
@@ -26,7 +26,7 @@ from torch import Tensor, nn
 
 from models.humanoid.kinematics import JOINT_LAYOUT, NUM_ACTUATED
 from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
-from tasks.train.config import NUM_AGENTS, TrainConfig
+from models.maaip.config import NUM_AGENTS, TrainConfig
 
 ACTION_DIM = NUM_ACTUATED  # 28, as in MAAIP §4.2
 # The hips', knees' and ankles' actions, the last in the layout.
@@ -281,7 +281,7 @@ class Discriminator(nn.Module):
 
     ``forward(x)`` takes raw transitions (B, F); :meth:`normalize` and :meth:`logits` are the
     two halves, so the losses can take the gradient penalty in normalised units (see
-    :func:`tasks.train.losses.gradient_penalty`).
+    :func:`models.maaip.losses.gradient_penalty`).
     """
 
     def __init__(
@@ -324,7 +324,7 @@ class Networks:
     interaction: tuple[Discriminator, ...]
 
 
-ASSIST_DIM = 6  # a force and a torque on the pelvis (`tasks.train.config.AssistConfig`)
+ASSIST_DIM = 6  # a force and a torque on the pelvis (`models.maaip.config.AssistConfig`)
 
 
 def policy_outputs(config: TrainConfig) -> int:

@@ -21,8 +21,8 @@ import torch
 from torch import Tensor
 from torch.nn import functional as F
 
-from tasks.train.config import DiscriminatorConfig, RewardConfig
-from tasks.train.networks import CentralValue, Discriminator, Policy
+from models.maaip.config import DiscriminatorConfig, RewardConfig
+from models.maaip.networks import CentralValue, Discriminator, Policy
 
 
 @dataclass(frozen=True)
