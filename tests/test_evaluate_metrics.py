@@ -125,7 +125,7 @@ def test_bouts_repeat_exactly_and_stop_at_a_fall(assets):
 
     demos = clip_demonstrations(assets, "punch")
     config = TrainConfig(network=NetworkConfig(hidden="16,16"))
-    policy = untrained_policy(config)
+    policy = untrained_policy(config, demos.reference)
 
     def run(seed: int):
         return simulate(

@@ -208,6 +208,21 @@ def test_a_share_of_resets_starts_standing_where_the_frame_stands(punch):
         EnvConfig(standing_share=1.5)
 
 
+def test_standing_starts_take_the_reference_stance(punch):
+    stance = np.stack([np.linspace(-0.2, 0.2, 28), np.linspace(0.1, -0.1, 28)])
+    with_stance = ReferenceMotions(
+        punch.qpos0, punch.qvel0, punch.qpos1, punch.qvel1, stance=stance
+    )
+    with _env(num_envs=8, standing_share=1.0) as env:
+        env.reset(np.arange(8), with_stance)
+        for data in env.datas:
+            for agent, hinges in zip(env.index.agents, stance, strict=True):
+                assert data.qpos[agent.qpos][7:] == pytest.approx(hinges)
+                assert not data.qvel[agent.qvel].any()
+    with pytest.raises(ValueError, match="stance"):
+        ReferenceMotions(punch.qpos0, punch.qvel0, punch.qpos1, punch.qvel1, stance=stance[:1])
+
+
 def test_centred_pair_and_facing_reference_geometry(punch):
     a, b = centred_pair(punch.qpos0[:3], punch.qpos1[:3])
     assert a[:, :2] + b[:, :2] == pytest.approx(np.zeros((3, 2)), abs=1e-12)

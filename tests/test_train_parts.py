@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from models.humanoid.kinematics import HINGE_NAMES, joint_targets_to_action
 from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
 from models.maaip.config import (
     DiscriminatorConfig,
@@ -43,6 +44,7 @@ from models.maaip.networks import (
     Policy,
     ReplayBuffer,
     RunningNorm,
+    action_stds,
     make_networks,
 )
 from tasks.config import build
@@ -535,3 +537,37 @@ def test_the_training_device_is_chosen_or_refused_clearly():
     if not torch.cuda.is_available():
         with pytest.raises(ValueError, match="torch sees no GPU"):
             training_device("cuda")
+
+
+def test_the_policy_starts_from_each_fighters_stance_and_keeps_it_in_its_state():
+    stance = np.stack([np.linspace(-0.3, 0.3, ACTION_DIM), np.linspace(0.2, -0.2, ACTION_DIM)])
+    guard = torch.from_numpy(joint_targets_to_action(stance)).float()
+    obs = torch.randn(64, OBSERVATION_DIM)
+    config = TrainConfig(network=NetworkConfig(hidden="32,32"))
+    nets = make_networks(config, generator=_generator(0), stance=stance)
+    for agent in (0, 1):
+        mean = nets.policy(obs, agent)
+        # The network's own output starts small (output gain 0.01): the mean is the guard.
+        assert (mean - guard[agent]).abs().max() < 0.05
+    assert (nets.policy(obs, 0) - nets.policy(obs, 1)).abs().mean() > 0.1
+    plain = make_networks(
+        dataclasses.replace(config, network=NetworkConfig(hidden="32,32", mean_from_guard=False)),
+        generator=_generator(0),
+        stance=stance,
+    )
+    assert plain.policy(obs, 0).abs().max() < 0.05
+    restored = make_networks(config, generator=_generator(1))
+    restored.policy.load_state_dict(nets.policy.state_dict())
+    assert torch.equal(restored.policy(obs, 1), nets.policy(obs, 1))
+    with pytest.raises(ValueError, match="actions"):
+        nets.policy.start_from(np.zeros((3, ACTION_DIM)))
+
+
+def test_the_arms_explore_with_their_own_std():
+    stds = action_stds(TrainConfig(ppo=PPOConfig(action_std=0.02, arm_action_std=0.1)))
+    arms = {h for h in HINGE_NAMES if "shoulder" in h or "elbow" in h}
+    for name, std in zip(HINGE_NAMES, stds, strict=True):
+        assert std == (0.1 if name in arms else 0.02), name
+    assert set(action_stds(TrainConfig())) == {TrainConfig().ppo.action_std}
+    with pytest.raises(ValueError, match="arm_action_std"):
+        PPOConfig(arm_action_std=-0.1)

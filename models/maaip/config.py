@@ -48,6 +48,14 @@ class NetworkConfig:
     observation_clip: float = setting(
         5.0, "Normalised observations are clipped to +-this many standard deviations."
     )
+    mean_from_guard: bool = setting(
+        True,
+        "The policy's mean is its network's output plus each fighter's guard (its footage's "
+        "median spine, neck and arms on bent knees that stand unaided, models.humanoid.stance), "
+        "so an untrained policy holds its guard; false starts it at the rest pose, straight legs "
+        "and arms hanging (MAAIP's policy outputs the targets directly). Starting straight-legged, "
+        "no policy found bent knees, the first feature the priors told apart.",
+    )
 
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
@@ -259,63 +267,6 @@ class DiscriminatorConfig:
 
 
 @dataclass(frozen=True)
-class AssistConfig:
-    """Residual force control (Yuan and Kitani, NeurIPS 2020; Vid2Player3D uses it too): the
-    policy outputs a wrench on its own pelvis besides its 28 PD targets, penalised, and the
-    wrench is scaled down to nothing during the run, so that the fighters learn the footage's
-    motion first and balance it on their own after. Not in MAAIP."""
-
-    force: float = setting(
-        0.0,
-        "Residual force on each pelvis per unit of the policy's assist outputs, as a share of "
-        "the fighter's weight m g; 0 turns the assist off (the policy has 28 outputs, else 34).",
-    )
-    torque: float = setting(
-        0.5, "Residual torque per unit of the assist's torque outputs, as a share of m g x 1 m."
-    )
-    std: float = setting(
-        0.2, "Exploration std of the policy's assist outputs (in the units above)."
-    )
-    full_until: int = setting(
-        0, "Iteration until which the assist is at full strength; it then falls linearly."
-    )
-    zero_at: int = setting(
-        1000,
-        "Iteration from which the assist is zero (the policy's assist outputs are ignored).",
-    )
-    penalty: float = setting(
-        0.5,
-        "Weight w of the assist penalty -w (|F|^2 + |T|^2) / (m g)^2 (torque over m g x 1 m) "
-        "added to each step's reward.",
-    )
-
-    def __post_init__(self) -> None:
-        for name in ("force", "torque", "penalty"):
-            value = getattr(self, name)
-            if not (_finite(value) and value >= 0):
-                raise ValueError(f"train.assist.{name} must be non-negative, got {value}")
-        if not (_finite(self.std) and self.std > 0):
-            raise ValueError(f"train.assist.std must be positive, got {self.std}")
-        if self.full_until < 0 or self.zero_at <= self.full_until:
-            raise ValueError(
-                "train.assist needs 0 <= full_until < zero_at, got "
-                f"full_until {self.full_until} and zero_at {self.zero_at}"
-            )
-
-    @property
-    def on(self) -> bool:
-        return self.force > 0
-
-    def scale(self, iteration: int) -> float:
-        """The assist's strength at ``iteration``: 1, then falling linearly to 0 at zero_at."""
-        if not self.on or iteration >= self.zero_at:
-            return 0.0
-        if iteration <= self.full_until:
-            return 1.0
-        return (self.zero_at - iteration) / (self.zero_at - self.full_until)
-
-
-@dataclass(frozen=True)
 class CloningConfig:
     """Behaviour cloning from the demonstrations (not in MAAIP): the policy's mean is fitted to
     the PD targets that reach each demonstration's next pose (its next observation's joint
@@ -383,12 +334,6 @@ class PPOConfig:
         "Exploration std of the shoulders' and elbows' actions instead of action_std (radians); "
         "arm noise costs no balance, where leg noise fells the body. 0 uses action_std.",
     )
-    target_kl: float = setting(
-        0.0,
-        "Adaptive learning rate: after each iteration the rate is divided by 1.5 when the mean "
-        "approximate KL of its minibatches exceeded twice this, multiplied by 1.5 when it was "
-        "below half (within 1e-6..1e-3); 0 keeps learning_rate fixed.",
-    )
     value_coef: float = setting(0.5, "Weight of the value loss in the PPO loss.")
     horizon: int = setting(32, "T: steps collected per environment per iteration.")
     max_grad_norm: float = setting(1.0, "Gradients are clipped to this global norm.")
@@ -405,8 +350,6 @@ class PPOConfig:
             raise ValueError(
                 f"train.ppo.arm_action_std must be non-negative, got {self.arm_action_std}"
             )
-        if not (_finite(self.target_kl) and self.target_kl >= 0):
-            raise ValueError(f"train.ppo.target_kl must be non-negative, got {self.target_kl}")
         for name in ("clip_coef", "learning_rate", "action_std", "max_grad_norm"):
             value = getattr(self, name)
             if not (_finite(value) and value > 0):
@@ -447,7 +390,6 @@ class TrainConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     discriminator: DiscriminatorConfig = field(default_factory=DiscriminatorConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
-    assist: AssistConfig = field(default_factory=AssistConfig)
     cloning: CloningConfig = field(default_factory=CloningConfig)
     env: EnvConfig = field(default_factory=EnvConfig)
 

@@ -23,6 +23,7 @@ import numpy as np
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import (
     NQ,
+    NUM_ACTUATED,
     NV,
     ROOT_POS,
     ROOT_QUAT,
@@ -54,12 +55,16 @@ class ReferenceMotions:
         qvel0: (M, 34) agent 0's qvel.
         qpos1: (M, 35) agent 1's qpos.
         qvel1: (M, 34) agent 1's qvel.
+        stance: (2, 28) the hinge angles each fighter stands in when an episode starts standing
+            (`EnvConfig.standing_share`), e.g. its guard (`models.humanoid.stance.guard_pose`);
+            None is the rest pose (every hinge at 0).
     """
 
     qpos0: np.ndarray
     qvel0: np.ndarray
     qpos1: np.ndarray
     qvel1: np.ndarray
+    stance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         count = None
@@ -84,6 +89,15 @@ class ReferenceMotions:
             count = len(array)
             array.setflags(write=False)
             object.__setattr__(self, name, array)
+        if self.stance is not None:
+            stance = np.array(self.stance, dtype=np.float64)
+            if stance.shape != (2, NUM_ACTUATED) or not np.isfinite(stance).all():
+                raise ValueError(
+                    f"ReferenceMotions.stance must be finite with shape (2, {NUM_ACTUATED}), "
+                    f"got {stance.shape}"
+                )
+            stance.setflags(write=False)
+            object.__setattr__(self, "stance", stance)
 
     @property
     def num_frames(self) -> int:

@@ -76,7 +76,6 @@ from models.humanoid.kinematics import (
     ROOT_POS,
     ROOT_QUAT,
     action_to_joint_targets,
-    heading_frame,
     heading_yaw,
 )
 from models.humanoid.observations import (
@@ -101,8 +100,6 @@ from models.settings import setting
 STEPPINGS = ("rollout", "threads")
 RESET_VELOCITIES = ("zero", "clip", "reference")
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
-# What each step holds: the PD targets and the wrenches applied to bodies (the assist).
-_CONTROL = int(mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED)
 
 
 @dataclass(frozen=True)
@@ -141,10 +138,11 @@ class EnvConfig:
     )
     standing_share: float = setting(
         0.5,
-        "Share (0-1) of episode starts from the rest pose, both fighters standing where the drawn "
-        "reference frame has them (AMP's hybrid initialisation); the rest start from the frames. "
-        "The demo's frames are mid-stride and lean: holding any of them, or going to the rest "
-        "targets from it, fell in 0.8 s, so without standing starts few episodes teach balance.",
+        "Share (0-1) of episode starts with both fighters standing still in their guard "
+        "(models.humanoid.stance) where the drawn reference frame has them (AMP's hybrid "
+        "initialisation); the rest start from the frames. The demo's frames are mid-stride and "
+        "lean: holding any of them fell in 0.8 s, so without standing starts few episodes teach "
+        "balance.",
     )
     num_envs: int = setting(64, "N: environments stepped together, each with both agents.")
     threads: int = setting(2, "Worker threads that step the environments (cores to use).")
@@ -280,10 +278,12 @@ def start_velocities(qvel: np.ndarray, mode: str, limit: float) -> np.ndarray:
     return qvel.copy()
 
 
-def rest_pose_like(qpos: np.ndarray) -> np.ndarray:
-    """The humanoid's rest pose (every hinge at 0, upright) where each of ``qpos`` (n, 35) stands,
-    facing its heading; the height is left to the caller's grounding."""
+def standing_like(qpos: np.ndarray, hinges: np.ndarray | None = None) -> np.ndarray:
+    """Upright with ``hinges`` (28,) (None: the rest pose, every hinge at 0) where each of
+    ``qpos`` (n, 35) stands, facing its heading; the height is left to the caller's grounding."""
     out = np.zeros_like(qpos)
+    if hinges is not None:
+        out[:, 7:] = hinges
     out[:, ROOT_POS] = qpos[:, ROOT_POS]
     yaw = heading_yaw(qpos[:, ROOT_QUAT])
     out[:, ROOT_QUAT] = np.stack(
@@ -469,7 +469,6 @@ class ArenaEnv:
         self._ctrlrange = self.model.actuator_ctrlrange[self.index.actuators]  # (2, 28, 2)
         self._tables = _contact_tables(self.model, self.index)
         self._body_ids = np.stack([agent.body_ids for agent in self.index.agents])  # (2, 15)
-        self._pelvis = self._body_ids[:, 0]
         self._frames = np.empty((config.num_envs, self.model.nbody, FRAME_WIDTH))
         self._head_z = np.empty((config.num_envs, NUM_AGENTS))
         self._stable = np.ones(config.num_envs, dtype=bool)
@@ -520,8 +519,9 @@ class ArenaEnv:
         `frames`), both fighters placed as in it, shifted horizontally so that the midpoint of
         their pelvises is the origin; a fighter whose lowest geom would be below the floor is
         moved up or down until its lowest point touches z = 0. Velocities follow
-        `EnvConfig.reset_velocity`; a share `EnvConfig.standing_share` of starts puts both
-        fighters in the rest pose instead (`rest_pose_like`).
+        `EnvConfig.reset_velocity`; a share `EnvConfig.standing_share` of starts has both
+        fighters standing still in the reference's stance instead (their guard, or the rest
+        pose: `standing_like`).
 
         Args:
             env_ids: indices of the environments, or a (N,) bool mask.
@@ -556,8 +556,9 @@ class ArenaEnv:
         ]
         if self.config.standing_share > 0:
             standing = self.rng.random(len(ids)) < self.config.standing_share
-            for qpos, v in zip((qpos0, qpos1), qvel, strict=True):
-                qpos[standing] = rest_pose_like(qpos[standing])
+            stance = (None, None) if reference.stance is None else reference.stance
+            for qpos, v, hinges in zip((qpos0, qpos1), qvel, stance, strict=True):
+                qpos[standing] = standing_like(qpos[standing], hinges)
                 v[standing] = 0.0
         agents = self.index.agents
         mine = [np.flatnonzero(self.index.agent_of_geom == a) for a in range(NUM_AGENTS)]
@@ -610,15 +611,11 @@ class ArenaEnv:
 
     # ---------------------------------------------------------------- step
 
-    def step(self, actions: np.ndarray, assist: np.ndarray | None = None) -> StepResult:
+    def step(self, actions: np.ndarray) -> StepResult:
         """Advance every environment by one policy step.
 
         Args:
             actions: (N, 2, 28) finite actions of agent 0 and agent 1 (MAAIP §4.2).
-            assist: optional (N, 2, 6) residual wrench on each agent's pelvis, held for the
-                step: a force (N) then a torque (N m), both in the agent's heading frame
-                (x its facing direction on the floor, z up), as residual force control
-                applies it (Yuan and Kitani 2020). None applies none.
 
         Returns:
             StepResult for every environment (module docstring: damage, falls, time-outs).
@@ -637,7 +634,7 @@ class ArenaEnv:
         ctrl = np.zeros((self.num_envs, self.model.nu))
         for agent in range(NUM_AGENTS):
             ctrl[:, self.index.actuators[agent]] = targets[:, agent]
-        damage, floor = self._advance(ctrl, self._wrenches(assist), contacts=True)
+        damage, floor = self._advance(ctrl, contacts=True)
         unstable = ~self._stable
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
             obs = _observations(self._states(self._frames))
@@ -659,31 +656,6 @@ class ArenaEnv:
             unstable=unstable,
         )
 
-    def _wrenches(self, assist: np.ndarray | None) -> np.ndarray:
-        """(N, nbody, 6) xfrc_applied of every environment: ``assist`` (N, 2, 6), each agent's
-        heading-frame force and torque, turned into the world frame on its pelvis; zeros
-        without."""
-        xfrc = np.zeros((self.num_envs, self.model.nbody, 6))
-        if assist is None:
-            return xfrc
-        w = np.asarray(assist, dtype=np.float64)
-        if w.shape != (self.num_envs, NUM_AGENTS, 6) or not np.isfinite(w).all():
-            raise ValueError(
-                f"assist must be finite with shape ({self.num_envs}, {NUM_AGENTS}, 6), "
-                f"got {w.shape}"
-            )
-        quats = np.array(
-            [
-                [data.qpos[agent.qpos][ROOT_QUAT] for agent in self.index.agents]
-                for data in self.datas
-            ]
-        )
-        heading = heading_frame(quats)  # (N, 2, 3, 3), columns the heading axes in the world
-        force = np.einsum("naij,naj->nai", heading, w[..., :3])
-        torque = np.einsum("naij,naj->nai", heading, w[..., 3:])
-        xfrc[:, self._pelvis] = np.concatenate([force, torque], axis=-1)
-        return xfrc
-
     def step_physics(self, ctrl: np.ndarray | None = None) -> None:
         """Raw physics for benchmarks: `substeps` mj_step calls per environment with `ctrl`
         (N, nu) held (default zeros: every PD target at the rest pose); no contacts are read,
@@ -695,18 +667,14 @@ class ArenaEnv:
             raise ValueError(
                 f"ctrl must have shape ({self.num_envs}, {self.model.nu}), got {np.shape(ctrl)}"
             )
-        ctrl = np.asarray(ctrl, dtype=np.float64)
-        self._advance(ctrl, self._wrenches(None), contacts=False)
+        self._advance(np.asarray(ctrl, dtype=np.float64), contacts=False)
 
-    def _advance(
-        self, ctrl: np.ndarray, xfrc: np.ndarray, *, contacts: bool
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Hold `ctrl` (N, nu) and the applied wrenches `xfrc` (N, nbody, 6) for `substeps`
-        physics steps in every environment. With `contacts`, also refresh the kinematics, fill
-        `_frames` and `_head_z` and return each agent's damage (N, 2) and floor touches (N, 2);
-        without, only step."""
+    def _advance(self, ctrl: np.ndarray, *, contacts: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Hold `ctrl` (N, nu) for `substeps` physics steps in every environment. With
+        `contacts`, also refresh the kinematics, fill `_frames` and `_head_z` and return each
+        agent's damage (N, 2) and floor touches (N, 2); without, only step."""
         if self._rollout is not None:
-            return self._advance_rollout(ctrl, xfrc, contacts=contacts)
+            return self._advance_rollout(ctrl, contacts=contacts)
         damage = np.zeros((self.num_envs, NUM_AGENTS))
         floor = np.zeros((self.num_envs, NUM_AGENTS), dtype=bool)
 
@@ -716,7 +684,6 @@ class ArenaEnv:
             for i in chunk:
                 data = self.datas[i]
                 data.ctrl[:] = ctrl[i]
-                data.xfrc_applied[:] = xfrc[i]
                 for _ in range(substeps):
                     mujoco.mj_step(model, data)
                     if contacts:
@@ -749,29 +716,22 @@ class ArenaEnv:
         )
 
     def _advance_rollout(
-        self, ctrl: np.ndarray, xfrc: np.ndarray, *, contacts: bool
+        self, ctrl: np.ndarray, *, contacts: bool
     ) -> tuple[np.ndarray, np.ndarray]:
         assert self._rollout is not None
         model, n = self.model, self.num_envs
         state = np.empty((n, self._nstate))
         for i, data in enumerate(self.datas):
             mujoco.mj_getState(model, data, state[i], _FULL)
-        held = np.concatenate([ctrl, xfrc.reshape(n, -1)], axis=1)
-        control = np.repeat(held[:, None, :], self.config.substeps, axis=1)
+        control = np.repeat(ctrl[:, None, :], self.config.substeps, axis=1)
         # The returned states lack the solver's warm start, so every call starts it cold
         # (zeros), whatever the MjData hold; within the call it carries over as in mj_step.
         states, sensordata = self._rollout.rollout(
-            model,
-            self._scratch,
-            state,
-            control,
-            control_spec=_CONTROL,
-            initial_warmstart=np.zeros((n, model.nv)),
+            model, self._scratch, state, control, initial_warmstart=np.zeros((n, model.nv))
         )
         for i, data in enumerate(self.datas):
             mujoco.mj_setState(model, data, states[i, -1], _FULL)
             data.ctrl[:] = ctrl[i]
-            data.xfrc_applied[:] = xfrc[i]
             if contacts:
                 self._gather(i)
         if not contacts:

@@ -21,10 +21,11 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
-from models.humanoid.kinematics import JOINT_LAYOUT, NUM_ACTUATED
+from models.humanoid.kinematics import JOINT_LAYOUT, NUM_ACTUATED, joint_targets_to_action
 from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
 from models.maaip.config import NUM_AGENTS, TrainConfig
 
@@ -166,12 +167,11 @@ class Policy(nn.Module):
             obs_dim + NUM_AGENTS + task_dim, hidden, action_dim, generator=generator, out_gain=0.01
         )
         self.register_buffer("std", std)
+        # Each agent's mean is the network's output plus its row: the actions it starts from.
+        self.register_buffer("offset", torch.zeros(NUM_AGENTS, action_dim, dtype=torch.float32))
 
-    def _inputs(self, obs: Tensor, agent: Tensor | int, task: Tensor | None) -> Tensor:
-        check_features(obs, "obs", self.obs_dim)
-        if obs.ndim != 2:
-            raise ValueError(f"obs must have shape (B, {self.obs_dim}), got {tuple(obs.shape)}")
-        parts = [self.norm(obs), agent_one_hot(agent, obs.shape[0], like=obs)]
+    def _inputs(self, obs: Tensor, one_hot: Tensor, task: Tensor | None) -> Tensor:
+        parts = [self.norm(obs), one_hot]
         if self.task_dim:
             if task is None:
                 raise ValueError(f"task must be given, shape (B, {self.task_dim})")
@@ -182,8 +182,25 @@ class Policy(nn.Module):
         return torch.cat(parts, dim=-1)
 
     def forward(self, obs: Tensor, agent: Tensor | int, task: Tensor | None = None) -> Tensor:
-        """The Gaussian's mean mu(o, i), (B, A)."""
-        return self.net(self._inputs(obs, agent, task))
+        """The Gaussian's mean mu(o, i), (B, A): the network's output plus agent i's `offset`."""
+        check_features(obs, "obs", self.obs_dim)
+        if obs.ndim != 2:
+            raise ValueError(f"obs must have shape (B, {self.obs_dim}), got {tuple(obs.shape)}")
+        one_hot = agent_one_hot(agent, obs.shape[0], like=obs)
+        return self.net(self._inputs(obs, one_hot, task)) + one_hot @ self.offset.to(obs.dtype)
+
+    def start_from(self, actions: np.ndarray) -> None:
+        """Set each agent's `offset` to ``actions`` (2, A') in its first A' outputs (e.g. its
+        guard's PD-target actions), so that an untrained policy holds them."""
+        given = torch.as_tensor(np.asarray(actions), dtype=self.offset.dtype)
+        if given.ndim != 2 or given.shape[0] != NUM_AGENTS or given.shape[1] > self.action_dim:
+            raise ValueError(
+                f"actions must have shape ({NUM_AGENTS}, <= {self.action_dim}), "
+                f"got {tuple(given.shape)}"
+            )
+        with torch.no_grad():
+            self.offset.zero_()
+            self.offset[:, : given.shape[1]] = given
 
     def distribution(
         self, obs: Tensor, agent: Tensor | int, task: Tensor | None = None
@@ -324,40 +341,37 @@ class Networks:
     interaction: tuple[Discriminator, ...]
 
 
-ASSIST_DIM = 6  # a force and a torque on the pelvis (`models.maaip.config.AssistConfig`)
-
-
-def policy_outputs(config: TrainConfig) -> int:
-    """The policy's outputs: the 28 PD-target actions, then the assist's wrench if it has one.
-    Only the first 28 act once training is over."""
-    return ACTION_DIM + (ASSIST_DIM if config.assist.on else 0)
-
-
 def action_stds(config: TrainConfig) -> tuple[float, ...]:
-    """The fixed exploration std of each policy output (`policy_outputs`): `ppo.action_std`,
-    `ppo.arm_action_std` on the shoulders and elbows, `assist.std` on the assist's outputs."""
+    """The fixed exploration std of each of the 28 actions: `ppo.action_std`, and
+    `ppo.arm_action_std` on the shoulders and elbows."""
     ppo = config.ppo
     stds = [ppo.action_std] * ACTION_DIM
     if ppo.arm_action_std > 0:
         for i in ARM_ACTIONS:
             stds[i] = ppo.arm_action_std
-    return (*stds, *([config.assist.std] * (policy_outputs(config) - ACTION_DIM)))
+    return tuple(stds)
 
 
-def make_networks(config: TrainConfig, *, generator: torch.Generator) -> Networks:
-    """All networks with the sizes in ``config``, initialised from ``generator``."""
+def make_networks(
+    config: TrainConfig, *, generator: torch.Generator, stance: np.ndarray | None = None
+) -> Networks:
+    """All networks with the sizes in ``config``, initialised from ``generator``; with
+    `NetworkConfig.mean_from_guard` the policy starts from ``stance`` (2, 28), each fighter's
+    guard (`ReferenceMotions.stance`), when given."""
     hidden = config.network.hidden_sizes
     clip = config.network.observation_clip
     task_dim = config.reward.task_observation_dim
+    policy = Policy(
+        hidden=hidden,
+        action_std=action_stds(config),
+        task_dim=task_dim,
+        observation_clip=clip,
+        generator=generator,
+    )
+    if config.network.mean_from_guard and stance is not None:
+        policy.start_from(joint_targets_to_action(np.asarray(stance)))
     return Networks(
-        policy=Policy(
-            hidden=hidden,
-            action_std=action_stds(config),
-            action_dim=policy_outputs(config),
-            task_dim=task_dim,
-            observation_clip=clip,
-            generator=generator,
-        ),
+        policy=policy,
         value=CentralValue(
             hidden=hidden, task_dim=task_dim, observation_clip=clip, generator=generator
         ),

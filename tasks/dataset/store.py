@@ -17,6 +17,7 @@ import numpy as np
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OPPONENT_DIM, SELF_DIM
+from models.humanoid.stance import guard_pose
 from models.maaip.demonstrations import Demonstrations, ReferenceMotions
 from storage.db import transaction, utcnow
 from storage.keys import digest, stable_json
@@ -338,6 +339,12 @@ def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Dem
         dataset_key=dataset_key,
         motion=motion,
         interaction=interaction,
-        reference=ReferenceMotions(qpos0=q0, qvel0=v0, qpos1=q1, qvel1=v1),
+        reference=ReferenceMotions(
+            qpos0=q0,
+            qvel0=v0,
+            qpos1=q1,
+            qvel1=v1,
+            stance=np.stack([guard_pose(bones[0], q0), guard_pose(bones[1], q1)]),
+        ),
         bones=bones,
     )

@@ -109,21 +109,19 @@ def torch_actor(policy: Policy, agent: int) -> Actor:
         obs = torch.from_numpy(np.asarray(observation, dtype=np.float32))
         given = None if task is None else torch.from_numpy(np.asarray(task, dtype=np.float32))
         with torch.no_grad():
-            return policy(obs, agent, given)[:, :NUM_ACTUATED].double().numpy()
+            return policy(obs, agent, given).double().numpy()
 
     return act
 
 
-def still_actor(reference_qpos: np.ndarray) -> Actor:
-    """A fighter holding its guard pose and standing still, the baseline a trained policy must
-    beat to show it moves like the adversary rather than merely stays up: the PD targets of the
-    median of each hinge over its reference frames (the pose it keeps most, its guard), held
-    whatever it observes.
-
-    Args:
-        reference_qpos: (M, 35) the fighter's reference frames (`ReferenceMotions.qpos0`).
-    """
-    hinges = np.median(np.asarray(reference_qpos, dtype=np.float64)[:, 7:], axis=0)
+def still_actor(hinges: np.ndarray) -> Actor:
+    """A fighter holding a pose and standing still, the baseline a trained policy must beat to
+    show it moves like the adversary rather than merely stays up: the PD targets of ``hinges``
+    (28,), e.g. its guard (`ReferenceMotions.stance`, a pose it holds unaided), whatever it
+    observes."""
+    hinges = np.asarray(hinges, dtype=np.float64)
+    if hinges.shape != (NUM_ACTUATED,) or not np.isfinite(hinges).all():
+        raise ValueError(f"hinges must be finite with shape ({NUM_ACTUATED},), got {hinges.shape}")
     action = joint_targets_to_action(hinges)
 
     def act(observation: np.ndarray, task: np.ndarray | None) -> np.ndarray:

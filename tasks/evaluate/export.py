@@ -25,7 +25,7 @@ from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_
 from models.maaip.arena import arena_mjcf
 from models.maaip.config import TrainConfig
 from models.maaip.env import EnvConfig
-from models.maaip.networks import ACTION_DIM, Policy, action_stds, policy_outputs
+from models.maaip.networks import Policy, action_stds
 from storage.artifacts import read_bytes
 from storage.db import connect
 from storage.files import sha256_file
@@ -84,11 +84,13 @@ def load_trained(artifacts: Path, info: RunInfo, metrics: dict[str, float]) -> T
     policy = Policy(
         hidden=config.network.hidden_sizes,
         action_std=action_stds(config),
-        action_dim=policy_outputs(config),
         task_dim=config.reward.task_observation_dim,
         observation_clip=config.network.observation_clip,
     )
-    policy.load_state_dict(state["networks"]["policy"])
+    weights = dict(state["networks"]["policy"])
+    # A policy trained before it had an offset acted from the rest pose: a zero offset.
+    weights.setdefault("offset", policy.offset.clone())
+    policy.load_state_dict(weights)
     policy.eval()
     bones = tuple(BoneLengths(**b) for b in state["signature"]["bones"])
     return TrainedPolicy(
@@ -104,8 +106,7 @@ class _Acting(nn.Module):
         self.policy, self.agent = policy, agent
 
     def forward(self, observation: torch.Tensor, task: torch.Tensor | None = None):
-        # The PD targets only: a residual-force assist (if trained with one) is gone by then.
-        return self.policy(observation, self.agent, task)[:, :ACTION_DIM]
+        return self.policy(observation, self.agent, task)
 
 
 def policy_onnx(policy: Policy, agent: int) -> bytes:

@@ -36,6 +36,7 @@ import mujoco
 import numpy as np
 import torch
 
+from models.humanoid.kinematics import NUM_ACTUATED
 from models.maaip.arena import arena_mjcf
 from models.maaip.config import TrainConfig
 from models.maaip.demonstrations import ReferenceMotions
@@ -115,10 +116,13 @@ def load_inputs(
     )
 
 
-def untrained_policy(config: TrainConfig) -> Policy:
-    """The run's policy before training: its networks as the run's seed initialised them
-    (`Trainer` seeds one generator with `train.seed` and makes the networks from it)."""
-    networks = make_networks(config, generator=torch.Generator().manual_seed(config.seed))
+def untrained_policy(config: TrainConfig, reference: ReferenceMotions) -> Policy:
+    """The run's policy before training: its networks as the run's seed initialised them from
+    the dataset's ``reference`` (`Trainer` seeds one generator with `train.seed` and makes the
+    networks from it and the reference's stance)."""
+    networks = make_networks(
+        config, generator=torch.Generator().manual_seed(config.seed), stance=reference.stance
+    )
     return networks.policy.eval()
 
 
@@ -135,8 +139,10 @@ def _agents(policy: Policy) -> tuple[Actor, Actor]:
 
 
 def _still_pair(reference: ReferenceMotions) -> tuple[Actor, Actor]:
-    """Both fighters holding their guard pose, standing still (`still_actor`)."""
-    return still_actor(reference.qpos0), still_actor(reference.qpos1)
+    """Both fighters holding their stance, standing still (`still_actor`)."""
+    if reference.stance is None:
+        return still_actor(np.zeros(NUM_ACTUATED)), still_actor(np.zeros(NUM_ACTUATED))
+    return still_actor(reference.stance[0]), still_actor(reference.stance[1])
 
 
 def _bouts(
@@ -216,7 +222,9 @@ def evaluate(
     size = {"episodes": config.episodes, "frames": config.episode_frames, "seed": config.seed}
     bouts = {
         "trained": _bouts(_agents(run.policy), run, inputs.reference, **size),
-        "untrained": _bouts(_agents(untrained_policy(run.config)), run, inputs.reference, **size),
+        "untrained": _bouts(
+            _agents(untrained_policy(run.config, inputs.reference)), run, inputs.reference, **size
+        ),
         "still": _bouts(_still_pair(inputs.reference), run, inputs.reference, **size),
     }
     model = mujoco.MjModel.from_xml_string(arena_mjcf(run.bones, timestep=run.config.env.timestep))

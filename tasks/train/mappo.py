@@ -44,12 +44,12 @@ from models.maaip.losses import (
     reward_weights,
     style_reward_from_config,
 )
-from models.maaip.networks import ACTION_DIM, LEG_ACTIONS, ReplayBuffer, make_networks
+from models.maaip.networks import LEG_ACTIONS, ReplayBuffer, make_networks
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
 _ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 3)
-CHECKPOINT_FORMAT = 1
+CHECKPOINT_FORMAT = 2  # 2: the policy's offset (its guard) is part of its state
 
 
 class CheckpointMismatch(ValueError):
@@ -93,7 +93,6 @@ class Rollout:
     truncated: Tensor  # (T, N)
     fell: Tensor  # (T, N, 2)
     unstable: Tensor  # (T, N) the simulation blew up (terminal, not a fall)
-    assist: Tensor | None = None  # (T, N, 2, 6) wrench applied to each pelvis, over m g
     task: Tensor | None = None  # (T, N, 2, 2) heading targets the actions were chosen for
     next_task: Tensor | None = None  # the same targets seen from the next state
 
@@ -108,7 +107,7 @@ class Trainer:
         # One CPU generator draws every random number (then moved), so a seed means the same
         # run on either device up to floating point.
         self.generator = torch.Generator().manual_seed(config.seed)
-        self.nets = make_networks(config, generator=self.generator)
+        self.nets = make_networks(config, generator=self.generator, stance=demos.reference.stance)
         for net in (self.nets.policy, self.nets.value, self.nets.motion, *self.nets.interaction):
             net.to(self.device)
         ppo, disc = config.ppo, config.discriminator
@@ -127,9 +126,6 @@ class Trainer:
             torch.from_numpy(x).to(self.device) for x in (demos.motion, *demos.interaction)
         ]
         self.env = ArenaEnv(config.env, np.random.default_rng(config.seed), demos.bones)
-        pelvis = [agent.body_ids[0] for agent in self.env.index.agents]
-        # m g of each fighter: the assist's unit (N), with 1 m for its torque.
-        self.weights = 9.81 * self.env.model.body_subtreemass[pelvis]
         self.cloning = None
         if config.cloning.weight > 0 or config.cloning.pretrain_steps > 0:
             pairs = cloned_actions(demos)
@@ -155,13 +151,13 @@ class Trainer:
 
     def cloning_loss(self) -> Tensor:
         """Mean squared error (radians^2) of the policy's mean PD-target actions against the
-        demonstrations' (`tasks.train.data.cloned_actions`), on a batch drawn with the run's
-        generator."""
+        demonstrations' (`models.maaip.demonstrations.cloned_actions`), over the spine, neck and
+        arms unless `cloning.legs`, on a batch drawn with the run's generator."""
         assert self.cloning is not None
         obs, agent, actions = self.cloning
         pick = torch.randint(len(obs), (self.config.cloning.batch,), generator=self.generator)
         pick = pick.to(self.device)
-        mean = self.nets.policy(obs[pick], agent[pick])[:, :ACTION_DIM]
+        mean = self.nets.policy(obs[pick], agent[pick])
         error = (mean - actions[pick]).square()
         if not self.config.cloning.legs:
             error = error[:, : LEG_ACTIONS.start]
@@ -215,13 +211,7 @@ class Trainer:
                 task=None if task is None else task.reshape(2 * n, -1),
                 generator=self.generator,
             )
-            chosen = actions.reshape(n, 2, -1).double().cpu().numpy()
-            assist = self.assist(chosen[..., ACTION_DIM:])
-            result = self.env.step(
-                chosen[..., :ACTION_DIM], None if assist is None else assist * self.weights[:, None]
-            )
-            if assist is not None:
-                parts["assist"].append(self._tensor(assist))
+            result = self.env.step(actions.reshape(n, 2, -1).double().cpu().numpy())
             parts["obs"].append(obs)
             parts["next_obs"].append(self._tensor(result.observation))
             parts["actions"].append(actions.reshape(n, 2, -1))
@@ -243,16 +233,6 @@ class Trainer:
                 self.obs[done] = self._reset(done)
         self.finished_steps = np.concatenate(finished) if finished else np.zeros(0, dtype=int)
         return Rollout(**{k: torch.stack(v) if v else None for k, v in parts.items()})
-
-    def assist(self, outputs: np.ndarray) -> np.ndarray | None:
-        """The residual wrench (n, 2, 6) in units of each fighter's m g (and m g x 1 m) from the
-        policy's assist outputs (n, 2, 6) at this iteration's strength; None when off."""
-        config = self.config.assist
-        scale = config.scale(self.iteration)
-        if scale == 0.0:
-            return None
-        units = np.array([config.force] * 3 + [config.torque] * 3)
-        return scale * units * outputs
 
     # ------------------------------------------------------------------ rewards
 
@@ -308,9 +288,6 @@ class Trainer:
             config=self.config.reward,
             iteration=self.iteration,
         )
-        if r.assist is not None:
-            terms["assist"] = -self.config.assist.penalty * r.assist.square().sum(-1)
-            terms["total"] = terms["total"] + terms["assist"]
         return terms
 
     # ------------------------------------------------------------------ discriminators
@@ -410,8 +387,6 @@ class Trainer:
                 torch.nn.utils.clip_grad_norm_(params, ppo.max_grad_norm)
                 self.optimiser.step()
                 kls.append(last.approx_kl)
-        if ppo.target_kl > 0:
-            self._adapt_learning_rate(float(np.mean(kls)))
         # The normalisers follow the data after the update, so the samples above were
         # scored with the statistics they were collected under.
         self.nets.policy.norm.update(batch.obs)
@@ -422,23 +397,12 @@ class Trainer:
             "value_loss": last.value_loss,
             "clip_fraction": last.clip_fraction,
             "approx_kl": float(np.mean(kls)),
-            "learning_rate": self.optimiser.param_groups[0]["lr"],
             **(
                 {"cloning_loss": float(np.mean(cloned)), "cloning_weight": cloning}
                 if cloned
                 else {}
             ),
         }
-
-    def _adapt_learning_rate(self, kl: float) -> None:
-        """`PPOConfig.target_kl`'s rule; the rate lives in the optimiser's state, so a
-        checkpoint keeps it."""
-        target = self.config.ppo.target_kl
-        for group in self.optimiser.param_groups:
-            if kl > 2 * target:
-                group["lr"] = max(group["lr"] / 1.5, 1e-6)
-            elif kl < target / 2:
-                group["lr"] = min(group["lr"] * 1.5, 1e-3)
 
     # ------------------------------------------------------------------ one iteration
 
@@ -483,23 +447,12 @@ class Trainer:
             "episodes_ended": float((rollout.terminated | rollout.truncated).sum()),
             "episode_age_s": float(self.env.elapsed.mean()) / hz,
             "damage_received_n": float(rollout.damage.mean()),
-            **self._assist_metrics(rollout),
             "w_motion": w_m,
             "w_interaction": w_i,
             "w_control": w_c,
         }
         self.iteration += 1
         return metrics
-
-    def _assist_metrics(self, rollout: Rollout) -> dict[str, float]:
-        """The assist's strength and the mean force it applied, over m g (0 once it is off)."""
-        if not self.config.assist.on:
-            return {}
-        share = 0.0 if rollout.assist is None else rollout.assist[..., :3].norm(dim=-1).mean()
-        return {
-            "assist_scale": self.config.assist.scale(self.iteration),
-            "assist_force_share": float(share),
-        }
 
     # ------------------------------------------------------------------ checkpoints
 
