@@ -10,12 +10,16 @@ import pytest
 
 from models.pose.types import BLAZEPOSE_33
 from tasks.dataset.labels import Punch
+from tasks.dataset.statistics import FighterStatistics
 from tasks.evaluate.metrics import (
+    RATES,
+    STYLE_DISTRIBUTIONS,
     distribution_distance,
     in_guard,
     punch_summary,
     rate_distance,
     score_punches,
+    style_rows,
     wasserstein1,
 )
 
@@ -60,6 +64,9 @@ def test_style_distances_are_bounded_and_zero_only_when_equal():
     assert rate_distance(3.0, 1.0) == pytest.approx(2.0 / 3.0)
     assert rate_distance(0.0, 4.0) == 1.0
     assert rate_distance(0.0, 0.0) == 0.0
+    # Below what the footage resolves (one event in 1.4 s is 43 per minute), rates are close.
+    assert rate_distance(0.1, 0.0, resolution=43.0) == pytest.approx(0.1 / 43.0)
+    assert rate_distance(120.0, 0.0, resolution=43.0) == 1.0
 
 
 def _punch(hand: str, peak: int) -> Punch:
@@ -150,3 +157,22 @@ def test_bouts_repeat_exactly_and_stop_at_a_fall(assets):
         assert np.isnan(first.qpos[e, first.frames[e] :]).all()
         assert (first.steps[e] < 45) == ended[e]
     assert first.observations.shape[1:] == (2, 274) and math.isfinite(first.minutes)
+
+
+def test_style_rows_compare_only_what_the_footage_resolves():
+    def stats(minutes: float, punches: int, durations: list[float]) -> FighterStatistics:
+        scalars = {name: 0.0 for name in RATES}
+        scalars |= {"minutes": minutes, "orthodox_share": 0.5, "punches_per_min": punches / minutes}
+        scalars["punches_per_min_left"] = scalars["punches_per_min_straight"] = punches / minutes
+        samples = {name: np.array([1.0, 1.2]) for name in STYLE_DISTRIBUTIONS}
+        samples["punch_duration_s"] = np.array(durations)
+        return FighterStatistics(scalars, samples)
+
+    footage = stats(1.4 / 60, 0, [])  # the demo's 1.4 s, no punch in it
+    rows = {r.statistic: r for r in style_rows(stats(20.0, 2, [0.3, 0.4]), footage)}
+    assert "punch_duration_s" not in rows  # nothing in the footage to compare with
+    assert rows["punches_per_min"].distance == pytest.approx(0.1 / (60 / 1.4))
+    boxed = stats(2.0, 60, [0.3] * 60)  # 30 punches per minute over 2 minutes of footage
+    rows = {r.statistic: r for r in style_rows(stats(20.0, 0, []), boxed)}
+    assert rows["punches_per_min"].distance == 1.0
+    assert rows["punch_duration_s"].distance == 1.0  # thrown none where the footage has some

@@ -52,9 +52,7 @@ from models.humanoid.kinematics import (
     HumanoidIndex,
     heading_frame_of_matrix,
     matrix_to_quat,
-    qpos_from_body_rotations,
     tangent_normal,
-    tangent_normal_to_matrix,
 )
 
 SELF_BLOCKS: tuple[tuple[str, int], ...] = (
@@ -274,28 +272,3 @@ def opponent_observation(state: BodyState, opponent: BodyState) -> np.ndarray:
 def observation(state: BodyState, opponent: BodyState) -> np.ndarray:
     """o = [o^self, o^opp]: (..., 274)."""
     return np.concatenate([self_observation(state), opponent_observation(state, opponent)], -1)
-
-
-def joint_angles(self_obs: np.ndarray) -> np.ndarray:
-    """The 28 hinge angles of the pose an o^self shows, read back from its body rotations.
-
-    Each body's rotation in its parent's frame is a block of o^self (`self_observation`), so
-    the pose can be recovered without the qpos: what behaviour cloning needs to turn a
-    demonstration's next observation into the PD targets that reach it.
-
-    Args:
-        self_obs: (..., 223) o^self (or longer rows whose first 223 numbers are o^self).
-
-    Returns:
-        (..., 28) hinge angles in actuator order (`JOINT_LAYOUT`), as in qpos[7:].
-    """
-    obs = np.asarray(self_obs, dtype=np.float64)
-    if obs.shape[-1] < SELF_DIM:
-        raise ValueError(f"self_obs must have at least {SELF_DIM} numbers, got {obs.shape}")
-    rotations = obs[..., block_slices(SELF_BLOCKS)["body_rotations"]]
-    local = tangent_normal_to_matrix(rotations.reshape(*obs.shape[:-1], NUM_BODIES, 6))
-    world = local.copy()
-    for i in range(1, NUM_BODIES):
-        world[..., i, :, :] = world[..., PARENTS[i], :, :] @ local[..., i, :, :]
-    root = np.zeros((*obs.shape[:-1], 3))
-    return qpos_from_body_rotations(root, world)[..., 7:]

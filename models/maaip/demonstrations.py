@@ -7,7 +7,6 @@
   transitions, each interaction prior's transitions, the reference frames and the two
   fighters' bones (`tasks.dataset.store.load_demonstrations` reads one from DuckDB;
   :func:`demonstrations_from_reference` computes one from arrays).
-- :func:`cloned_actions`: behaviour cloning's samples from the demonstrations.
 
 Shape letters: M frames.
 """
@@ -30,15 +29,12 @@ from models.humanoid.kinematics import (
     axis_angle_matrix,
     heading_frame,
     humanoid_index,
-    joint_targets_to_action,
     matrix_to_quat,
     quat_to_matrix,
 )
 from models.humanoid.observations import (
-    OBSERVATION_DIM,
     SELF_DIM,
     body_states,
-    joint_angles,
     observation,
 )
 
@@ -182,44 +178,3 @@ def demonstrations_from_reference(
         np.concatenate([o[:-1], o[1:, :SELF_DIM]], 1).astype(np.float32) for o in obs
     )
     return Demonstrations(key, motion.astype(np.float32), interaction, reference, bones)
-
-
-@dataclass(frozen=True, eq=False)
-class ClonedActions:
-    """Behaviour cloning's samples: what each demonstration's fighter observed and the PD-target
-    actions that reach its next pose.
-
-    Attributes:
-        obs: (B, 274) observations o_t. Single-actor transitions have no opponent: theirs is the
-            mean opponent block of the interaction transitions (a typical opponent).
-        agent: (B,) the agent each row is cloned for (single-actor rows appear for both).
-        actions: (B, 28) the actions whose hinge targets are the next observation's joint angles.
-    """
-
-    obs: np.ndarray
-    agent: np.ndarray
-    actions: np.ndarray
-
-
-def cloned_actions(demos: Demonstrations) -> ClonedActions:
-    """Behaviour cloning samples from every demonstration transition (`ClonedActions`)."""
-    obs, agents, nxt = [], [], []
-    for agent, rows in enumerate(demos.interaction):
-        obs.append(rows[:, :OBSERVATION_DIM])
-        agents.append(np.full(len(rows), agent))
-        nxt.append(rows[:, OBSERVATION_DIM:])
-    opponent = np.concatenate(obs)[:, SELF_DIM:].mean(axis=0)
-    single = np.concatenate(
-        [demos.motion[:, :SELF_DIM], np.broadcast_to(opponent, (len(demos.motion), len(opponent)))],
-        axis=1,
-    )
-    for agent in range(2):
-        obs.append(single)
-        agents.append(np.full(len(single), agent))
-        nxt.append(demos.motion[:, SELF_DIM:])
-    next_self = np.concatenate(nxt)
-    return ClonedActions(
-        obs=np.concatenate(obs).astype(np.float32),
-        agent=np.concatenate(agents),
-        actions=joint_targets_to_action(joint_angles(next_self)).astype(np.float32),
-    )

@@ -30,11 +30,6 @@ from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
 from models.maaip.config import NUM_AGENTS, TrainConfig
 
 ACTION_DIM = NUM_ACTUATED  # 28, as in MAAIP §4.2
-# The hips', knees' and ankles' actions, the last in the layout.
-LEG_ACTIONS = slice(
-    min(JOINT_LAYOUT[i].action.start for i, j in enumerate(JOINT_LAYOUT) if j.group == "hip"),
-    ACTION_DIM,
-)
 # The shoulders' and elbows' actions: exploring them costs no balance (`PPOConfig.arm_action_std`).
 ARM_ACTIONS: tuple[int, ...] = tuple(
     i for j in JOINT_LAYOUT if j.group in ("shoulder", "elbow") for i in range(28)[j.action]

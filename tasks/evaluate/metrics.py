@@ -28,13 +28,17 @@ Style similarity: the fighter statistics of the simulated bouts against the adve
 ones from the dataset, one distance in [0, 1] per statistic (0: identical) and their mean, the
 style score (lower is closer):
 
-- rates (punches and steps per minute): |s - r| / max(s, r), 0 when both are 0;
+- rates (punches and steps per minute): |s - r| / max(s, r, 1 / T), T the footage's minutes:
+  a count over T minutes cannot tell rates apart below one event in T, so two rates closer than
+  that are close (without the floor, 0.1 punches per minute of simulation against none in the
+  demo's 1.4 s of footage counted as far as 100 against 0: every punch row at 1, half the score);
 - the share of frames with the left foot leading: |s - r|;
 - distributions (distance to the opponent, guard height, punch duration, step length):
   Wasserstein-1 divided by twice the standard deviation of the equal mixture of the two
   distributions, which bounds it by 1 (W1(P, Q) <= E|X - m| + E|Y - m| <= 2 sigma_mix for m
-  the mixture's mean; 1 for two separate point masses), scale-free and symmetric. A
-  distribution empty on one side only (no punches thrown) is at distance 1, on both sides 0.
+  the mixture's mean; 1 for two separate point masses), scale-free and symmetric. A simulated
+  distribution that is empty where the footage's is not (no punches thrown) is at distance 1;
+  one the footage has no sample of (no punch in it) is not compared.
 
 Shape letters: T frames, 33 BlazePose landmarks, E episodes.
 """
@@ -341,11 +345,13 @@ def distribution_distance(simulated: np.ndarray, real: np.ndarray) -> float:
     return min(1.0, wasserstein1(s, r) / (2 * math.sqrt(variance)))
 
 
-def rate_distance(simulated: float, real: float) -> float:
-    """|s - r| / max(s, r) for non-negative rates, in [0, 1]; 0 when both are 0."""
-    if simulated < 0 or real < 0:
-        raise ValueError(f"rates must be non-negative, got {simulated} and {real}")
-    top = max(simulated, real)
+def rate_distance(simulated: float, real: float, resolution: float = 0.0) -> float:
+    """|s - r| / max(s, r, resolution) for non-negative rates, in [0, 1]; 0 when all three are 0.
+    ``resolution`` is the smallest rate the real one can tell from 0 (one event over its
+    footage)."""
+    if simulated < 0 or real < 0 or resolution < 0:
+        raise ValueError(f"rates must be non-negative, got {simulated}, {real} and {resolution}")
+    top = max(simulated, real, resolution)
     return 0.0 if top == 0 else abs(simulated - real) / top
 
 
@@ -366,17 +372,22 @@ def _mean(samples: np.ndarray) -> float:
 
 
 def style_rows(simulated: FighterStatistics, real: FighterStatistics) -> list[StyleRow]:
-    """Every compared statistic of ``simulated`` against ``real`` (module docstring)."""
+    """Every compared statistic of ``simulated`` against ``real`` (module docstring); a
+    distribution of which the footage holds no sample is left out."""
     rows = []
+    resolution = 1.0 / real.scalars["minutes"]
     for name in RATES:
         s, r = simulated.scalars[name], real.scalars[name]
-        rows.append(StyleRow(name, "rate", s, r, rate_distance(s, r)))
+        rows.append(StyleRow(name, "rate", s, r, rate_distance(s, r, resolution)))
     for name in SHARES:
         s, r = simulated.scalars[name], real.scalars[name]
         rows.append(StyleRow(name, "share", s, r, abs(s - r)))
     for name in STYLE_DISTRIBUTIONS:
         s, r = simulated.distributions[name], real.distributions[name]
-        rows.append(StyleRow(name, "distribution", _mean(s), _mean(r), distribution_distance(s, r)))
+        if len(r):
+            rows.append(
+                StyleRow(name, "distribution", _mean(s), _mean(r), distribution_distance(s, r))
+            )
     return rows
 
 

@@ -31,7 +31,7 @@ from torch import Tensor
 
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, SELF_DIM, block_slices
 from models.maaip.config import TrainConfig
-from models.maaip.demonstrations import Demonstrations, cloned_actions
+from models.maaip.demonstrations import Demonstrations
 from models.maaip.env import ArenaEnv
 from models.maaip.losses import (
     PPOBatch,
@@ -44,7 +44,7 @@ from models.maaip.losses import (
     reward_weights,
     style_reward_from_config,
 )
-from models.maaip.networks import LEG_ACTIONS, ReplayBuffer, make_networks
+from models.maaip.networks import ReplayBuffer, make_networks
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
@@ -126,14 +126,6 @@ class Trainer:
             torch.from_numpy(x).to(self.device) for x in (demos.motion, *demos.interaction)
         ]
         self.env = ArenaEnv(config.env, np.random.default_rng(config.seed), demos.bones)
-        self.cloning = None
-        if config.cloning.weight > 0 or config.cloning.pretrain_steps > 0:
-            pairs = cloned_actions(demos)
-            self.cloning = tuple(
-                torch.from_numpy(x).to(self.device) for x in (pairs.obs, pairs.agent, pairs.actions)
-            )
-            self.nets.policy.norm.update(self.cloning[0])
-            self.pretrain()
         # The heading task (§5.4): each agent's target direction on the floor, a world yaw drawn
         # anew at every episode start.
         self.heading = config.reward.control_task == "heading"
@@ -146,36 +138,6 @@ class Trainer:
 
     def close(self) -> None:
         self.env.close()
-
-    # ------------------------------------------------------------------ behaviour cloning
-
-    def cloning_loss(self) -> Tensor:
-        """Mean squared error (radians^2) of the policy's mean PD-target actions against the
-        demonstrations' (`models.maaip.demonstrations.cloned_actions`), over the spine, neck and
-        arms unless `cloning.legs`, on a batch drawn with the run's generator."""
-        assert self.cloning is not None
-        obs, agent, actions = self.cloning
-        pick = torch.randint(len(obs), (self.config.cloning.batch,), generator=self.generator)
-        pick = pick.to(self.device)
-        mean = self.nets.policy(obs[pick], agent[pick])
-        error = (mean - actions[pick]).square()
-        if not self.config.cloning.legs:
-            error = error[:, : LEG_ACTIONS.start]
-        return error.mean()
-
-    def pretrain(self) -> None:
-        """The warm start: `cloning.pretrain_steps` Adam steps of `cloning_loss` alone."""
-        cloning = self.config.cloning
-        if cloning.pretrain_steps == 0:
-            return
-        optimiser = torch.optim.Adam(
-            self.nets.policy.parameters(), lr=cloning.pretrain_learning_rate
-        )
-        for _ in range(cloning.pretrain_steps):
-            loss = self.cloning_loss()
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
 
     def _reset(self, ids: np.ndarray) -> np.ndarray:
         if self.heading:
@@ -364,8 +326,7 @@ class Trainer:
             task=flat(r.task),
         )
         params = [*self.nets.policy.parameters(), *self.nets.value.parameters()]
-        cloning = self.config.cloning.weight_at(self.iteration) if self.cloning else 0.0
-        cloned, kls = [], []
+        kls = []
         last = None
         for _ in range(ppo.epochs):
             order = torch.randperm(len(batch), generator=self.generator).to(self.device)
@@ -378,10 +339,6 @@ class Trainer:
                     value_coef=ppo.value_coef,
                     normalize_advantages=ppo.normalize_advantages,
                 )
-                if cloning > 0:
-                    bc = self.cloning_loss()
-                    loss = loss + cloning * bc
-                    cloned.append(bc.item())
                 self.optimiser.zero_grad()
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(params, ppo.max_grad_norm)
@@ -397,11 +354,6 @@ class Trainer:
             "value_loss": last.value_loss,
             "clip_fraction": last.clip_fraction,
             "approx_kl": float(np.mean(kls)),
-            **(
-                {"cloning_loss": float(np.mean(cloned)), "cloning_weight": cloning}
-                if cloned
-                else {}
-            ),
         }
 
     # ------------------------------------------------------------------ one iteration
