@@ -907,7 +907,18 @@ def _demo(args, data_root: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    raw = sys.argv[1:] if argv is None else argv
+    """One `ringside` command; the environment is left as it was found, so that a command run
+    in-process (the tests, a notebook) does not hand its Prefect server (PREFECT_API_URL, a
+    server that stops with this process) to the next one as if the user had set it."""
+    saved = dict(os.environ)
+    try:
+        return _command(sys.argv[1:] if argv is None else argv)
+    finally:
+        os.environ.clear()
+        os.environ.update(saved)
+
+
+def _command(raw: list[str]) -> int:
     # Settings must be in the environment before the parser's imports reach Prefect.
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--data", type=Path)

@@ -457,19 +457,13 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-def _own_server_env() -> dict[str, str]:
-    """This process's environment without the API URL an in-process `main` left in it, so the
-    command starts its own Prefect server."""
-    return {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
-
-
 def test_a_command_killed_with_sigkill_leaves_no_prefect_server(tmp_path, sample_video):
     """`kill -9` gives the command no chance to stop anything: the Prefect server it started
     goes with it (Prefect's own temporary server stayed, about 257 MB each)."""
     command = subprocess.Popen(
         [sys.executable, "-m", "flows.cli", "--data", str(tmp_path / "data"), "process",
          str(sample_video), "--adversary", "A"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=_own_server_env(),
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     servers: list[int] = []
     deadline = time.monotonic() + 120
@@ -491,7 +485,7 @@ def test_sigterm_stops_a_command_in_one_line_within_5_s(tmp_path, sample_video):
     command = subprocess.Popen(
         [sys.executable, "-m", "flows.cli", "--data", str(tmp_path / "data"), "process",
          str(sample_video), "--adversary", "A"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=_own_server_env(),
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     deadline = time.monotonic() + 120
     while not _children(command.pid) and time.monotonic() < deadline:
