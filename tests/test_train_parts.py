@@ -568,6 +568,7 @@ def test_the_arms_explore_with_their_own_std():
     arms = {h for h in HINGE_NAMES if "shoulder" in h or "elbow" in h}
     for name, std in zip(HINGE_NAMES, stds, strict=True):
         assert std == (0.1 if name in arms else 0.02), name
-    assert set(action_stds(TrainConfig())) == {TrainConfig().ppo.action_std}
+    off = TrainConfig(ppo=PPOConfig(action_std=0.02, arm_action_std=0.0))
+    assert set(action_stds(off)) == {0.02}
     with pytest.raises(ValueError, match="arm_action_std"):
         PPOConfig(arm_action_std=-0.1)
