@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import fcntl
 import json
 import os
 import re
@@ -185,10 +186,18 @@ def private_server(data_root: str | Path) -> str:
     exit handler stops it when the command exits. Its log joins ``ringside serve``'s.
     """
     port = free_port()
-    server = start_server(data_root, port)
     api_url = f"http://127.0.0.1:{port}/api"
     timeout_s = float(os.environ.get("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", 120))
-    if not wait_until_up(api_url, server, timeout_s):
+    # Servers on one data directory share Prefect's database, which a server migrates as it
+    # starts: two commands started at once on a new data directory both migrated it, and one
+    # failed ("duplicate column name"). Starting one at a time on a lock avoids it.
+    home = data_paths(data_root).prefect_home
+    home.mkdir(parents=True, exist_ok=True)
+    with (home / "server-start.lock").open("a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        server = start_server(data_root, port)
+        up = wait_until_up(api_url, server, timeout_s)
+    if not up:
         stop_server(server)
         raise RuntimeError(
             f"Prefect's server did not start within {timeout_s:g} s; its log: "
