@@ -26,7 +26,7 @@ import pandas as pd
 import streamlit as st
 
 from dashboards import queries
-from flows.config import STAGES
+from flows.config import PIPELINE_STAGES, STAGES
 from storage.artifacts import artifact_path
 from storage.db import DatabaseBusy, connect, utcnow
 from storage.paths import data_paths
@@ -272,10 +272,16 @@ def numbers_table(frame: pd.DataFrame) -> Any:
 
 def overview_page() -> None:
     st.title("Overview")
-    found = read(lambda con: (queries.videos(con), queries.stage_overview(con)))
+    found = read(
+        lambda con: (
+            queries.videos(con),
+            queries.stage_overview(con),
+            queries.opponent_overview(con),
+        )
+    )
     if found is None:
         return
-    videos, states = found
+    videos, states, opponents = found
     if not videos:
         st.info(f"No video yet: {PROCESS_HINT}.")
         finish_page()
@@ -309,8 +315,42 @@ def overview_page() -> None:
     if not runs["why it failed"].any():
         runs = runs.drop(columns="why it failed")
     st.table(runs, hide_index=True)
+    opponent_section(opponents)
     rerun_section(videos)
     finish_page()
+
+
+def opponent_section(rows: Sequence[Mapping[str, Any]]) -> None:
+    """Training on each adversary's dataset and the evaluation of each finished run."""
+    st.subheader("Training and evaluation")
+    if not rows:
+        st.info(f"No dataset yet: {PROCESS_HINT}.")
+        return
+    table = pd.DataFrame(
+        {
+            "adversary": [r["adversary"] for r in rows],
+            "stage": [r["stage"] for r in rows],
+            "of": [
+                ("dataset " if r["stage"] == "train" else "run ") + queries.short(r["video_id"])
+                for r in rows
+            ],
+            "state": [r["state"] for r in rows],
+            "key": [queries.short(r["key"]) if r["key"] else "" for r in rows],
+            "ran at": [f"{r['ran_at']:%Y-%m-%d %H:%M:%S}" if r["ran_at"] else "" for r in rows],
+            "computed in (s)": [format_value(r["seconds"]) for r in rows],
+            "why it failed": [r["error"] or "" for r in rows],
+        }
+    )
+    if not table["why it failed"].any():
+        table = table.drop(columns="why it failed")
+    st.table(
+        table.style.map(lambda s: f"background-color: {STATE_COLOURS.get(s, '')}", ["state"]),
+        hide_index=True,
+    )
+    st.caption(
+        "Training runs on a dataset (every processed video of the adversary), evaluation on a "
+        "finished training run; the Training and Evaluation pages show them."
+    )
 
 
 def rerun_section(videos: Sequence[Mapping[str, Any]]) -> None:
@@ -324,7 +364,7 @@ def rerun_section(videos: Sequence[Mapping[str, Any]]) -> None:
     labels = video_labels(videos)
     left, middle, right = st.columns([3, 2, 1], vertical_alignment="bottom")
     video = left.selectbox("Video", list(labels), format_func=labels.get, key="rerun_video")
-    stage = middle.selectbox("Stage", STAGES, key="rerun_stage")
+    stage = middle.selectbox("Stage", PIPELINE_STAGES, key="rerun_stage")
     pressed = right.button(
         "Rerun",
         disabled=served is None,
@@ -384,7 +424,7 @@ def rerun_progress(root: Path, labels: Mapping[str, str]) -> None:
         progress = run_progress(root, rerun["flow_run"])
         rerun["finished"] = progress.finished
         finished = events[rerun["flow_run"]]
-        share = 1.0 if progress.finished else len(finished) / len(STAGES)
+        share = 1.0 if progress.finished else len(finished) / len(PIPELINE_STAGES)
         what = f"{rerun['stage']} of {labels.get(rerun['video_id'], rerun['video_id'][:12])}"
         st.progress(
             share,
@@ -578,7 +618,7 @@ def training_page() -> None:
                 "last saved": [
                     f"{r['saved_at']:%Y-%m-%d %H:%M:%S}" if r["saved_at"] else "" for r in runs
                 ],
-                "state": ["finished" if r["finished"] else "running or stopped" for r in runs],
+                "state": [r["state"] for r in runs],
             }
         ),
         hide_index=True,

@@ -20,9 +20,15 @@ import duckdb
 import numpy as np
 import pandas as pd
 
-from flows.config import SECTIONS, STAGES
+from flows.config import PIPELINE_STAGES, SECTIONS, STAGES
 from models.pose.types import BLAZEPOSE_33
-from storage.records import latest_metrics, output_metrics, stage_states
+from storage.records import (
+    latest_metrics,
+    opponent_states,
+    output_metrics,
+    stage_states,
+    worker_alive,
+)
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import list_datasets, member_statistics
 from tasks.evaluate.store import evaluation_tables
@@ -68,6 +74,18 @@ def stage_overview(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
     """Per video and per-video stage: the newest run's state, key, error and timings, the rows
     `ringside status` prints (see `storage.records.stage_states`)."""
     return stage_states(con, STAGES)
+
+
+def opponent_overview(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
+    """Per dataset (oldest first) its newest training run, and the evaluation of each finished
+    one: the rows `ringside status` prints after the videos', with the dataset's adversary."""
+    datasets = {d["dataset_key"]: d["adversary"] for d in reversed(list_datasets(con))}
+    rows = opponent_states(con, list(datasets))
+    adversary: dict[str, str] = dict(datasets)
+    for row in rows:
+        if row["stage"] == "train":
+            adversary[row["key"]] = datasets[row["video_id"]]
+    return [{**row, "adversary": adversary.get(row["video_id"], "")} for row in rows]
 
 
 def state_matrix(states: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
@@ -125,8 +143,9 @@ def dataset_statistics(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Data
 
 def training_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
     """Every training run that has recorded iterations, the newest checkpoint first: its key,
-    dataset key, adversary, iterations so far, when it last saved and whether it has finished
-    (committed its policy as the train stage's output) or is still going or was stopped."""
+    dataset key, adversary, iterations so far, when it last saved and its state: ``finished``
+    (committed its policy as the train stage's output), ``running`` (its process is alive) or
+    ``interrupted`` (its process is gone: the same command resumes it from its checkpoint)."""
     rows = con.execute(
         """
         WITH runs AS (
@@ -134,17 +153,26 @@ def training_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
             FROM train_iterations GROUP BY ALL
         ), saved AS (
             SELECT key, video_id, max(created_at) AS saved_at FROM train_checkpoints GROUP BY ALL
+        ), started AS (
+            SELECT key, video_id, arg_max(worker, created_at) AS worker
+            FROM stage_runs WHERE stage = 'train' AND state = 'running' GROUP BY ALL
         )
-        SELECT r.key, r.video_id, d.adversary, r.iterations, s.saved_at, o.key IS NOT NULL
+        SELECT r.key, r.video_id, d.adversary, r.iterations, s.saved_at, o.key IS NOT NULL,
+               w.worker
         FROM runs r
         LEFT JOIN saved s USING (key, video_id)
+        LEFT JOIN started w USING (key, video_id)
         LEFT JOIN datasets d ON d.dataset_key = r.video_id
         LEFT JOIN stage_outputs o ON o.stage = 'train' AND o.key = r.key AND o.video_id = r.video_id
         ORDER BY s.saved_at DESC NULLS LAST, r.key
         """
     ).fetchall()
-    names = ("key", "dataset_key", "adversary", "iterations", "saved_at", "finished")
-    return [dict(zip(names, row, strict=True)) for row in rows]
+    names = ("key", "dataset_key", "adversary", "iterations", "saved_at")
+    runs = []
+    for *row, finished, worker in rows:
+        state = "finished" if finished else "running" if worker_alive(worker) else "interrupted"
+        runs.append({**dict(zip(names, row, strict=True)), "state": state})
+    return runs
 
 
 def default_every(iterations: int) -> int:
@@ -298,17 +326,29 @@ def pose_review(con: duckdb.DuckDBPyConnection, video_id: str) -> PoseReview | N
 def stages_finished_since(
     con: duckdb.DuckDBPyConnection, video_id: str, since: datetime
 ) -> list[str]:
-    """The per-video stages of ``video_id`` that some run has finished (done or cached) since
-    ``since`` (UTC), in pipeline order."""
+    """The stages some run has finished (done or cached) since ``since`` (UTC) for ``video_id``,
+    in pipeline order: its own, training on a dataset it is a member of, and the evaluation of
+    a run trained on one."""
     found = {
         row[0]
         for row in con.execute(
-            "SELECT DISTINCT stage FROM stage_runs WHERE video_id = ? AND created_at >= ? "
-            "AND state IN ('done', 'cached')",
-            [video_id, since],
+            """
+            WITH sets AS (SELECT dataset_key FROM dataset_members WHERE video_id = $video),
+            runs AS (
+                SELECT key FROM stage_outputs
+                WHERE stage = 'train' AND video_id IN (SELECT dataset_key FROM sets)
+            )
+            SELECT DISTINCT stage FROM stage_runs
+            WHERE created_at >= $since AND state IN ('done', 'cached') AND (
+                video_id = $video
+                OR (stage = 'train' AND video_id IN (SELECT dataset_key FROM sets))
+                OR (stage = 'evaluate' AND video_id IN (SELECT key FROM runs))
+            )
+            """,
+            {"video": video_id, "since": since},
         ).fetchall()
     }
-    return [stage for stage in STAGES if stage in found]
+    return [stage for stage in PIPELINE_STAGES if stage in found]
 
 
 def evaluations(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:

@@ -88,7 +88,7 @@ def _overrides(args: argparse.Namespace) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from flows.config import STAGES
+    from flows.config import PIPELINE_STAGES
 
     parser = argparse.ArgumentParser(
         prog="ringside",
@@ -105,16 +105,19 @@ def build_parser() -> argparse.ArgumentParser:
     process.add_argument("--adversary", required=True, metavar="NAME", help="who the adversary is")
     process.add_argument("--adversary-colour", metavar="COLOUR", help="trunk colour or #rrggbb")
     process.add_argument("--notes", help="free text kept with the video")
-    process.add_argument("--until", choices=STAGES, help="stop after this stage")
+    process.add_argument("--until", choices=PIPELINE_STAGES, help="stop after this stage")
     process.add_argument("--json", action="store_true", help="print the summary as JSON")
     _config_flags(process)
 
     status = commands.add_parser("status", help="what is cached, done or failed, per video")
     status.add_argument("--json", action="store_true")
 
-    rerun = commands.add_parser("rerun", help="recompute one stage of one video, cache or not")
-    rerun.add_argument("stage", choices=STAGES)
+    rerun = commands.add_parser(
+        "rerun", help="recompute one stage of one video (and what depends on it), cache or not"
+    )
+    rerun.add_argument("stage", choices=PIPELINE_STAGES)
     rerun.add_argument("--video", required=True, metavar="ID", help="video id (a prefix will do)")
+    rerun.add_argument("--until", choices=PIPELINE_STAGES, help="stop after this stage")
     rerun.add_argument("--json", action="store_true")
     _config_flags(rerun)
 
@@ -129,6 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="track id, as `ringside status` and the pose overlay show it",
     )
+    pick.add_argument("--until", choices=PIPELINE_STAGES, help="stop after this stage")
     pick.add_argument("--json", action="store_true")
     _config_flags(pick)
 
@@ -193,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     _config_flags(evaluate)
 
     metrics = commands.add_parser("metrics", help="each stage's metrics per video or dataset")
-    metrics.add_argument("--stage", choices=[*STAGES, "train", "evaluate"])
+    metrics.add_argument("--stage", choices=PIPELINE_STAGES)
     metrics.add_argument("--json", action="store_true")
 
     datasets = commands.add_parser(
@@ -256,7 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--every", type=float, metavar="SECONDS", help="look in DIR every SECONDS instead"
     )
     serve.add_argument(
-        "--until", choices=STAGES, help="stop after this stage for videos found in DIR"
+        "--until", choices=PIPELINE_STAGES, help="stop after this stage for videos found in DIR"
     )
     serve.add_argument(
         "--port", type=int, default=4200, metavar="N", help="the server's port (default 4200)"
@@ -276,11 +280,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="TIME",
         help="'now' (default), HH:MM (the next one, local time) or ISO 8601 (2030-06-01T18:30)",
     )
-    schedule.add_argument("--until", choices=STAGES, help="stop after this stage")
+    schedule.add_argument("--until", choices=PIPELINE_STAGES, help="stop after this stage")
     schedule.add_argument("--json", action="store_true")
     _config_flags(schedule)
 
-    demo = commands.add_parser("demo", help="pull the assets and process the bundled sample")
+    demo = commands.add_parser(
+        "demo", help="pull the assets and turn the bundled sample into an opponent"
+    )
     demo.add_argument("--json", action="store_true")
     return parser
 
@@ -359,29 +365,85 @@ def _process(
             print(f"ringside: error: {line}", file=sys.stderr)
         return EXIT_BAD_INPUT
     _print_summary(summaries, data_root, args.json)
+    evaluated = [s for s in summaries if s.stage == "evaluate"]
+    if evaluated and not args.json:
+        _print_opponent(data_root, evaluated[-1])
     return 0
+
+
+def _print_opponent(data_root: Path, evaluated) -> None:
+    """Where the pipeline's opponent is (its folder written as `ringside export` writes it), its
+    bout and its headline numbers against the evaluation's baselines."""
+    from storage.artifacts import artifact_path
+    from storage.db import connect
+    from storage.paths import data_paths
+    from storage.records import output_metrics
+    from tasks.evaluate.export import trained_policy
+    from tasks.evaluate.store import evaluation_tables
+
+    paths = data_paths(data_root)
+    run_key = evaluated.video_id
+    with connect(paths.db, read_only=True) as con:
+        metrics = output_metrics(con, "evaluate", run_key, evaluated.key)
+        media = {
+            r["name"]: r["artifact"]
+            for r in evaluation_tables(con, evaluated.key, run_key)["artifacts"]
+        }
+    trained = trained_policy(paths.db, paths.artifacts, run_key)
+    folder = trained.export(0, data_root / "opponents" / f"{run_key[:12]}-adversary")
+
+    def number(name: str) -> str:
+        value = metrics.get(name)
+        return "n/a" if value is None else f"{value:.3g}"
+
+    print(f"\nopponent of {evaluated.path}: run {run_key[:12]} at iteration {trained.iteration}")
+    print(f"  folder: {folder}   (spar with it: ringside spar {folder})")
+    if "bout.mp4" in media:
+        print(f"  bout:   {artifact_path(paths.artifacts, media['bout.mp4'])}")
+    print(
+        f"  falls per simulated minute: {number('falls_per_min')} "
+        f"(untrained {number('falls_per_min_untrained')}, "
+        f"standing still in its guard {number('falls_per_min_still')})"
+    )
+    print(
+        f"  style score, 0 = the footage's statistics, lower is closer: {number('style_score')} "
+        f"(untrained {number('style_score_untrained')}, standing still "
+        f"{number('style_score_still')})"
+    )
+    print(f"  all of it: ringside evaluate --run {run_key[:12]}   or   ringside dashboard")
 
 
 def _status(args, data_root: Path) -> int:
     from flows.config import STAGES
     from storage.db import connect
     from storage.paths import data_paths
-    from storage.records import stage_states
+    from storage.records import opponent_states, stage_states
+    from tasks.dataset.store import list_datasets
 
     db = data_paths(data_root).db
-    rows: list[dict[str, Any]] = []
+    videos: list[dict[str, Any]] = []
+    opponents: list[dict[str, Any]] = []
+    # The JSON's documented fields; the dashboard shows the timings too.
+    fields = ("video_id", "stage", "key", "state", "error")
     if db.exists():
         with connect(db, read_only=True) as con:
-            states = stage_states(con, STAGES)
-        # The JSON's documented fields; the dashboard shows the timings too.
-        fields = ("video_id", "stage", "key", "state", "error")
-        rows = [{name: r[name] for name in fields} for r in states]
+            videos = [{f: r[f] for f in fields} for r in stage_states(con, STAGES)]
+            datasets = [d["dataset_key"] for d in reversed(list_datasets(con))]
+            opponents = [{f: r[f] for f in fields} for r in opponent_states(con, datasets)]
     if args.json:
-        print(json.dumps(rows))
-    else:
+        print(json.dumps(videos + opponents))
+        return 0
+
+    def short(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [{**r, "video_id": r["video_id"][:12], "key": (r["key"] or "")[:12]} for r in rows]
+
+    _print_table(short(videos), ["video_id", "stage", "state", "key", "error"])
+    if opponents:
+        # Training runs on a dataset (all of an adversary's videos), evaluation on a run.
+        print()
         _print_table(
-            [{**r, "video_id": r["video_id"][:12], "key": (r["key"] or "")[:12]} for r in rows],
-            ["video_id", "stage", "state", "key", "error"],
+            [{**r, "of": r["video_id"]} for r in short(opponents)],
+            ["of", "stage", "state", "key", "error"],
         )
     return 0
 
@@ -410,7 +472,6 @@ def _pick(args, data_root: Path) -> int:
     video = ingested_video(data_root, args.video)
     with connect(data_paths(data_root).db) as con:
         record_pick(con, video.video_id, args.track)
-    args.until = None
     return _process(args, data_root, [video.path], video.adversary, video.colour, video.notes)
 
 
@@ -886,6 +947,7 @@ def _schedule(args, data_root: Path) -> int:
 
 
 def _demo(args, data_root: Path) -> int:
+    from flows.config import DEMO_SETTINGS
     from storage.assets import BOXING_CLIPS, SAMPLE_VIDEO
     from storage.paths import data_paths
 
@@ -896,6 +958,8 @@ def _demo(args, data_root: Path) -> int:
     # The sample is two people walking: DeepMimic's punch, retargeted onto both fighters, joins
     # the motion prior's data so that the demo opponent has punches to learn.
     args.cfg__dataset__extra_clips = str(assets / BOXING_CLIPS)
+    for name, value in DEMO_SETTINGS.items():
+        setattr(args, "cfg__" + name.replace(".", "__"), value)
     return _process(
         args,
         data_root,

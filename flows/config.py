@@ -26,6 +26,16 @@ SECTIONS: dict[str, type] = {
 }
 # The stages `video_to_opponent` runs per video; training runs on an assembled dataset.
 STAGES: tuple[str, ...] = ("ingest", "pose", "lift", "dataset")
+# Every stage of `video_to_opponent` in order: the per-video ones, then training on the
+# adversary's assembled dataset and the evaluation (and export) of that run.
+PIPELINE_STAGES: tuple[str, ...] = (*STAGES, "train", "evaluate")
+# `ringside demo`'s settings over the defaults: a training run the demo can wait for, ended by
+# its wall-clock budget at a checkpoint (README, "The demo": what 8 minutes give).
+DEMO_SETTINGS: dict[str, str] = {
+    "train.minutes": "8",
+    "train.iterations": "100000",
+    "train.checkpoint_every": "50",
+}
 DEFAULT_CONFIG_FILE = Path("ringside.toml")
 HEADER = """Ringside settings. Every value here is the built-in default; change what you need.
 Any setting can also be given on the command line as --SECTION-NAME VALUE, e.g.

@@ -1,4 +1,6 @@
-"""``video_to_opponent``: every stage that exists, in order, for each video."""
+"""``video_to_opponent``: every stage, in order: the per-video stages for each video, then the
+adversary's dataset assembled, a MAAIP run trained on it and that run evaluated, its adversary
+exported as an opponent folder."""
 
 from __future__ import annotations
 
@@ -7,12 +9,14 @@ import os
 from prefect import flow
 from prefect.task_runners import ThreadPoolTaskRunner
 
-from flows.config import STAGES, from_tables
+from flows.config import PIPELINE_STAGES, from_tables
 from flows.dataset import assemble_flow, dataset_flow
+from flows.evaluate import evaluate_flow
 from flows.ingest import ingest_flow
 from flows.lift import lift_flow
 from flows.pose import pose_flow
 from flows.runs import StageSummary
+from flows.train import train_flow
 from tasks.errors import BadInput
 
 
@@ -41,10 +45,10 @@ def chunk_runner(workers: int):
 
 def stages_until(until: str | None) -> tuple[str, ...]:
     if until is None:
-        return STAGES
-    if until not in STAGES:
-        raise ValueError(f"--until must be one of {', '.join(STAGES)}, got {until!r}")
-    return STAGES[: STAGES.index(until) + 1]
+        return PIPELINE_STAGES
+    if until not in PIPELINE_STAGES:
+        raise ValueError(f"--until must be one of {', '.join(PIPELINE_STAGES)}, got {until!r}")
+    return PIPELINE_STAGES[: PIPELINE_STAGES.index(until) + 1]
 
 
 @flow(name="video_to_opponent")
@@ -65,9 +69,11 @@ def video_to_opponent(
     stages = stages_until(until)
     pose = pose_flow.with_options(task_runner=chunk_runner(from_tables(config or {}).pose.workers))
     forced = set(rerun or [])
-    unknown = forced - set(STAGES)
+    unknown = forced - set(PIPELINE_STAGES)
     if unknown:
-        raise ValueError(f"cannot rerun unknown stages {sorted(unknown)}; known: {list(STAGES)}")
+        raise ValueError(
+            f"cannot rerun unknown stages {sorted(unknown)}; known: {list(PIPELINE_STAGES)}"
+        )
     summaries: list[StageSummary] = []
     failures: list[str] = []
     for video in videos:
@@ -117,7 +123,15 @@ def video_to_opponent(
     if any(s.stage == "dataset" for s in summaries):
         # Every video of this adversary with a current dataset output, not only this run's.
         try:
-            summaries.append(assemble_flow(data_root, adversary, config, "dataset" in forced))
+            assembled = assemble_flow(data_root, adversary, config, "dataset" in forced)
+            summaries.append(assembled)
+            if "train" in stages:
+                trained = train_flow(data_root, assembled.key, config, "train" in forced)
+                summaries.append(trained)
+                if "evaluate" in stages:
+                    summaries.append(
+                        evaluate_flow(data_root, trained.key, config, "evaluate" in forced)
+                    )
         except BadInput as error:
             failures.append(str(error))
     if failures:

@@ -252,6 +252,28 @@ def stage_states(con: duckdb.DuckDBPyConnection, stages: Sequence[str]) -> list[
         row[0]
         for row in con.execute("SELECT video_id FROM videos ORDER BY registered_at").fetchall()
     ]
+    return _states(con, [(video_id, stage) for video_id in videos for stage in stages])
+
+
+def opponent_states(
+    con: duckdb.DuckDBPyConnection, dataset_keys: Sequence[str]
+) -> list[dict[str, Any]]:
+    """The rows `stage_states` gives, for the stages after the per-video ones: per dataset key
+    (in the order given) the newest training run on it (``video_id`` is the dataset key, as in
+    ``stage_runs``), and after each finished one the evaluation of that run (``video_id`` is
+    the training run's key)."""
+    rows = []
+    for train in _states(con, [(key, "train") for key in dataset_keys]):
+        rows.append(train)
+        if train["state"] in ("done", "cached"):
+            rows.extend(_states(con, [(train["key"], "evaluate")]))
+    return rows
+
+
+def _states(
+    con: duckdb.DuckDBPyConnection, wanted: Sequence[tuple[str, str]]
+) -> list[dict[str, Any]]:
+    """One `STATE_FIELDS` row per (video_id, stage) in ``wanted``."""
     runs = {(r["video_id"], r["stage"]): r for r in latest_runs(con)}
     seconds = {
         (stage, video_id, key): value
@@ -260,22 +282,21 @@ def stage_states(con: duckdb.DuckDBPyConnection, stages: Sequence[str]) -> list[
         ).fetchall()
     }
     rows = []
-    for video_id in videos:
-        for stage in stages:
-            run = runs.get((video_id, stage))
-            if run is None:
-                missing = {"video_id": video_id, "stage": stage, "state": "missing"}
-                rows.append({**dict.fromkeys(STATE_FIELDS), **missing})
-                continue
-            finished = run["state"] in ("done", "cached")
-            took = seconds.get((stage, video_id, run["key"])) if finished else None
-            rows.append(
-                {
-                    **{name: run[name] for name in ("video_id", "stage", "key", "state", "error")},
-                    "ran_at": run["created_at"],
-                    "seconds": took,
-                }
-            )
+    for video_id, stage in wanted:
+        run = runs.get((video_id, stage))
+        if run is None:
+            missing = {"video_id": video_id, "stage": stage, "state": "missing"}
+            rows.append({**dict.fromkeys(STATE_FIELDS), **missing})
+            continue
+        finished = run["state"] in ("done", "cached")
+        took = seconds.get((stage, video_id, run["key"])) if finished else None
+        rows.append(
+            {
+                **{name: run[name] for name in ("video_id", "stage", "key", "state", "error")},
+                "ran_at": run["created_at"],
+                "seconds": took,
+            }
+        )
     return rows
 
 

@@ -24,7 +24,14 @@ os.environ.setdefault(
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-from tiny import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS  # noqa: E402, F401  (tests import them from here)
+from tiny import (  # noqa: E402, F401  (tests import them from here)
+    TINY_EVALUATE,
+    TINY_EVALUATE_FLAGS,
+    TINY_PIPELINE_FLAGS,
+    TINY_TRAIN,
+    TINY_TRAIN_FLAGS,
+    toml,
+)
 
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
@@ -78,6 +85,8 @@ def sample_run(tmp_path_factory, sample_video: Path) -> Path:
         str(sample_video),
         "--adversary",
         "A",
+        "--until",
+        "dataset",
         "--ingest-chunk-frames",
         "30",
     ]

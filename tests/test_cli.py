@@ -6,6 +6,7 @@ import argparse
 import hashlib
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import imageio_ffmpeg
 import pytest
-from conftest import count, moving_box_frames, run_cli, write_video
+from conftest import TINY_PIPELINE_FLAGS, count, moving_box_frames, run_cli, write_video
 
 import tasks.ingest.stage
 from flows.cli import build_parser, main
@@ -37,30 +38,26 @@ def scans(monkeypatch) -> list[str]:
 
 
 def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_video, scans):
+    """The whole pipeline, video to opponent (tiny training and evaluation settings)."""
     data = str(tmp_path / "data")
-    process = ["--data", data, "process", str(sample_video), "--adversary", "A", "--json"]
-    code, out, _ = run_cli(capsys, *process)
+    process = ["--data", data, "process", str(sample_video), "--adversary", "A"]
+    process += TINY_PIPELINE_FLAGS
+    code, out, _ = run_cli(capsys, *process, "--json")
     assert code == 0
     first = json.loads(out)
-    assert [(s["stage"], s["state"]) for s in first] == [
-        ("ingest", "done"),
-        ("pose", "done"),
-        ("lift", "done"),
-        ("dataset", "done"),
-        ("dataset-assemble", "done"),
-    ]
+    stages = ["ingest", "pose", "lift", "dataset", "dataset-assemble", "train", "evaluate"]
+    assert [(s["stage"], s["state"]) for s in first] == [(stage, "done") for stage in stages]
     assert len(scans) == 1
 
-    code, out, _ = run_cli(capsys, *process)
-    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached"] * 5
+    code, out, _ = run_cli(capsys, *process, "--json")
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached"] * 7
     assert len(scans) == 1, "a rerun with nothing changed decoded the video again"
 
     video_id = first[0]["video_id"]
-    code, out, _ = run_cli(
-        capsys, "--data", data, "rerun", "ingest", "--video", video_id[:10], "--json"
-    )
+    rerun = ["--data", data, "rerun", "ingest", "--video", video_id[:10], *TINY_PIPELINE_FLAGS]
+    code, out, _ = run_cli(capsys, *rerun, "--json")
     # Ingest is recomputed; its key is unchanged, so the later stages are found in the cache.
-    assert code == 0 and [s["state"] for s in json.loads(out)] == ["done"] + ["cached"] * 4
+    assert code == 0 and [s["state"] for s in json.loads(out)] == ["done"] + ["cached"] * 6
     assert len(scans) == 2
     db = Path(data) / "ringside.duckdb"
     runs = "SELECT stage, state, count(*) FROM stage_runs GROUP BY ALL ORDER BY ALL"
@@ -71,6 +68,9 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
             ("dataset", "cached", 2),
             ("dataset", "done", 1),
             ("dataset", "running", 1),
+            ("evaluate", "cached", 2),
+            ("evaluate", "done", 1),
+            ("evaluate", "running", 1),
             ("ingest", "cached", 1),
             ("ingest", "done", 2),
             ("lift", "cached", 2),
@@ -79,40 +79,54 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
             ("pose", "cached", 2),
             ("pose", "done", 1),
             ("pose", "running", 1),
+            ("train", "cached", 2),
+            ("train", "done", 1),
+            ("train", "running", 1),
         ]
     assert count(db, "SELECT count(*) FROM ingest_probes") == 1
 
     code, out, _ = run_cli(capsys, "--data", data, "status", "--json")
+    per_video = [
+        {
+            "video_id": video_id,
+            "stage": s["stage"],
+            "key": s["key"],
+            "state": "cached",
+            "error": None,
+        }
+        for s in first[:4]
+    ]
+    per_video[0]["state"] = "done"
+    dataset_key, run_key = first[4]["key"], first[5]["key"]
     assert json.loads(out) == [
+        *per_video,
         {
-            "video_id": video_id,
-            "stage": "ingest",
-            "key": first[0]["key"],
-            "state": "done",
-            "error": None,
-        },
-        {
-            "video_id": video_id,
-            "stage": "pose",
-            "key": first[1]["key"],
+            "video_id": dataset_key,
+            "stage": "train",
+            "key": run_key,
             "state": "cached",
             "error": None,
         },
         {
-            "video_id": video_id,
-            "stage": "lift",
-            "key": first[2]["key"],
-            "state": "cached",
-            "error": None,
-        },
-        {
-            "video_id": video_id,
-            "stage": "dataset",
-            "key": first[3]["key"],
+            "video_id": run_key,
+            "stage": "evaluate",
+            "key": first[6]["key"],
             "state": "cached",
             "error": None,
         },
     ]
+
+    # Without --json the run ends with the opponent: its folder (written), its bout, its numbers.
+    code, out, _ = run_cli(capsys, *process)
+    assert code == 0
+    folder = Path(re.search(r"folder: (\S+)", out).group(1))
+    assert (folder / "manifest.json").is_file() and (folder / "policy.onnx").is_file()
+    assert Path(re.search(r"bout: +(\S+)", out).group(1)).is_file()
+    assert re.search(r"falls per simulated minute: [0-9.]+ \(untrained [0-9.]+", out), out
+    assert re.search(r"style score.*: [0-9.]+ \(untrained [0-9.]+, standing still [0-9.]+", out)
+    code, out, _ = run_cli(capsys, "spar", str(folder), "--seconds", "1", "--json")
+    assert code == 0, out
+
     code, out, _ = run_cli(capsys, "--data", data, "metrics", "--stage", "ingest", "--json")
     metrics = {m["name"]: m["value"] for m in json.loads(out)}
     assert metrics["frames"] == 100 and metrics["fps"] == 60 and metrics["shot_cuts"] == 0

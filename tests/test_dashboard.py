@@ -24,12 +24,15 @@ from pathlib import Path
 import pytest
 from conftest import (
     REPO,
+    TINY_EVALUATE,
     TINY_EVALUATE_FLAGS,
+    TINY_TRAIN,
     TINY_TRAIN_FLAGS,
     copy_data,
     query,
     render_page,
     run_cli,
+    toml,
 )
 
 from dashboards import queries
@@ -140,7 +143,10 @@ def test_overview_shows_the_sample_with_every_stage_done(capsys, trained, sample
     data, _ = trained
     videos, states = _read(data, lambda con: (queries.videos(con), queries.stage_overview(con)))
     fields = ("video_id", "stage", "key", "state", "error")
-    assert [{f: r[f] for f in fields} for r in states] == _cli_json(capsys, data, "status")
+    opponents = _read(data, queries.opponent_overview)
+    shown = [{f: r[f] for f in fields} for r in [*states, *opponents]]
+    assert shown == _cli_json(capsys, data, "status")
+    assert any(r["stage"] == "train" for r in opponents), "the fixture's training is listed"
     (sample,) = [v for v in videos if v["path"] == str(sample_video)]
     assert sample["adversary"] == "A"
     matrix = queries.state_matrix(states)
@@ -153,7 +159,7 @@ def test_overview_shows_the_sample_with_every_stage_done(capsys, trained, sample
 def test_learning_curves_are_the_ones_the_cli_prints(capsys, trained):
     data, dataset_key = trained
     run = _newest_run(data, dataset_key)
-    assert run["finished"] and run["adversary"] == "A"
+    assert run["state"] == "finished" and run["adversary"] == "A"
     every = queries.default_every(run["iterations"])
     printed = _cli_json(capsys, data, "curves", "--run", run["key"], "--every", str(every))
     rows = _read(data, lambda con: queries.curves(con, run["key"], every=every))
@@ -308,7 +314,9 @@ def test_every_page_in_a_browser(capsys, trained, tmp_path):
     command = ["-m", "flows.cli", "--data", str(data), "dashboard", "--port", str(port)]
     # The dashboard's reruns take the settings of ./ringside.toml where it was started: the
     # sample's, so that a rerun recomputes the stage asked for and finds the rest cached.
-    (tmp_path / "ringside.toml").write_text("[ingest]\nchunk_frames = 30\n")
+    # (The fixture's tiny training run of three iterations and its evaluation included.)
+    sample = {"ingest.chunk_frames": "30", **TINY_TRAIN, "train.iterations": "3", **TINY_EVALUATE}
+    (tmp_path / "ringside.toml").write_text(toml(sample))
     server = subprocess.Popen(
         [sys.executable, *command, "--no-browser"],
         cwd=tmp_path,
@@ -369,7 +377,16 @@ def test_every_page_in_a_browser(capsys, trained, tmp_path):
                 assert serving.poll() is None, (home / "serve.log").read_text()
                 time.sleep(1)
             assert served_api(data), "`ringside serve` never came up"
-            _open(page, f"{url}/", "overview")
+            text = _open(page, f"{url}/", "overview")
+            # Training on the sample's dataset and the evaluation of that run, as `status` has them.
+            opponents = {
+                (r["stage"], r["video_id"]): r for r in _read(data, queries.opponent_overview)
+            }
+            assert opponents["train", dataset_key]["key"] == run["key"]
+            assert opponents["train", dataset_key]["state"] in ("done", "cached")
+            assert opponents["evaluate", run["key"]]["state"] in ("done", "cached")
+            assert f"dataset {queries.short(dataset_key)}" in text
+            assert f"run {queries.short(run['key'])}" in text
             labels = video_labels(videos)
             for state in _read(data, queries.stage_overview):
                 label = labels[state["video_id"]]
@@ -382,7 +399,8 @@ def test_every_page_in_a_browser(capsys, trained, tmp_path):
             page.get_by_text("Completed", exact=False).wait_for(timeout=300_000)
             page.screenshot(path=str(SCREENSHOTS / "overview-rerun.png"), full_page=True)
             text = page.inner_text("body")
-            assert "stages finished: ingest, pose, lift, dataset" in text, text[-2000:]
+            finished = "stages finished: ingest, pose, lift, dataset, train, evaluate"
+            assert finished in text, text[-2000:]
             assert "Failed" not in text
             rerun = query(
                 data,

@@ -69,6 +69,8 @@ def test_every_page_renders_while_the_pipeline_writes(sample_run, tmp_path, monk
         "lift",
         "--video",
         video_id[:12],
+        "--until",
+        "dataset",
         "--ingest-chunk-frames",
         "30",
     ]

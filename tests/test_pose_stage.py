@@ -112,6 +112,8 @@ def test_rerun_is_cached_and_pick_reuses_the_chunks(
         str(sample_video),
         "--adversary",
         "A",
+        "--until",
+        "dataset",
         "--ingest-chunk-frames",
         "30",
         "--json",
@@ -130,6 +132,8 @@ def test_rerun_is_cached_and_pick_reuses_the_chunks(
         video_id[:8],
         "--track",
         str(opponent),
+        "--until",
+        "dataset",
         "--ingest-chunk-frames",
         "30",
         "--json",
@@ -154,7 +158,17 @@ def test_rerun_is_cached_and_pick_reuses_the_chunks(
 
 def test_refine_setting_reruns_pose_not_chunks(tmp_path, capsys, sample_video, chunk_calls):
     data = tmp_path / "data"
-    base = ["--data", str(data), "process", str(sample_video), "--adversary", "A", "--json"]
+    base = [
+        "--data",
+        str(data),
+        "process",
+        str(sample_video),
+        "--adversary",
+        "A",
+        "--until",
+        "dataset",
+        "--json",
+    ]
     assert run_cli(capsys, *base)[0] == 0
     assert chunk_calls == [0]
     code, out, _ = run_cli(capsys, *base, "--pose-refine-smoother", "one_euro")
@@ -178,7 +192,9 @@ def test_nobody_in_the_video_is_a_clear_failure(tmp_path, capsys):
 def test_one_person_is_one_fighter_and_says_so(tmp_path, capsys, assets):
     video = assets / "samples" / "single_person" / "cam01.mp4"
     data = tmp_path / "data"
-    code, out, _ = run_cli(capsys, "--data", str(data), "process", str(video), "--adversary", "A")
+    code, out, _ = run_cli(
+        capsys, "--data", str(data), "process", str(video), "--adversary", "A", "--until", "dataset"
+    )
     assert code == 0
     assert "only one fighter found" in out
     m = metrics(data)
@@ -202,6 +218,8 @@ def test_chunks_run_on_a_dask_cluster(tmp_path, capsys, sample_video, monkeypatc
             str(sample_video),
             "--adversary",
             "A",
+            "--until",
+            "dataset",
             "--ingest-chunk-frames",
             "30",
             "--json",

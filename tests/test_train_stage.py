@@ -4,13 +4,18 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
-from conftest import TINY_TRAIN_FLAGS, query, run_cli
+from conftest import TINY_TRAIN_FLAGS, copy_data, query, run_cli
 
+from dashboards import queries
 from models.maaip.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
 from models.maaip.env import EnvConfig
+from storage.db import connect
 from storage.paths import data_paths
 from tasks.evaluate.opponent import load_opponent
 from tasks.train.run import train
@@ -146,3 +151,63 @@ def test_a_run_with_a_time_budget_ends_at_the_first_checkpoint_after_it(sample_r
     ]
     with pytest.raises(ValueError, match="train.minutes"):
         dataclasses.replace(TINY, minutes=-1.0)
+
+
+def test_a_training_killed_with_sigkill_shows_interrupted_and_the_same_command_resumes(
+    tmp_path, capsys, sample_run, dataset_key
+):
+    data = copy_data(sample_run, tmp_path / "data")
+    train_run = [
+        *["--data", str(data), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS],
+        *["--train-iterations", "200", "--train-checkpoint-every", "5", "--train-seed", "3"],
+    ]
+    command = subprocess.Popen(
+        [sys.executable, "-m", "flows.cli", *train_run],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    saved: list[tuple] = []
+    deadline = time.monotonic() + 180
+    while not saved and time.monotonic() < deadline and command.poll() is None:
+        time.sleep(0.5)
+        try:  # the run holds the database's write lock for moments at a time
+            saved = query(data, "SELECT iteration FROM train_checkpoints")
+        except Exception:  # noqa: BLE001 (DuckDB's lock error has no class of its own)
+            continue
+    assert saved and command.poll() is None, "the run saved no checkpoint while it ran"
+    command.kill()
+    command.wait()
+
+    code, out, _ = run_cli(capsys, "--data", str(data), "status", "--json")
+    (training,) = [
+        r for r in json.loads(out) if r["stage"] == "train" and r["video_id"] == dataset_key
+    ]
+    assert code == 0
+    assert training["state"] == "interrupted" and "killed or crashed" in training["error"]
+    with connect(data_paths(data).db, read_only=True) as con:
+        (run,) = [r for r in queries.training_runs(con) if r["key"] == training["key"]]
+    assert run["state"] == "interrupted"
+    # The resumed run keeps what its newest checkpoint covers (the seconds each iteration took
+    # differ on a recomputation): it picks up where it stopped.
+    (newest,) = query(data, "SELECT max(iteration) FROM train_checkpoints")[0]
+    timings = (
+        "SELECT iteration, value FROM train_iterations WHERE key = ? AND name = 'collect_s' "
+        "AND iteration < ? ORDER BY iteration"
+    )
+    kept = query(data, timings, [training["key"], newest])
+    assert len(kept) == newest
+
+    code, out, err = run_cli(capsys, *train_run, "--json")
+    assert code == 0, err
+    assert json.loads(out)[0]["state"] == "done"
+    rows = query(
+        data,
+        "SELECT count(*), count(DISTINCT iteration), min(iteration) FROM train_iterations "
+        "WHERE key = ? AND name = 'reward_total'",
+        [training["key"]],
+    )
+    assert rows == [(200, 200, 0)], "iterations lost or written twice"
+    code, out, _ = run_cli(capsys, "--data", str(data), "status", "--json")
+    states = [r for r in json.loads(out) if r["stage"] == "train" and r["video_id"] == dataset_key]
+    assert [(r["key"], r["state"]) for r in states] == [(training["key"], "done")]
+    assert query(data, timings, [training["key"], newest]) == kept
