@@ -178,7 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--partner",
         default="still",
         metavar="FOLDER|still",
-        help="another opponent folder, or 'still' (a boxer holding its rest pose; default)",
+        help="another opponent folder, or 'still' (a boxer holding its guard; default)",
     )
     spar.add_argument("--seconds", type=float, default=60.0, help="simulated seconds (60)")
     spar.add_argument("--video", type=Path, help="render the bout to this MP4 (H.264)")

@@ -14,9 +14,11 @@ import numpy as np
 import pytest
 import torch
 from conftest import read_video, run_cli
+from test_standing import sample_fighters
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OBSERVATION_DIM
+from models.humanoid.stance import guard_pose
 from models.maaip.config import (
     DiscriminatorConfig,
     NetworkConfig,
@@ -24,7 +26,7 @@ from models.maaip.config import (
     TrainConfig,
 )
 from models.maaip.env import EnvConfig
-from models.maaip.networks import Policy
+from models.maaip.networks import Policy, make_networks
 from storage.files import sha256_file
 from tasks.errors import BadInput
 from tasks.evaluate.export import export_opponent, onnx_max_abs_diff, policy_onnx
@@ -188,3 +190,18 @@ def test_spar_refuses_bad_folders(capsys, tmp_path, pair):
     assert code == 2 and "no such opponent folder" in err
     code, _, err = run_cli(capsys, "spar", str(pair[0]), "--partner", str(tmp_path))
     assert code == 2 and "manifest.json: missing" in err
+
+
+def test_an_opponent_starts_in_its_guard_and_stands_against_a_still_partner(tmp_path, sample_run):
+    """The folder carries each fighter's guard and a bout starts in it: an untrained policy,
+    whose mean is its guard, stands a minute against a partner holding its guard. (Started
+    in the rest pose, straight-legged, the demo's trained opponent fell 12 times in 20 s.)"""
+    fighters = sample_fighters(sample_run)
+    bones = (fighters[0].bones, fighters[1].bones)
+    stance = np.stack([guard_pose(f.bones, f.qpos) for f in fighters])
+    nets = make_networks(SMALL, generator=torch.Generator().manual_seed(0), stance=stance)
+    folder = _export(tmp_path, nets.policy.eval(), bones)
+    opponent = load_opponent(folder)
+    assert np.allclose(opponent.guard, stance, atol=1e-6)
+    result = spar(opponent, Partner(None), seconds=60)
+    assert result.falls == (0, 0), result.falls

@@ -20,7 +20,7 @@ import torch
 from torch import nn
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT
+from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT, action_to_joint_targets
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
 from models.maaip.arena import arena_mjcf
 from models.maaip.config import TrainConfig
@@ -170,6 +170,10 @@ def export_opponent(
         "role": "adversary" if agent == 0 else "opponent",
         **facts,
         "bones": [asdict(b) for b in bones],
+        # The pose each fighter's mean starts from (`Policy.offset`): where a bout starts.
+        "guard": action_to_joint_targets(
+            policy.offset[:, : len(HINGE_NAMES)].double().numpy()
+        ).tolist(),
         "env": asdict(env),
         "observation": {
             "size": OBSERVATION_DIM,

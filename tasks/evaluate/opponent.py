@@ -10,7 +10,9 @@ policy.onnx       the agent's policy: its observation normaliser and the Gaussia
 humanoid.xml      the fighter's MuJoCo model, with its measured bones
 arena.xml         both fighters facing each other on a floor, as the policy was trained in
 manifest.json     what the files are (SHA-256 each), the observation and action layouts, the
-                  rates, the bones, the dataset and training keys and the run's last metrics
+                  rates, the bones, each fighter's guard (the 28 hinge angles its policy's mean
+                  starts from, a pose it holds unaided), the dataset and training keys and the
+                  run's last metrics
 ================  ===============================================================================
 
 This module reads the folder with onnxruntime and numpy only, so a sparring engine needs
@@ -48,6 +50,8 @@ class Opponent:
         agent: which of the training run's agents it is (0: the adversary).
         bones: both fighters' bones as trained (agent 0's, then agent 1's).
         task_dim: extra policy inputs (2 for a heading policy, else 0).
+        guard: (2, 28) both fighters' guards, the hinge angles they start a bout in (the rest
+            pose, all zeros, for a folder written before guards were exported).
     """
 
     folder: Path
@@ -56,6 +60,7 @@ class Opponent:
     agent: int
     bones: tuple[BoneLengths, BoneLengths]
     task_dim: int
+    guard: np.ndarray
 
     def act(self, observation: np.ndarray, task: np.ndarray | None = None) -> np.ndarray:
         """Actions (B, 28) for observations (B, 274) of this agent (float64 out for MuJoCo)."""
@@ -125,4 +130,12 @@ def load_opponent(folder: Path) -> Opponent:
         raise BadInput(str(manifest_path), f"bones or agent unreadable ({error})") from error
     if len(bones) != 2 or agent not in (0, 1):
         raise BadInput(str(manifest_path), "needs two fighters' bones and an agent of 0 or 1")
-    return Opponent(folder, manifest, session, agent, bones, task_dim)
+    try:
+        guard = np.asarray(manifest.get("guard", np.zeros((2, NUM_ACTUATED))), dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise BadInput(str(manifest_path), f"guard unreadable ({error})") from error
+    if guard.shape != (2, NUM_ACTUATED) or not np.isfinite(guard).all():
+        raise BadInput(
+            str(manifest_path), f"guard must be 2 x {NUM_ACTUATED} finite angles, got {guard.shape}"
+        )
+    return Opponent(folder, manifest, session, agent, bones, task_dim, guard)

@@ -3,13 +3,14 @@
 `spar` steps one arena of the training environment (`models.maaip.env.ArenaEnv`, the same
 physics, observations and fall rule the policy was trained with, read from the opponent's
 manifest) with the opponent in its own slot and the partner in the other. Both start standing
-at the arena's rest pose, 1.2 m apart and facing each other; a fall (or a blown-up simulation)
-restarts the bout from there and is counted. No torch is imported on this path, so an engine
+in their guard (the manifest's `guard`, the pose the policy was trained to start from), 1.2 m
+apart and facing each other; a fall (or a blown-up simulation) restarts the bout from there and
+is counted. No torch is imported on this path, so an engine
 with numpy, MuJoCo and onnxruntime can run it.
 
 Partners (`Partner`): another opponent folder (e.g. the opponent's trained partner,
-`ringside export --agent opponent`), or "still", a boxer that holds its rest pose (zero
-actions: every PD target at the standing pose), the simplest scripted boxer.
+`ringside export --agent opponent`), or "still", a boxer that holds its guard (the opponent's
+trained partner's, on its bones: every PD target at that pose), the simplest scripted boxer.
 
 Offscreen rendering (`tasks.lift.video`: MuJoCo's renderer through EGL, into an H.264 MP4 that
 browsers play) shows the bout from the arena's "side" camera.
@@ -24,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV
+from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV, joint_targets_to_action
 from models.maaip.demonstrations import ReferenceMotions
-from models.maaip.env import ArenaEnv, EnvConfig
+from models.maaip.env import ArenaEnv, EnvConfig, standing_like
 from tasks.evaluate.opponent import Opponent
 from tasks.lift.video import open_video, render_frame
 
@@ -43,9 +44,10 @@ class Partner:
     def name(self) -> str:
         return STILL if self.opponent is None else str(self.opponent.folder)
 
-    def act(self, observation: np.ndarray) -> np.ndarray:
+    def act(self, observation: np.ndarray, guard: np.ndarray) -> np.ndarray:
+        """Its actions; the still boxer holds ``guard`` (28,) hinge angles."""
         if self.opponent is None:
-            return np.zeros((len(observation), NUM_ACTUATED))
+            return np.broadcast_to(joint_targets_to_action(guard), (len(observation), NUM_ACTUATED))
         return self.opponent.act(observation)
 
 
@@ -84,10 +86,13 @@ def env_config(opponent: Opponent) -> EnvConfig:
     return EnvConfig(**{k: v for k, v in settings.items() if k in known})
 
 
-def _standing(env: ArenaEnv) -> ReferenceMotions:
+def _standing(env: ArenaEnv, guards: np.ndarray) -> ReferenceMotions:
+    """Both fighters standing still in their ``guards`` (2, 28) where the arena puts them."""
     q = env.model.qpos0
     zero = np.zeros((1, NV))
-    return ReferenceMotions(q[None, :NQ], zero, q[None, NQ:], zero)
+    qpos0 = standing_like(q[None, :NQ], guards[0])
+    qpos1 = standing_like(q[None, NQ:], guards[1])
+    return ReferenceMotions(qpos0, zero, qpos1, zero, stance=guards)
 
 
 def spar(
@@ -116,10 +121,12 @@ def spar(
     config = env_config(opponent)
     slot = opponent.agent
     bones = list(opponent.bones)
+    guards = opponent.guard.copy()
     if partner.opponent is not None:
         bones[1 - slot] = partner.opponent.bones[partner.opponent.agent]
+        guards[1 - slot] = partner.opponent.guard[partner.opponent.agent]
     env = ArenaEnv(config, np.random.default_rng(0), (bones[0], bones[1]))
-    start_pose = _standing(env)
+    start_pose = _standing(env, guards)
     steps = max(1, round(seconds * config.policy_hz))
     renderer = writer = None
     if video is not None:
@@ -134,7 +141,7 @@ def spar(
             tick = time.perf_counter()
             actions = np.empty((1, 2, NUM_ACTUATED))
             actions[0, slot] = opponent.act(obs[:, slot])[0]
-            actions[0, 1 - slot] = partner.act(obs[:, 1 - slot])[0]
+            actions[0, 1 - slot] = partner.act(obs[:, 1 - slot], guards[1 - slot])[0]
             spent["policy"] += time.perf_counter() - tick
             tick = time.perf_counter()
             result = env.step(actions)
