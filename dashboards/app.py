@@ -105,7 +105,7 @@ EVALUATION_TILES = {
     "style_score_untrained": "Style: untrained policy",
     "style_score_opponent": "Style: trained partner",
     "style_score_still": "Style: standing still in guard",
-    "falls_per_min": "Falls per minute",
+    "falls_per_min": "Bouts ended by a fall / min",
     "onnx_max_abs_diff": "ONNX max difference",
 }
 # What the Stages page compares, for the stages whose outputs are not per video.
@@ -828,7 +828,11 @@ def evaluation_page() -> None:
     tiles = EVALUATION_TILES
     for column, (name, label) in zip(st.columns(len(tiles)), tiles.items(), strict=True):
         column.metric(label, format_value(metrics.get(name)))
-    st.caption("Style scores: distance to the adversary's real statistics, 0-1, lower is closer.")
+    st.caption(
+        "Style scores: distance to the adversary's real statistics, 0-1, lower is closer. Bouts "
+        "ended by a fall: episodes that a fall of either fighter ended, per simulated minute (as "
+        "training counts them); the Boxing table counts each fighter's own falls."
+    )
     bout = next((r["artifact"] for r in tables["artifacts"] if r["name"] == "bout.mp4"), None)
     show_video(bout, "The trained fighters' bout, rendered in MuJoCo.")
     st.subheader("Style, per statistic")

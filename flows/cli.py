@@ -401,7 +401,7 @@ def _print_opponent(data_root: Path, evaluated) -> None:
     if "bout.mp4" in media:
         print(f"  bout:   {artifact_path(paths.artifacts, media['bout.mp4'])}")
     print(
-        f"  falls per simulated minute: {number('falls_per_min')} "
+        f"  bouts ended by a fall, per simulated minute: {number('falls_per_min')} "
         f"(untrained {number('falls_per_min_untrained')}, "
         f"standing still in its guard {number('falls_per_min_still')})"
     )

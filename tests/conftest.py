@@ -50,6 +50,12 @@ def sample_video(assets: Path) -> Path:
     return assets / SAMPLE_VIDEO
 
 
+def process_argv(data: Path, video: Path, *more: str, until: str = "dataset") -> list[str]:
+    """`ringside process VIDEO --adversary A` on ``data`` up to ``until`` (by default the
+    per-video stages: training and evaluation have tests of their own), then ``more``."""
+    return ["--data", str(data), "process", str(video), "--adversary", "A", "--until", until, *more]
+
+
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
     """Run the ``ringside`` command in this process: (exit code, stdout, stderr)."""
     from flows.cli import main
@@ -78,19 +84,7 @@ def sample_run(tmp_path_factory, sample_video: Path) -> Path:
     from flows.cli import main
 
     data = tmp_path_factory.mktemp("sample_run") / "data"
-    argv = [
-        "--data",
-        str(data),
-        "process",
-        str(sample_video),
-        "--adversary",
-        "A",
-        "--until",
-        "dataset",
-        "--ingest-chunk-frames",
-        "30",
-    ]
-    assert main(argv) == 0
+    assert main(process_argv(data, sample_video, "--ingest-chunk-frames", "30")) == 0
     return data
 
 

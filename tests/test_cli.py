@@ -16,7 +16,14 @@ from pathlib import Path
 
 import imageio_ffmpeg
 import pytest
-from conftest import TINY_PIPELINE_FLAGS, count, moving_box_frames, run_cli, write_video
+from conftest import (
+    TINY_PIPELINE_FLAGS,
+    count,
+    moving_box_frames,
+    process_argv,
+    run_cli,
+    write_video,
+)
 
 import tasks.ingest.stage
 from flows.cli import build_parser, main
@@ -122,7 +129,8 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
     folder = Path(re.search(r"folder: (\S+)", out).group(1))
     assert (folder / "manifest.json").is_file() and (folder / "policy.onnx").is_file()
     assert Path(re.search(r"bout: +(\S+)", out).group(1)).is_file()
-    assert re.search(r"falls per simulated minute: [0-9.]+ \(untrained [0-9.]+", out), out
+    falls = r"bouts ended by a fall, per simulated minute: [0-9.]+ \(untrained [0-9.]+"
+    assert re.search(falls, out), out
     assert re.search(r"style score.*: [0-9.]+ \(untrained [0-9.]+, standing still [0-9.]+", out)
     code, out, _ = run_cli(capsys, "spar", str(folder), "--seconds", "1", "--json")
     assert code == 0, out
@@ -262,21 +270,7 @@ def db_snapshot(db: Path) -> tuple[str, dict[str, int]]:
 def populated(tmp_path_factory, sample_video) -> Path:
     """A data directory that already holds one processed video."""
     data = tmp_path_factory.mktemp("populated") / "data"
-    assert (
-        main(
-            [
-                "--data",
-                str(data),
-                "process",
-                str(sample_video),
-                "--adversary",
-                "A",
-                "--until",
-                "ingest",
-            ]
-        )
-        == 0
-    )
+    assert main(process_argv(data, sample_video, until="ingest")) == 0
     return data
 
 
@@ -360,21 +354,7 @@ def test_killed_mid_stage_loses_nothing_and_rerun_finishes(
     tmp_path, capsys, sample_video, two_shot_video
 ):
     data = tmp_path / "data"
-    assert (
-        main(
-            [
-                "--data",
-                str(data),
-                "process",
-                str(sample_video),
-                "--adversary",
-                "A",
-                "--until",
-                "ingest",
-            ]
-        )
-        == 0
-    )
+    assert main(process_argv(data, sample_video, until="ingest")) == 0
     capsys.readouterr()
     db = data / "ringside.duckdb"
     before = db_snapshot(db)

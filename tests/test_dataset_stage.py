@@ -7,7 +7,7 @@ import json
 import mujoco
 import numpy as np
 import pytest
-from conftest import query, run_cli
+from conftest import process_argv, query, run_cli
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import (
@@ -234,16 +234,7 @@ def test_demo_dataset_tables_metrics_and_key(capsys, sample_run, sample_video):
     keys = _dataset_keys(capsys, sample_run)
 
     # Nothing changed: the same dataset key, nothing recomputed.
-    base = [
-        "--data",
-        str(sample_run),
-        "process",
-        str(sample_video),
-        "--adversary",
-        "A",
-        "--until",
-        "dataset",
-    ]
+    base = process_argv(sample_run, sample_video)
     outputs = query(sample_run, "SELECT count(*) FROM stage_outputs WHERE stage = 'dataset'")
     code, out, _ = run_cli(capsys, *base, "--ingest-chunk-frames", "30", "--json")
     assert code == 0
@@ -285,16 +276,7 @@ def test_every_transition_is_one_a_boxer_can_make(sample_run):
 
 
 def test_extra_single_actor_clips_join_the_dataset(capsys, sample_run, sample_video, assets):
-    base = [
-        "--data",
-        str(sample_run),
-        "process",
-        str(sample_video),
-        "--adversary",
-        "A",
-        "--until",
-        "dataset",
-    ]
+    base = process_argv(sample_run, sample_video)
     base += ["--ingest-chunk-frames", "30", "--json"]
     folder = assets / "dev" / "motions"
     code, out, _ = run_cli(capsys, *base, "--dataset-extra-clips", str(folder))

@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import moving_box_frames, query, read_video, run_cli, write_video
+from conftest import moving_box_frames, process_argv, query, read_video, run_cli, write_video
 
 import tasks.pose.task
 from flows.cli import main
@@ -105,19 +105,8 @@ def test_rerun_is_cached_and_pick_reuses_the_chunks(
     processed: Path, capsys, sample_video, chunk_calls
 ):
     base = ["--data", str(processed)]
-    code, out, _ = run_cli(
-        capsys,
-        *base,
-        "process",
-        str(sample_video),
-        "--adversary",
-        "A",
-        "--until",
-        "dataset",
-        "--ingest-chunk-frames",
-        "30",
-        "--json",
-    )
+    argv = process_argv(processed, sample_video, "--ingest-chunk-frames", "30", "--json")
+    code, out, _ = run_cli(capsys, *argv)
     assert code == 0 and [s["state"] for s in json.loads(out)] == ["cached"] * 5
     assert chunk_calls == []
 
@@ -158,17 +147,7 @@ def test_rerun_is_cached_and_pick_reuses_the_chunks(
 
 def test_refine_setting_reruns_pose_not_chunks(tmp_path, capsys, sample_video, chunk_calls):
     data = tmp_path / "data"
-    base = [
-        "--data",
-        str(data),
-        "process",
-        str(sample_video),
-        "--adversary",
-        "A",
-        "--until",
-        "dataset",
-        "--json",
-    ]
+    base = process_argv(data, sample_video, "--json")
     assert run_cli(capsys, *base)[0] == 0
     assert chunk_calls == [0]
     code, out, _ = run_cli(capsys, *base, "--pose-refine-smoother", "one_euro")
@@ -212,16 +191,7 @@ def test_chunks_run_on_a_dask_cluster(tmp_path, capsys, sample_video, monkeypatc
         monkeypatch.setenv("RINGSIDE_DASK_ADDRESS", cluster.scheduler_address)
         code, out, err = run_cli(
             capsys,
-            "--data",
-            str(data),
-            "process",
-            str(sample_video),
-            "--adversary",
-            "A",
-            "--until",
-            "dataset",
-            "--ingest-chunk-frames",
-            "30",
+            *process_argv(data, sample_video, "--ingest-chunk-frames", "30"),
             "--json",
         )
     assert code == 0, err

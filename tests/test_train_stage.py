@@ -159,8 +159,11 @@ def test_a_training_killed_with_sigkill_shows_interrupted_and_the_same_command_r
     data = copy_data(sample_run, tmp_path / "data")
     train_run = [
         *["--data", str(data), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS],
-        *["--train-iterations", "200", "--train-checkpoint-every", "5", "--train-seed", "3"],
+        *["--train-iterations", "100", "--train-checkpoint-every", "5", "--train-seed", "3"],
     ]
+    # The copied data holds other tests' runs and checkpoints: wait for this run's.
+    known = [key for (key,) in query(data, "SELECT DISTINCT key FROM train_checkpoints")]
+    mine = "SELECT iteration FROM train_checkpoints WHERE NOT list_contains(?::VARCHAR[], key)"
     command = subprocess.Popen(
         [sys.executable, "-m", "flows.cli", *train_run],
         stdout=subprocess.DEVNULL,
@@ -171,7 +174,7 @@ def test_a_training_killed_with_sigkill_shows_interrupted_and_the_same_command_r
     while not saved and time.monotonic() < deadline and command.poll() is None:
         time.sleep(0.5)
         try:  # the run holds the database's write lock for moments at a time
-            saved = query(data, "SELECT iteration FROM train_checkpoints")
+            saved = query(data, mine, [known])
         except Exception:  # noqa: BLE001 (DuckDB's lock error has no class of its own)
             continue
     assert saved and command.poll() is None, "the run saved no checkpoint while it ran"
@@ -189,7 +192,7 @@ def test_a_training_killed_with_sigkill_shows_interrupted_and_the_same_command_r
     assert run["state"] == "interrupted"
     # The resumed run keeps what its newest checkpoint covers (the seconds each iteration took
     # differ on a recomputation): it picks up where it stopped.
-    (newest,) = query(data, "SELECT max(iteration) FROM train_checkpoints")[0]
+    (newest,) = query(data, mine.replace("iteration", "max(iteration)", 1), [known])[0]
     timings = (
         "SELECT iteration, value FROM train_iterations WHERE key = ? AND name = 'collect_s' "
         "AND iteration < ? ORDER BY iteration"
@@ -206,7 +209,7 @@ def test_a_training_killed_with_sigkill_shows_interrupted_and_the_same_command_r
         "WHERE key = ? AND name = 'reward_total'",
         [training["key"]],
     )
-    assert rows == [(200, 200, 0)], "iterations lost or written twice"
+    assert rows == [(100, 100, 0)], "iterations lost or written twice"
     code, out, _ = run_cli(capsys, "--data", str(data), "status", "--json")
     states = [r for r in json.loads(out) if r["stage"] == "train" and r["video_id"] == dataset_key]
     assert [(r["key"], r["state"]) for r in states] == [(training["key"], "done")]
