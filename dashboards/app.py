@@ -234,8 +234,9 @@ def choose(label: str, options: Sequence[str], param: str, **kwargs: Any) -> str
     return choice
 
 
-def plural(count: int, noun: str) -> str:
-    return f"{count} {noun}{'' if count == 1 else 's'}"
+def plural(count: int, noun: str, nouns: str | None = None) -> str:
+    """``count`` and the noun, singular or plural (``nouns``, else ``noun`` + s)."""
+    return f"{count} {noun if count == 1 else nouns or noun + 's'}"
 
 
 def video_labels(videos: Sequence[Mapping[str, Any]]) -> dict[str, str]:
@@ -569,6 +570,7 @@ def dataset_page() -> None:
     adversary = fighters["adversary"]
     for column, (name, label) in zip(st.columns(len(HEADLINES)), HEADLINES.items(), strict=True):
         column.metric(label, format_value(adversary.get(name)), help=SCALARS[name])
+    st.caption(sample_size(adversary))
 
     per_minute = pd.DataFrame(fighters).reindex([f"punches_per_min_{c}" for c in (*HANDS, *KINDS)])
     per_minute.index = [name.removeprefix("punches_per_min_") for name in per_minute.index]
@@ -753,6 +755,24 @@ def pick_section(video: str, review: queries.PoseReview) -> None:
     picked = "no pick yet" if review.pick is None else f"track {review.pick}"
     hint = "" if served is not None else " Start `ringside serve` to pick from here."
     st.caption(f"The analyst's pick for this video: {picked}.{hint}")
+
+
+def sample_size(scalars: Mapping[str, float]) -> str:
+    """What the rates above were measured on: the footage's length and the events counted
+    (a rate is a count over the minutes, so the count is the rate times the minutes)."""
+    minutes = scalars.get("minutes") or 0.0
+    counts = {
+        what: round((scalars.get(rate) or 0.0) * minutes)
+        for what, rate in (("punch", "punches_per_min"), ("step", "steps_per_min"))
+    }
+    few = (
+        " A rate from a handful of events is a rough estimate." if min(counts.values()) < 10 else ""
+    )
+    punches = plural(counts["punch"], "punch", "punches")
+    return (
+        f"Measured on {minutes * 60:.1f} s of the adversary's footage: {punches} and "
+        f"{plural(counts['step'], 'step')} labelled.{few}"
+    )
 
 
 def lift_page() -> None:

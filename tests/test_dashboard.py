@@ -45,6 +45,7 @@ from dashboards.app import (
     TILES,
     format_value,
     output_labels,
+    sample_size,
     video_labels,
 )
 from flows.cli import build_parser, main, wait_until_serving
@@ -353,10 +354,12 @@ def test_every_page_in_a_browser(capsys, trained, tmp_path):
                 assert tiles[label] == format_value(lifted[name]), name
             assert _play_videos(page, "lift") == 1
 
-            _open(page, f"{url}/dataset?dataset={dataset_key}", "dataset")
+            text = _open(page, f"{url}/dataset?dataset={dataset_key}", "dataset")
             tiles = dict(page.evaluate(TILE_TEXTS))
             for name, label in HEADLINES.items():
                 assert tiles[label] == format_value(adversary.get(name)), name
+            # The rates say what they were measured on: the sample's 1.4 s.
+            assert sample_size(adversary) in text and "Measured on 1.4 s" in text
 
             text = _open(page, f"{url}/training?run={run['key']}", "training")
             assert queries.short(run["key"]) in text
