@@ -372,13 +372,15 @@ def _process(
 
 
 def _print_opponent(data_root: Path, evaluated) -> None:
-    """Where the pipeline's opponent is (its folder written as `ringside export` writes it), its
-    bout and its headline numbers against the evaluation's baselines."""
+    """Where the pipeline's opponent is (the folder its evaluation exported, written where
+    `ringside export` writes it), its bout and its headline numbers against the evaluation's
+    baselines."""
     from storage.artifacts import artifact_path
     from storage.db import connect
     from storage.paths import data_paths
     from storage.records import output_metrics
-    from tasks.evaluate.export import trained_policy
+    from tasks.evaluate.export import stored_opponent
+    from tasks.evaluate.opponent import MANIFEST
     from tasks.evaluate.store import evaluation_tables
 
     paths = data_paths(data_root)
@@ -389,14 +391,15 @@ def _print_opponent(data_root: Path, evaluated) -> None:
             r["name"]: r["artifact"]
             for r in evaluation_tables(con, evaluated.key, run_key)["artifacts"]
         }
-    trained = trained_policy(paths.db, paths.artifacts, run_key)
-    folder = trained.export(0, data_root / "opponents" / f"{run_key[:12]}-adversary")
+    out = data_root / "opponents" / f"{run_key[:12]}-adversary"
+    folder = stored_opponent(paths.artifacts, media, out)
+    iteration = json.loads((folder / MANIFEST).read_text())["iteration"]
 
     def number(name: str) -> str:
         value = metrics.get(name)
         return "n/a" if value is None else f"{value:.3g}"
 
-    print(f"\nopponent of {evaluated.path}: run {run_key[:12]} at iteration {trained.iteration}")
+    print(f"\nopponent of {evaluated.path}: run {run_key[:12]} at iteration {iteration}")
     print(f"  folder: {folder}   (spar with it: ringside spar {folder})")
     if "bout.mp4" in media:
         print(f"  bout:   {artifact_path(paths.artifacts, media['bout.mp4'])}")

@@ -262,11 +262,14 @@ def opponent_states(
     (in the order given) the newest training run on it (``video_id`` is the dataset key, as in
     ``stage_runs``), and after each finished one the evaluation of that run (``video_id`` is
     the training run's key)."""
+    trains = _states(con, [(key, "train") for key in dataset_keys])
+    finished = [t["key"] for t in trains if t["state"] in ("done", "cached")]
+    evaluations = iter(_states(con, [(key, "evaluate") for key in finished]))
     rows = []
-    for train in _states(con, [(key, "train") for key in dataset_keys]):
+    for train in trains:
         rows.append(train)
         if train["state"] in ("done", "cached"):
-            rows.extend(_states(con, [(train["key"], "evaluate")]))
+            rows.append(next(evaluations))
     return rows
 
 

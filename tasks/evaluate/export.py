@@ -8,10 +8,12 @@ its final place and renamed into it, so a killed export leaves no half folder.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import shutil
 import warnings
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -28,7 +30,6 @@ from models.maaip.env import EnvConfig
 from models.maaip.networks import Policy, action_stds
 from storage.artifacts import read_bytes
 from storage.db import connect
-from storage.files import sha256_file
 from storage.records import output_metrics
 from tasks.config import build
 from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent
@@ -157,13 +158,11 @@ def export_opponent(
     """
     if agent not in (0, 1):
         raise ValueError(f"agent must be 0 or 1, got {agent!r}")
-    out = Path(out)
-    staging = out.with_name(out.name + ".partial")
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir(parents=True)
-    (staging / "policy.onnx").write_bytes(policy_onnx(policy, agent))
-    (staging / "humanoid.xml").write_text(boxer_mjcf(bones[agent]))
-    (staging / "arena.xml").write_text(arena_mjcf(bones, timestep=env.timestep))
+    files = {
+        "policy.onnx": policy_onnx(policy, agent),
+        "humanoid.xml": boxer_mjcf(bones[agent]).encode(),
+        "arena.xml": arena_mjcf(bones, timestep=env.timestep).encode(),
+    }
     manifest = {
         "format": FORMAT,
         "agent": agent,
@@ -187,13 +186,40 @@ def export_opponent(
             "meaning": "PD targets: exponential maps for 3-DoF joints, angles for hinges",
             "actuators": list(HINGE_NAMES),
         },
-        "files": {name: sha256_file(staging / name) for name in FILES},
+        "files": {name: hashlib.sha256(files[name]).hexdigest() for name in FILES},
     }
-    (staging / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
+    files[MANIFEST] = (json.dumps(manifest, indent=2) + "\n").encode()
+    return write_folder(Path(out), files)
+
+
+def write_folder(out: Path, files: Mapping[str, bytes]) -> Path:
+    """Write ``files`` (name -> bytes) as the folder ``out``, replacing one that is there: staged
+    beside it and renamed into place, so a reader never finds half a folder. Returns ``out``."""
+    staging = out.with_name(out.name + ".partial")
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    for name, data in files.items():
+        (staging / name).write_bytes(data)
     if out.exists():
         shutil.rmtree(out)
     staging.rename(out)
     return out
+
+
+def stored_opponent(artifacts: Path, stored: Mapping[str, str], out: Path) -> Path:
+    """The opponent folder an evaluation exported and stored (``stored``: the evaluation's
+    artifacts by name, the folder's files as ``opponent/NAME``), written again to ``out``
+    without torch. Returns ``out``."""
+    prefix = "opponent/"
+    files = {
+        name.removeprefix(prefix): read_bytes(artifacts, artifact)
+        for name, artifact in stored.items()
+        if name.startswith(prefix)
+    }
+    missing = sorted(set((*FILES, MANIFEST)) - set(files))
+    if missing:
+        raise ValueError(f"the evaluation stored no {', '.join(missing)} of its opponent")
+    return write_folder(out, files)
 
 
 def onnx_max_abs_diff(
