@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import atexit
+import contextlib
 import dataclasses
 import json
 import logging
@@ -975,12 +976,15 @@ def _demo(args, data_root: Path) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """One `ringside` command; the environment is left as it was found, so that a command run
-    in-process (the tests, a notebook) does not hand its Prefect server (PREFECT_API_URL, a
-    server that stops with this process) to the next one as if the user had set it."""
+    in-process (the tests, a notebook) does not hand its Prefect server (PREFECT_API_URL) to the
+    next one as if the user had set it, and the server it started is stopped when it returns."""
     saved = dict(os.environ)
     try:
         return _command(sys.argv[1:] if argv is None else argv)
     finally:
+        from flows.serve import stop_private_servers
+
+        stop_private_servers()
         os.environ.clear()
         os.environ.update(saved)
 
@@ -998,7 +1002,26 @@ def _command(raw: list[str]) -> int:
     if "-h" in rest or "--help" in rest:
         command = None  # help needs no server
     prepare_environment(data_root, verbose=known.verbose, command=command)
+    with _prefect_settings_of_this_command():
+        return _dispatch(raw, data_root)
 
+
+@contextlib.contextmanager
+def _prefect_settings_of_this_command():
+    """Prefect reads its settings from the environment when first imported; a later command in
+    the same process (the tests, a notebook) must use its own (its data directory, its server),
+    not the first command's."""
+    if "prefect" not in sys.modules:
+        yield
+        return
+    from prefect.context import SettingsContext
+    from prefect.settings import Settings
+
+    with SettingsContext(profile=SettingsContext.get().profile, settings=Settings()):
+        yield
+
+
+def _dispatch(raw: list[str], data_root: Path) -> int:
     args = build_parser().parse_args(raw)
     from storage.assets import AssetError
     from storage.db import DatabaseBusy
