@@ -171,6 +171,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     export.add_argument("--json", action="store_true")
 
+    motion = commands.add_parser(
+        "export-motion",
+        help="write motion as BVH for animation tools: a video's lifted fighters, or the bouts "
+        "of an evaluated run",
+        description="BVH files at 30 Hz, y up, centimetres, each fighter on its own humanoid's "
+        "skeleton (import into Blender with scale 0.01 for metres). --video: each fighter's "
+        "cleaned lifted motion, a file per shot (and per unbroken stretch of it); --run: each "
+        "episode of the run's newest evaluation, a file per fighter.",
+    )
+    source = motion.add_mutually_exclusive_group(required=True)
+    source.add_argument("--video", metavar="ID", help="a processed video (a prefix will do)")
+    source.add_argument("--run", metavar="KEY", help="an evaluated training run (a prefix will do)")
+    motion.add_argument(
+        "--out", type=Path, help="folder to write (default: DATA/motion/<video> or <run>-bouts)"
+    )
+    motion.add_argument("--json", action="store_true")
+
     spar = commands.add_parser(
         "spar", help="run an exported opponent against a partner in MuJoCo (onnxruntime only)"
     )
@@ -382,16 +399,13 @@ def _print_opponent(data_root: Path, evaluated) -> None:
     from storage.records import output_metrics
     from tasks.evaluate.export import stored_opponent
     from tasks.evaluate.opponent import MANIFEST
-    from tasks.evaluate.store import evaluation_tables
+    from tasks.evaluate.store import evaluation_artifacts
 
     paths = data_paths(data_root)
     run_key = evaluated.video_id
     with connect(paths.db, read_only=True) as con:
         metrics = output_metrics(con, "evaluate", run_key, evaluated.key)
-        media = {
-            r["name"]: r["artifact"]
-            for r in evaluation_tables(con, evaluated.key, run_key)["artifacts"]
-        }
+        media = evaluation_artifacts(con, evaluated.key, run_key)
     out = data_root / "opponents" / f"{run_key[:12]}-adversary"
     folder = stored_opponent(paths.artifacts, media, out)
     iteration = json.loads((folder / MANIFEST).read_text())["iteration"]
@@ -414,6 +428,7 @@ def _print_opponent(data_root: Path, evaluated) -> None:
         f"(untrained {number('style_score_untrained')}, standing still "
         f"{number('style_score_still')})"
     )
+    print(f"  motion as BVH: ringside export-motion --run {run_key[:12]}")
     print(f"  all of it: ringside evaluate --run {run_key[:12]}   or   ringside dashboard")
 
 
@@ -554,6 +569,59 @@ def _export(args, data_root: Path) -> int:
     else:
         print(
             f"{args.agent} of run {trained.run_key[:12]} (iteration {trained.iteration}): {folder}"
+        )
+    return 0
+
+
+def _export_motion(args, data_root: Path) -> int:
+    from storage.artifacts import read_bytes
+    from storage.db import connect
+    from storage.paths import data_paths
+    from tasks.errors import BadInput
+    from tasks.evaluate.export import write_folder
+    from tasks.evaluate.motion_files import BOUTS, bout_files, lifted_files
+    from tasks.evaluate.store import evaluation_artifacts, newest_evaluation, resolve_run
+    from tasks.ingest.outputs import load_ingest
+    from tasks.lift.store import load_motion, newest_lift
+
+    paths = data_paths(data_root)
+    if not paths.db.exists():
+        raise BadInput(str(paths.db), "no database yet: process a video first")
+    with connect(paths.db, read_only=True) as con:
+        if args.video is not None:
+            from flows.videos import ingested_video
+
+            video_id = ingested_video(data_root, args.video).video_id
+            found = newest_lift(con, video_id)
+            if found is None:
+                raise BadInput(f"--video {args.video}", "has no lift output yet: process it")
+            ingest = load_ingest(con, video_id, found[1])
+            files = lifted_files(load_motion(con, video_id, found[0]), ingest.shots, ingest.fps)
+            what, default = f"lifted motion of video {video_id[:12]}", video_id[:12]
+        else:
+            run = resolve_run(con, args.run)
+            key = newest_evaluation(con, run.run_key)
+            stored = {} if key is None else evaluation_artifacts(con, key, run.run_key)
+            if BOUTS not in stored:
+                raise BadInput(
+                    f"--run {args.run}",
+                    "has no evaluation that stored its bouts: run "
+                    f"`ringside evaluate --run {run.run_key[:12]}`",
+                )
+            files = bout_files(read_bytes(paths.artifacts, stored[BOUTS]))
+            what, default = f"bouts of run {run.run_key[:12]}", f"{run.run_key[:12]}-bouts"
+    if not files:
+        raise BadInput(what, "holds no motion to export")
+    folder = write_folder(
+        args.out or data_root / "motion" / default,
+        {name: file.text.encode() for name, file in files.items()},
+    )
+    frames = {name: file.frames for name, file in files.items()}
+    if args.json:
+        print(json.dumps({"folder": str(folder), "files": frames}))
+    else:
+        print(
+            f"{what}: {len(files)} BVH files, {sum(frames.values())} frames at 30 Hz, in {folder}"
         )
     return 0
 
@@ -1048,6 +1116,8 @@ def _dispatch(raw: list[str], data_root: Path) -> int:
             return _export(args, data_root)
         if args.command == "evaluate":
             return _evaluate(args, data_root)
+        if args.command == "export-motion":
+            return _export_motion(args, data_root)
         if args.command == "spar":
             return _spar(args)
         if args.command == "datasets":

@@ -14,7 +14,9 @@ import sys
 import time
 from pathlib import Path
 
+import bvhio
 import imageio_ffmpeg
+import numpy as np
 import pytest
 from conftest import (
     TINY_PIPELINE_FLAGS,
@@ -27,6 +29,7 @@ from conftest import (
 
 import tasks.ingest.stage
 from flows.cli import build_parser, main
+from models.humanoid.kinematics import BODY_NAMES, Y_UP_TO_Z_UP
 from storage.db import connect
 
 
@@ -134,6 +137,38 @@ def test_second_run_does_no_work_and_rerun_recomputes(tmp_path, capsys, sample_v
     assert re.search(r"style score.*: [0-9.]+ \(untrained [0-9.]+, standing still [0-9.]+", out)
     code, out, _ = run_cli(capsys, "spar", str(folder), "--seconds", "1", "--json")
     assert code == 0, out
+
+    # Motion out for animation tools: the lifted fighters and the evaluated bouts as BVH, read
+    # back by an independent reader (bvhio) with the humanoid's joints and every frame.
+    export = ["--data", data, "export-motion", "--json"]
+    code, out, _ = run_cli(capsys, *export, "--video", video_id[:8])
+    assert code == 0, out
+    lifted = json.loads(out)
+    with connect(db, read_only=True) as con:
+        lift_rows = con.execute(
+            "SELECT role, count(*), min(step), max(step) + 1, arg_min(qpos, step) "
+            "FROM lift_motion WHERE video_id = ? AND key = ? GROUP BY role",
+            [video_id, first[2]["key"]],
+        ).fetchall()
+    # The sample is one shot and both fighters were lifted at every step: one file each.
+    assert lifted["files"] == {
+        f"{role}-shot0-steps{start}-{end}.bvh": steps for role, steps, start, end, _ in lift_rows
+    }
+    code, out, _ = run_cli(capsys, *export, "--run", run_key[:8])
+    assert code == 0, out
+    bouts = json.loads(out)
+    assert sorted(bouts["files"]) == [
+        f"bout{e:02d}-{role}.bvh" for e in range(4) for role in ("adversary", "opponent")
+    ]
+    for written in (lifted, bouts):
+        for name, frames in written["files"].items():
+            parsed = bvhio.readAsBvh(str(Path(written["folder"]) / name))
+            assert parsed.FrameCount == frames
+            assert [j.Name for j, _, _ in parsed.Root.layout()] == list(BODY_NAMES)
+    for role, _, start, end, qpos in lift_rows:
+        root = bvhio.readAsBvh(str(Path(lifted["folder"]) / f"{role}-shot0-steps{start}-{end}.bvh"))
+        position = Y_UP_TO_Z_UP @ np.array(root.Root.Keyframes[0].Position) / 100
+        assert np.allclose(position, qpos[:3], atol=1e-6)
 
     code, out, _ = run_cli(capsys, "--data", data, "metrics", "--stage", "ingest", "--json")
     metrics = {m["name"]: m["value"] for m in json.loads(out)}

@@ -81,6 +81,11 @@ KEY_BODIES: tuple[str, ...] = (
 )
 KEY_BODY_INDEX: np.ndarray = np.array([BODY_NAMES.index(b) for b in KEY_BODIES])
 
+# A y-up world (x forward, y up, z right; DeepMimic's, and BVH's as Ringside writes it) to ours
+# (x forward, y left, z up): a proper rotation, +90 deg about x. Vectors map as v_ours = C v,
+# rotations as C R C^T; the transpose goes the other way.
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
 # The root's slots in one humanoid's qpos (position 0:3, quaternion 3:7) and qvel.
 ROOT_POS = slice(0, 3)
 ROOT_QUAT = slice(3, 7)

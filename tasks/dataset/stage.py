@@ -111,7 +111,7 @@ def cut_clips(
     ]
 
 
-def _shot_of(steps: np.ndarray, shots: Sequence[tuple[int, int, int]], fps: float) -> np.ndarray:
+def shot_of(steps: np.ndarray, shots: Sequence[tuple[int, int, int]], fps: float) -> np.ndarray:
     """The shot holding each step's video frame (shots are (shot, start_frame, end_frame))."""
     starts = np.array([s[1] for s in shots])
     numbers = np.array([s[0] for s in shots])
@@ -297,13 +297,13 @@ def build_dataset(
     validation_from = math.ceil((last + 1) * (1 - config.validation_fraction))
     clips: list[Clip] = []
     for role, motion in fighters.items():
-        shot = _shot_of(motion.step, shots, fps)
+        shot = shot_of(motion.step, shots, fps)
         clips += cut_clips(motion.step, shot, validation_from, min_steps, kind="single", role=role)
     if all(r in fighters for r in ROLES):
         both = np.intersect1d(fighters[ROLES[0]].step, fighters[ROLES[1]].step)
         clips += cut_clips(
             both,
-            _shot_of(both, shots, fps),
+            shot_of(both, shots, fps),
             validation_from,
             min_steps,
             kind="interaction",

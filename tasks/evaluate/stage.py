@@ -22,7 +22,8 @@ same tables:
 5. The adversary's opponent folder (`export_opponent`: ONNX policy, MJCF, manifest) with
    onnxruntime's parity against torch on observations recorded in the bouts, and the first
    `evaluate.video_seconds` of the trained episodes, played one after another, rendered to MP4
-   (`tasks.lift.video.render_bout`); all files go to the artifact store.
+   (`tasks.lift.video.render_bout`), and the trained episodes' motion (`BOUTS`, which
+   `ringside export-motion --run` writes as BVH); all files go to the artifact store.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from tasks.evaluate.export import (
     onnx_max_abs_diff,
 )
 from tasks.evaluate.metrics import boxing_metrics, label_fighter, style_rows, style_score
+from tasks.evaluate.motion_files import BOUTS, bouts_npz
 from tasks.evaluate.opponent import FILES, MANIFEST, load_opponent
 from tasks.evaluate.store import DAMAGE_TASKS, STAGE, real_statistics, resolve_run
 from tasks.lift.video import render_bout
@@ -303,6 +305,8 @@ def evaluate(
     media = [(*head, name, artifact) for name, artifact in stored]
     if video is not None:
         media.append((*head, video[0], video[1]))
+    motion = bouts_npz(trained.qpos, trained.frames, run.bones)
+    media.append((*head, BOUTS, put_bytes(artifacts, motion, ".npz")))
 
     unstable = int(trained.unstable.sum())
     if unstable:

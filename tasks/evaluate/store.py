@@ -101,3 +101,24 @@ def evaluation_tables(
             dict(zip(names, row, strict=True)) for row in cursor.fetchall()
         ]
     return out
+
+
+def newest_evaluation(con: duckdb.DuckDBPyConnection, run_key: str) -> str | None:
+    """The key of the newest committed evaluation of training run ``run_key``, or None."""
+    row = con.execute(
+        "SELECT key FROM stage_outputs WHERE stage = ? AND video_id = ? "
+        "ORDER BY created_at DESC LIMIT 1",
+        [STAGE, run_key],
+    ).fetchone()
+    return None if row is None else row[0]
+
+
+def evaluation_artifacts(con: duckdb.DuckDBPyConnection, key: str, run_key: str) -> dict[str, str]:
+    """The files evaluation ``key`` of run ``run_key`` stored: name -> artifact."""
+    return dict(
+        con.execute(
+            "SELECT name, artifact FROM evaluate_artifacts WHERE key = ? AND video_id = ? "
+            "ORDER BY name",
+            [key, run_key],
+        ).fetchall()
+    )

@@ -71,3 +71,20 @@ def lift_series(con: duckdb.DuckDBPyConnection, key: str, video_id: str) -> Lift
     """The cleanup series (`cleanup_series`) of lift output ``key`` of video ``video_id``;
     empty (no steps, no fighters) when the output has no motion."""
     return cleanup_series(load_motion(con, video_id, key))
+
+
+def newest_lift(con: duckdb.DuckDBPyConnection, video_id: str) -> tuple[str, str] | None:
+    """(lift key, ingest key) of the newest committed lift output of ``video_id`` and the ingest
+    output it was computed from (through its pose output); None before any lift."""
+    return con.execute(
+        """
+        SELECT l.key, p.upstream->>'ingest'
+        FROM stage_outputs l
+        JOIN stage_outputs p
+          ON p.stage = 'pose' AND p.video_id = l.video_id AND p.key = l.upstream->>'pose'
+        WHERE l.stage = 'lift' AND l.video_id = ?
+        ORDER BY l.created_at DESC
+        LIMIT 1
+        """,
+        [video_id],
+    ).fetchone()

@@ -50,6 +50,7 @@ from models.humanoid.kinematics import (
     NUM_BODIES,
     PARENTS,
     ROOT_POS,
+    Y_UP_TO_Z_UP,
     axis_angle_matrix,
     body_rotations,
     euler_yxz_to_matrix,
@@ -109,10 +110,6 @@ _DM_BODIES: Mapping[str, tuple[str | None, tuple[str, ...]]] = MappingProxyType(
         "left_ankle": ("left_knee", ("left_foot",)),
     }
 )
-
-# DeepMimic's y-up world (x forward, y up, z right) to ours (x forward, y left, z up): a
-# proper rotation, +90 deg about x. Vectors map as v_ours = C v_dm, rotations as C R C^T.
-Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 # DeepMimic humanoid's thigh (hip to knee) and shin (knee to ankle) in metres, from its
 # character file; root paths are scaled by our leg over this one so strides fit our legs.
