@@ -12,6 +12,7 @@ from tasks.dataset.store import UnknownDataset, dataset_info
 from tasks.errors import BadInput
 from tasks.runner import StageResult
 from tasks.train.run import STAGE
+from tasks.train.store import warm_start_source
 from tasks.train.task import train_key, train_task
 
 
@@ -22,7 +23,9 @@ def train_flow(
     """Train the two fighters' policies on dataset ``dataset_key`` (`ringside datasets`; a
     prefix of a key will do).
 
-    The settings and the dataset are checked before anything is computed.
+    The settings and the dataset are checked before anything is computed. A new run starts
+    from the networks of the adversary's previous run where `train.warm_start` finds one
+    (`warm_start_source`).
     """
     settings = from_tables(config or {}).train
     db = data_paths(data_root).db
@@ -33,12 +36,13 @@ def train_flow(
             info = dataset_info(con, dataset_key)
         except UnknownDataset as error:
             raise BadInput(f"--dataset {dataset_key}", str(error)) from None
+        warm = warm_start_source(con, info.dataset_key, settings)
     dataset_key = info.dataset_key  # the whole key, where a prefix was given
-    key = train_key(settings, dataset_key)
+    key = train_key(settings, dataset_key, warm)
 
     def run(refresh: bool) -> StageResult:
         task = train_task.with_options(refresh_cache=refresh)
-        return task(data_root, dataset_key, settings, key, force=refresh)
+        return task(data_root, dataset_key, settings, key, warm, force=refresh)
 
     result, state = reuse_or_run(
         data_root, stage=STAGE, video_id=dataset_key, key=key, force=force, run=run

@@ -10,15 +10,22 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 from conftest import TINY_TRAIN_FLAGS, copy_data, query, run_cli
 
 from dashboards import queries
 from models.maaip.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
 from models.maaip.env import EnvConfig
+from storage.artifacts import artifact_path, read_bytes
 from storage.db import connect
 from storage.paths import data_paths
+from tasks.config import build
+from tasks.dataset.config import DatasetConfig
+from tasks.dataset.store import dataset_info, load_demonstrations, record_dataset
 from tasks.evaluate.opponent import load_opponent
+from tasks.train.mappo import Trainer
 from tasks.train.run import train
+from tasks.train.store import warm_start_source
 
 TINY = TrainConfig(
     iterations=4,
@@ -214,3 +221,61 @@ def test_a_training_killed_with_sigkill_shows_interrupted_and_the_same_command_r
     states = [r for r in json.loads(out) if r["stage"] == "train" and r["video_id"] == dataset_key]
     assert [(r["key"], r["state"]) for r in states] == [(training["key"], "done")]
     assert query(data, timings, [training["key"], newest]) == kept
+
+
+def test_a_run_on_a_later_dataset_of_the_adversary_starts_from_its_previous_networks(
+    tmp_path, capsys, sample_run, dataset_key
+):
+    data = copy_data(sample_run, tmp_path / "data")
+    base = ["--data", str(data), "train", *TINY_TRAIN_FLAGS, "--train-iterations", "2", "--json"]
+    code, out, err = run_cli(capsys, *base, "--dataset", dataset_key, "--train-seed", "11")
+    assert code == 0, err
+    previous = json.loads(out)[0]["key"]
+    # The same footage assembled again with other settings: a new dataset of the same
+    # adversary, made later, on the same humanoids.
+    with connect(data_paths(data).db) as con:
+        info = dataset_info(con, dataset_key)
+        config = build(DatasetConfig, {**info.config, "validation_fraction": 0.3}, section="d")
+        later, new = record_dataset(con, info.adversary, config, list(info.members))
+        assert new and later != dataset_key
+        chosen = warm_start_source(con, later, TINY)
+        assert chosen is not None and chosen.dataset_key == dataset_key
+        assert warm_start_source(con, later, dataclasses.replace(TINY, warm_start=False)) is None
+        other_sizes = dataclasses.replace(TINY, network=NetworkConfig(hidden="8,8"))
+        assert warm_start_source(con, later, other_sizes) is None
+        # Only earlier datasets count: the first dataset has no run to start from.
+        assert warm_start_source(con, dataset_key, TINY) is None
+        demos = load_demonstrations(con, later)
+    newest = query(
+        data,
+        "SELECT p.key FROM train_policies p JOIN stage_outputs o ON o.stage = 'train' "
+        "AND o.key = p.key WHERE p.video_id = ? ORDER BY o.created_at DESC LIMIT 1",
+        [dataset_key],
+    )
+    assert chosen.run_key == newest[0][0] == previous
+
+    # The new run starts from those networks (not a fresh initialisation), says so, and its
+    # key names them; with warm starts off it is another run.
+    trainer = Trainer(TINY, demos)
+    try:
+        fresh = {k: v.clone() for k, v in trainer.nets.policy.state_dict().items()}
+        trainer.warm_start(read_bytes(data_paths(data).artifacts, chosen.artifact))
+        loaded = trainer.nets.policy.state_dict()
+    finally:
+        trainer.close()
+    source = torch.load(
+        artifact_path(data_paths(data).artifacts, chosen.artifact), weights_only=False
+    )
+    source = source["networks"]["policy"]
+    assert all(torch.equal(loaded[k], source[k]) for k in source)
+    assert not all(torch.equal(loaded[k], fresh[k]) for k in fresh)
+
+    code, out, err = run_cli(capsys, *base, "--dataset", later)
+    assert code == 0, err
+    (warm,) = json.loads(out)
+    assert warm["state"] == "done"
+    assert any(f"started from the networks of run {previous[:12]}" in n for n in warm["notes"])
+    code, out, err = run_cli(capsys, *base, "--dataset", later, "--train-warm-start", "false")
+    assert code == 0, err
+    (cold,) = json.loads(out)
+    assert cold["key"] != warm["key"] and not cold["notes"]

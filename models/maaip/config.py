@@ -346,6 +346,13 @@ class TrainConfig:
         "Iterations between checkpoints (each holds the replay buffers: about 590 MB with the "
         "defaults); a killed run resumes from the newest and recomputes the iterations since.",
     )
+    warm_start: bool = setting(
+        True,
+        "A new run starts from the networks (policy, value, discriminators) of the newest "
+        "finished run on an earlier dataset of the same adversary with the same humanoids and "
+        "network sizes, e.g. after a video was added to the footage, instead of from nothing; "
+        "false always starts from a fresh initialisation.",
+    )
     network: NetworkConfig = field(default_factory=NetworkConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     discriminator: DiscriminatorConfig = field(default_factory=DiscriminatorConfig)

@@ -297,6 +297,44 @@ def _pairs(con: duckdb.DuckDBPyConnection, dataset_key: str, kind: str, agent) -
     return np.concatenate([found.obs, found.next_self], axis=1)
 
 
+def _interaction_clips(
+    con: duckdb.DuckDBPyConnection, members: tuple[tuple[str, str], ...]
+) -> Iterator[tuple[str, str, list[tuple[int, int]]]]:
+    """(video_id, lift key, [(start_step, end_step)]) of each member, in member order, that has
+    interaction clips in its train split (extra single-actor clips come from no lift and have
+    none)."""
+    for video_id, key in members:
+        lift_key = upstream_lift_key(con, video_id, key)
+        if lift_key is None:
+            continue
+        clips = con.execute(
+            "SELECT start_step, end_step FROM dataset_clips WHERE key = ? AND video_id = ? "
+            "AND kind = 'interaction' AND split = 'train' ORDER BY clip",
+            [key, video_id],
+        ).fetchall()
+        if clips:
+            yield video_id, lift_key, clips
+
+
+def training_bones(
+    con: duckdb.DuckDBPyConnection, dataset_key: str
+) -> tuple[BoneLengths, BoneLengths] | None:
+    """The two humanoids a run on dataset ``dataset_key`` trains (adversary, opponent): the
+    fighters of the member video with the most interaction steps to learn from (the first of
+    equals); None without interaction clips."""
+    best, most = None, 0
+    for video_id, lift_key, clips in _interaction_clips(
+        con, dataset_info(con, dataset_key).members
+    ):
+        steps = sum(end - start for start, end in clips)
+        if steps > most:
+            best, most = (video_id, lift_key), steps
+    if best is None:
+        return None
+    bones = load_bones(con, *best)
+    return bones[ROLES[0]], bones[ROLES[1]]
+
+
 def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Demonstrations:
     """Everything training needs from dataset ``dataset_key`` (its train split).
 
@@ -308,27 +346,15 @@ def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Dem
     motion = _pairs(con, dataset_key, "single", None)
     interaction = tuple(_pairs(con, dataset_key, "interaction", a) for a in (0, 1))
     frames: list[tuple[np.ndarray, ...]] = []
-    bones, most = None, -1
-    for video_id, key in info.members:
-        lift_key = upstream_lift_key(con, video_id, key)
-        if lift_key is None:  # extra single-actor clips: no interaction
-            continue
-        clips = con.execute(
-            "SELECT start_step, end_step FROM dataset_clips WHERE key = ? AND video_id = ? "
-            "AND kind = 'interaction' AND split = 'train' ORDER BY clip",
-            [key, video_id],
-        ).fetchall()
-        if not clips:
-            continue
+    for video_id, lift_key, clips in _interaction_clips(con, info.members):
         fighters = load_motion(con, video_id, lift_key)
         steps = np.concatenate([np.arange(a, b) for a, b in clips])
         rows = {role: fighters[role].rows(steps) for role in ROLES}
         frames.append(
             tuple(getattr(fighters[r], f)[rows[r]] for r in ROLES for f in ("qpos", "qvel"))
         )
-        if len(steps) > most:
-            most, bones = len(steps), (fighters[ROLES[0]].bones, fighters[ROLES[1]].bones)
-    if not frames or min(len(x) for x in interaction) == 0:
+    bones = training_bones(con, dataset_key)
+    if bones is None or min(len(x) for x in interaction) == 0:
         raise BadInput(
             f"dataset {dataset_key}",
             "has no interaction clips in its train split: nothing to learn interactions from "

@@ -443,6 +443,24 @@ class Trainer:
         torch.save(state, out)
         return out.getvalue()
 
+    def warm_start(self, blob: bytes) -> None:
+        """Start from the networks of another run's `checkpoint` (its policy, value and
+        discriminators, normalisers included), at iteration 0 with fresh optimisers and replay
+        buffers; CheckpointMismatch unless its humanoids and network sizes are this run's."""
+        state = torch.load(io.BytesIO(blob), weights_only=False, map_location="cpu")
+        theirs = state.get("signature", {})
+        shared = ("bones", "observation_dim", "hidden", "task_dim")
+        differs = sorted(k for k in shared if theirs.get(k) != self.signature[k])
+        if differs:
+            raise CheckpointMismatch(
+                f"cannot start from that run's networks: its {', '.join(differs)} differ"
+            )
+        networks = state["networks"]
+        self.nets.policy.load_state_dict(networks["policy"])
+        self.nets.value.load_state_dict(networks["value"])
+        for d, s in zip(self.discriminators, networks["discriminators"], strict=True):
+            d.load_state_dict(s)
+
     def restore(self, blob: bytes) -> None:
         """Continue from a `checkpoint`; CheckpointMismatch if it belongs to another run."""
         state = torch.load(io.BytesIO(blob), weights_only=False, map_location="cpu")

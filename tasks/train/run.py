@@ -31,6 +31,7 @@ from tasks.dataset.store import load_demonstrations
 from tasks.errors import BadInput
 from tasks.runner import StageOutput
 from tasks.train.mappo import Trainer
+from tasks.train.store import WarmStart
 
 STAGE = "train"
 
@@ -137,18 +138,29 @@ def train(
     dataset_key: str,
     key: str,
     config: TrainConfig,
+    warm: WarmStart | None = None,
     stop: Callable[[int], bool] | None = None,
 ) -> StageOutput:
     """Train (or go on training) run ``key`` on dataset ``dataset_key``; its stage output.
 
-    ``stop(iteration)`` may end the run early, as a kill would (raising KeyboardInterrupt,
-    nothing saved beyond the last checkpoint); tests use it.
+    A run with no checkpoint of its own starts from ``warm``'s networks when given
+    (`tasks.train.store.warm_start_source`). ``stop(iteration)`` may end the run early, as a
+    kill would (raising KeyboardInterrupt, nothing saved beyond the last checkpoint); tests use
+    it.
     """
     with connect(db, read_only=True) as con:
         demos = load_demonstrations(con, dataset_key)
     trainer = Trainer(config, demos)
+    notes = []
     try:
         found = _newest_checkpoint(db, key, dataset_key)
+        if found is None and warm is not None:
+            trainer.warm_start(read_bytes(artifacts, warm.artifact))
+        if warm is not None:
+            notes.append(
+                f"started from the networks of run {warm.run_key[:12]} (iteration "
+                f"{warm.iteration}, dataset {warm.dataset_key[:12]})"
+            )
         if found is not None:
             trainer.restore(read_bytes(artifacts, found[1]))
             with connect(db) as con, transaction(con):
@@ -201,4 +213,5 @@ def train(
     return StageOutput(
         rows={"train_policies": [(key, dataset_key, total, final)]},
         metrics=summary,
+        notes=tuple(notes),
     )

@@ -10,21 +10,36 @@ from storage.paths import data_paths
 from tasks.runner import StageResult, run_stage
 from tasks.stage_task import stage_task
 from tasks.train.run import STAGE, train
+from tasks.train.store import WarmStart
 
 
 def train_code() -> str:
     return code_version("tasks.train", "tasks.dataset", "models.humanoid", "models.maaip")
 
 
-def train_key(config: TrainConfig, dataset_key: str) -> str:
-    return stage_key(STAGE, config, train_code(), {"dataset": dataset_key})
+def train_upstream(dataset_key: str, warm: WarmStart | None) -> dict:
+    """The dataset and, for a warm start, the run whose networks it starts from."""
+    upstream = {"dataset": dataset_key}
+    if warm is not None:
+        upstream["warm_start"] = warm.run_key
+    return upstream
+
+
+def train_key(config: TrainConfig, dataset_key: str, warm: WarmStart | None = None) -> str:
+    return stage_key(STAGE, config, train_code(), train_upstream(dataset_key, warm))
 
 
 @stage_task("train", "train-{dataset_key:.12}")
 def train_task(
-    data_root: str, dataset_key: str, config: TrainConfig, key: str, force: bool = False
+    data_root: str,
+    dataset_key: str,
+    config: TrainConfig,
+    key: str,
+    warm: WarmStart | None = None,
+    force: bool = False,
 ) -> StageResult:
-    """Train MAAIP on a dataset (resuming from the run's newest checkpoint) and commit it."""
+    """Train MAAIP on a dataset (resuming from the run's newest checkpoint, or starting from
+    ``warm``'s networks) and commit it."""
     paths = data_paths(data_root)
     return run_stage(
         db=paths.db,
@@ -33,10 +48,15 @@ def train_task(
         key=key,
         config=config,
         code=train_code(),
-        upstream={"dataset": dataset_key},
+        upstream=train_upstream(dataset_key, warm),
         run_id=str(flow_run.id),
         compute=lambda: train(
-            db=paths.db, artifacts=paths.artifacts, dataset_key=dataset_key, key=key, config=config
+            db=paths.db,
+            artifacts=paths.artifacts,
+            dataset_key=dataset_key,
+            key=key,
+            config=config,
+            warm=warm,
         ),
         force=force,
     )
