@@ -27,8 +27,8 @@ import streamlit as st
 
 from dashboards import queries
 from flows.config import PIPELINE_STAGES, STAGES
-from storage.artifacts import artifact_path
-from storage.db import DatabaseBusy, connect, utcnow
+from storage.artifacts import NotAnArtifact, artifact_path
+from storage.db import DatabaseBusy, connect, damaged_database, utcnow
 from storage.paths import data_paths
 from tasks.dataset.labels import HANDS, KINDS
 from tasks.dataset.statistics import DISTRIBUTIONS, SCALARS
@@ -93,12 +93,6 @@ TILES = {
     "reward_interaction": "Interaction reward",
     "falls_per_min": "Falls per minute",
 }
-# The Lift page's headline numbers.
-LIFT_TILES = {
-    "fighter_distance_mean_m": "Mean distance (m)",
-    "contact_slide_cm_per_frame": "Foot slide (cm / frame)",
-    "floor_penetration_max_mm": "Deepest penetration (mm)",
-}
 # The Evaluation page's headline numbers.
 EVALUATION_TILES = {
     "style_score": "Style: trained adversary",
@@ -161,6 +155,14 @@ def read(read_with: Callable[[duckdb.DuckDBPyConnection], T]) -> T | None:
             "press Reload in a moment."
         )
         return None
+    except duckdb.Error as error:
+        if not damaged_database(error):
+            raise
+        st.error(
+            f"The database `{db}` is damaged ({str(error).strip().splitlines()[0]}): "
+            "`ringside check` says what is affected, `ringside check --repair` recomputes it."
+        )
+        return None
 
 
 def read_rows(
@@ -184,7 +186,11 @@ def artifact_file(name: str | None) -> Path | None:
     """Where the artifact ``name`` lives, or None (after saying so) when it is not there."""
     if name is None:
         return None
-    path = artifact_path(data_paths(data_root(sys.argv[1:])).artifacts, name)
+    try:
+        path = artifact_path(data_paths(data_root(sys.argv[1:])).artifacts, name)
+    except NotAnArtifact as error:
+        st.error(f"{error}; `ringside check` lists what the database names wrongly.")
+        return None
     if not path.exists():
         st.warning(f"Artifact `{name}` is missing from the artifact store.")
         return None
@@ -781,9 +787,15 @@ def lift_page() -> None:
     if found is None:
         return
     _, review = found
-    st.caption(f"Lift output {queries.short(review.key)}.")
-    for column, (name, label) in zip(st.columns(len(LIFT_TILES)), LIFT_TILES.items(), strict=True):
-        column.metric(label, format_value(review.metrics.get(name)))
+    st.caption(
+        f"Lift output {queries.short(review.key)}. The numbers summarise the "
+        f"{review.seconds:.1f} s of "
+        "30 Hz series charted below, both fighters together; the stage's own summaries, in the "
+        "table at the bottom, are measured at the video's frame rate before resampling."
+    )
+    tiles = review.tiles
+    for column, (label, value) in zip(st.columns(len(tiles)), tiles.items(), strict=True):
+        column.metric(label, format_value(value))
     show_video(
         review.video,
         "Both humanoids in MuJoCo, after the physics cleanup (adversary red, opponent blue).",

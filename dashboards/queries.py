@@ -377,6 +377,12 @@ def evaluation(con: duckdb.DuckDBPyConnection, key: str, run_key: str) -> dict[s
     return evaluation_tables(con, key, run_key)
 
 
+# The cleanup measures the Lift page charts (series columns are "MEASURE|FIGHTER").
+DISTANCE = "distance between fighters (m)"
+SKATING = "foot skating, feet in contact (m/s)"
+PENETRATION = "floor penetration (m)"
+
+
 @dataclass(frozen=True)
 class LiftReview:
     """What the Lift page shows of one lift output: its key, the MP4 of both humanoids (an
@@ -387,6 +393,32 @@ class LiftReview:
     video: str | None
     metrics: dict[str, float]
     series: pd.DataFrame
+
+    @property
+    def seconds(self) -> float:
+        """How long the series run: steps times the grid's step."""
+        time_s = self.series.index
+        return float(len(time_s) * (time_s[1] - time_s[0])) if len(time_s) > 1 else 0.0
+
+    @property
+    def tiles(self) -> dict[str, float]:
+        """The page's headline numbers, each a summary of a charted series, so that a tile and
+        its chart always agree (the stage's own summary metrics are measured at the video's
+        frame rate, before resampling to the 30 Hz grid the series are on)."""
+
+        def values(measure: str) -> np.ndarray:
+            columns = [c for c in self.series.columns if c.split("|")[0] == measure]
+            return self.series[columns].to_numpy(dtype=float).ravel()
+
+        def summary(reduce, measure: str, scale: float = 1.0) -> float:
+            found = values(measure)
+            return float(reduce(found)) * scale if np.isfinite(found).any() else math.nan
+
+        return {
+            "Mean distance (m)": summary(np.nanmean, DISTANCE),
+            "Mean foot skating (m/s)": summary(np.nanmean, SKATING),
+            "Deepest penetration (mm)": summary(np.nanmax, PENETRATION, 1000.0),
+        }
 
 
 def lift_review(con: duckdb.DuckDBPyConnection, video_id: str) -> LiftReview | None:
@@ -401,17 +433,15 @@ def lift_review(con: duckdb.DuckDBPyConnection, video_id: str) -> LiftReview | N
         ).fetchall()
     )
     measured = lift_series(con, key, video_id)
-    columns: dict[tuple[str, str], Any] = {
-        ("distance between fighters (m)", "both"): measured.fighter_distance_m
-    }
+    columns: dict[tuple[str, str], Any] = {(DISTANCE, "both"): measured.fighter_distance_m}
     for role, fighter in measured.fighters.items():
         slide = fighter.contact_slide_m_s
         # A step's skating: the faster sliding foot of those in contact (NaN with both in the air).
         any_contact = ~np.isnan(slide).all(axis=1)
         fastest = np.full(len(slide), np.nan)
         fastest[any_contact] = np.nanmax(slide[any_contact], axis=1)
-        columns[("foot skating, feet in contact (m/s)", role)] = fastest
-        columns[("floor penetration (m)", role)] = fighter.floor_penetration_m
+        columns[(SKATING, role)] = fastest
+        columns[(PENETRATION, role)] = fighter.floor_penetration_m
     series = pd.DataFrame(
         {f"{measure}|{role}": values for (measure, role), values in columns.items()},
         index=pd.Index(measured.time_s, name="time_s"),

@@ -218,6 +218,18 @@ def build_parser() -> argparse.ArgumentParser:
     metrics.add_argument("--stage", choices=PIPELINE_STAGES)
     metrics.add_argument("--json", action="store_true")
 
+    check = commands.add_parser(
+        "check",
+        help="read every table and artifact back; say what is damaged (--repair: recompute it)",
+        description="Reads every row of every table (DuckDB checks its blocks only when they "
+        "are read) and hashes every file the database names, then prints per stage and video "
+        "what is damaged; exit code 1 when something is. --repair removes the damaged outputs "
+        "so that the next `ringside process` (or `rerun`) computes them again, rebuilds damaged "
+        "tables from their healthy rows and deletes temporary files of interrupted writes.",
+    )
+    check.add_argument("--repair", action="store_true", help="repair what a rerun can give back")
+    check.add_argument("--json", action="store_true")
+
     datasets = commands.add_parser(
         "datasets", help="assembled training datasets: key, adversary, videos, transitions"
     )
@@ -358,12 +370,17 @@ def _process(
     from flows.config import load_config
     from flows.pipeline import PipelineFailed, video_to_opponent
     from flows.serve import run_parameters
+    from storage.check import stale_temporaries
+    from storage.paths import data_paths
     from tasks.ingest.probe import check_file
 
     # Cheap checks before Prefect starts, so a mistyped path fails in milliseconds.
     for video in videos:
         check_file(Path(video))
     config = load_config(args.config, _overrides(args))
+    # Half-written files of a process killed mid-write (`storage.files.write_atomic`).
+    for path in stale_temporaries(data_paths(data_root).artifacts):
+        path.unlink(missing_ok=True)
     parameters = run_parameters(
         data_root,
         videos,
@@ -571,6 +588,72 @@ def _export(args, data_root: Path) -> int:
             f"{args.agent} of run {trained.run_key[:12]} (iteration {trained.iteration}): {folder}"
         )
     return 0
+
+
+def _check(args, data_root: Path) -> int:
+    import duckdb
+    from tqdm import tqdm
+
+    from storage.check import repair, scan
+    from storage.paths import data_paths
+
+    paths = data_paths(data_root)
+    if not paths.db.exists():
+        print(f"{paths.db}: no database yet; nothing to check")
+        return 0
+    with tqdm(desc="check", unit=" tables", disable=args.json or not sys.stderr.isatty()) as bar:
+        problems = scan(paths.db, paths.artifacts, progress=lambda _: bar.update(1))
+    done = []
+    if args.repair and problems:
+        try:
+            done = repair(paths.db, paths.artifacts, problems)
+        except duckdb.Error as error:
+            done = [f"failed: {str(error).strip().splitlines()[0]}"]
+        left = scan(paths.db, paths.artifacts)
+    else:
+        left = problems
+    if args.json:
+        fields = ("stage", "video_id", "key", "what")
+        print(
+            json.dumps(
+                {
+                    "problems": [{f: getattr(p, f) for f in fields} for p in problems],
+                    "repaired": done,
+                    "left": [{f: getattr(p, f) for f in fields} for p in left],
+                }
+            )
+        )
+    else:
+        _print_problems(problems)
+        for line in done:
+            print(f"repair: {line}")
+        if done and not left:
+            print("repaired: `ringside process` (or `rerun`) computes the removed outputs again")
+        elif left and args.repair:
+            print(
+                f"{len(left)} problem(s) a rerun cannot give back: restore the database from a "
+                "backup"
+            )
+    return EXIT_FAILED if left else 0
+
+
+def _print_problems(problems) -> None:
+    """A line per damaged output (its problems counted), then the rest one by one."""
+    if not problems:
+        print("no damage found: every table reads back and every artifact matches its name")
+        return
+    by_output: dict = {}
+    for problem in problems:
+        by_output.setdefault(problem.output or problem, []).append(problem)
+    for found in by_output.values():
+        first = found[0]
+        if first.output is None:
+            print(f"{first.stage}: {first.what}")
+            continue
+        more = f" (and {len(found) - 1} more)" if len(found) > 1 else ""
+        print(
+            f"{first.stage} of {first.video_id[:12]}, output {first.key[:12]}: {first.what}{more}"
+        )
 
 
 def _export_motion(args, data_root: Path) -> int:
@@ -1091,8 +1174,11 @@ def _prefect_settings_of_this_command():
 
 def _dispatch(raw: list[str], data_root: Path) -> int:
     args = build_parser().parse_args(raw)
+    import duckdb
+
     from storage.assets import AssetError
-    from storage.db import DatabaseBusy
+    from storage.db import DatabaseBusy, damaged_database
+    from storage.paths import data_paths
     from tasks.errors import BadInput
 
     try:
@@ -1120,6 +1206,8 @@ def _dispatch(raw: list[str], data_root: Path) -> int:
             return _export_motion(args, data_root)
         if args.command == "spar":
             return _spar(args)
+        if args.command == "check":
+            return _check(args, data_root)
         if args.command == "datasets":
             return _datasets(args, data_root)
         if args.command == "assets":
@@ -1145,6 +1233,16 @@ def _dispatch(raw: list[str], data_root: Path) -> int:
         return EXIT_BAD_INPUT
     except (AssetError, DatabaseBusy) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
+        return EXIT_FAILED
+    except duckdb.Error as error:
+        if not damaged_database(error):
+            raise
+        print(
+            f"ringside: error: the database {data_paths(data_root).db} is damaged "
+            f"({str(error).strip().splitlines()[0]}); `ringside check` says what is affected "
+            "and `ringside check --repair` recomputes it",
+            file=sys.stderr,
+        )
         return EXIT_FAILED
     raise AssertionError(f"unhandled command {args.command}")
 

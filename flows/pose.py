@@ -11,6 +11,7 @@ from tqdm import tqdm
 
 from flows.config import from_tables
 from flows.runs import StageSummary, reuse_or_run
+from storage.artifacts import artifact_path
 from storage.db import connect
 from storage.files import sha256_file
 from storage.paths import data_paths
@@ -58,27 +59,27 @@ def _track_chunks(
     data_root: str, ingest: IngestOutput, settings: PoseConfig
 ) -> tuple[list[ChunkSpan], list[str]]:
     """Track every chunk, each cached on its own; their spans and artifact names."""
-    models = model_files(settings, data_paths(data_root).assets)
+    paths = data_paths(data_root)
+    models = model_files(settings, paths.assets)
     hashes = (sha256_file(models[0]), sha256_file(models[1]))
     spans = plan_spans(list(ingest.chunks), settings.overlap_frames)
-    futures = [
-        pose_chunk_task.submit(
-            data_root,
-            ingest.path,
-            span,
-            ingest.fps,
-            settings,
-            (str(models[0]), str(models[1])),
-            chunk_key(settings, ingest.video_id, span, hashes),
-        )
-        for span in spans
-    ]
+
+    def arguments(span: ChunkSpan) -> tuple:
+        key = chunk_key(settings, ingest.video_id, span, hashes)
+        return data_root, ingest.path, span, ingest.fps, settings, tuple(map(str, models)), key
+
+    futures = [pose_chunk_task.submit(*arguments(span)) for span in spans]
     # Shown on an interactive terminal only; advances as chunks finish.
     with tqdm(
         total=ingest.frames, unit="frame", desc=f"pose {Path(ingest.path).name}", disable=None
     ) as bar:
         names = []
         for span, future in zip(spans, futures, strict=True):
-            names.append(future.result())
+            name = future.result()
+            if not artifact_path(paths.artifacts, name).exists():
+                # Prefect's cache names a chunk file that is gone (deleted, a lost disk): the
+                # store is the truth, so the chunk is tracked again and cached anew.
+                name = pose_chunk_task.with_options(refresh_cache=True)(*arguments(span))
+            names.append(name)
             bar.update(span.end - span.start)
     return spans, names

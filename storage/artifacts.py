@@ -6,6 +6,7 @@ DuckDB rows refer to an artifact by its name, ``<sha256><suffix>``; the same byt
 from __future__ import annotations
 
 import hashlib
+import re
 from pathlib import Path
 
 from storage.files import write_atomic
@@ -17,10 +18,19 @@ def artifact_name(data: bytes, suffix: str = "") -> str:
     return hashlib.sha256(data).hexdigest() + suffix
 
 
+# A SHA-256 in hex and an optional suffix of letters and digits: nothing that leaves the store.
+NAME = re.compile(r"[0-9a-f]{64}(\.[A-Za-z0-9]{1,16})?")
+
+
+class NotAnArtifact(ValueError):
+    """A name that is not an artifact's (a path, say): refused, never read, served or deleted."""
+
+
 def artifact_path(root: Path, name: str) -> Path:
-    """Where the artifact ``name`` lives: ``root/ab/abcdef….suffix``."""
-    if len(name) < 64:
-        raise ValueError(f"not an artifact name: {name!r}")
+    """Where the artifact ``name`` lives: ``root/ab/abcdef….suffix``. NotAnArtifact for any
+    other name (the database may name only files inside the store)."""
+    if not isinstance(name, str) or NAME.fullmatch(name) is None:
+        raise NotAnArtifact(f"not an artifact name: {name!r} (refused: outside the store)")
     return root / name[:2] / name
 
 

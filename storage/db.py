@@ -27,6 +27,16 @@ class DatabaseBusy(RuntimeError):
     """Another process held the database's lock for longer than we were willing to wait."""
 
 
+# What DuckDB says of a file it cannot read: flipped bytes (a block's checksum), a truncated or
+# emptied file.
+_DAMAGE = ("corrupt database file", "not a valid duckdb database", "could not read enough bytes")
+
+
+def damaged_database(error: BaseException) -> bool:
+    """Whether ``error`` is DuckDB finding the database file damaged."""
+    return isinstance(error, duckdb.Error) and any(d in str(error).lower() for d in _DAMAGE)
+
+
 def _is_lock_error(error: duckdb.Error) -> bool:
     return "lock" in str(error).lower()
 

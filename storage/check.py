@@ -1,0 +1,283 @@
+"""What `ringside check` finds damaged in a data directory, and what `--repair` does about it.
+
+The database is the source of truth, so a stage output is damaged when any of its rows cannot be
+read back (DuckDB's block checksums surface only on a full read) or a file it names is missing
+from the artifact store or no longer hashes to its name. Repairing removes damaged outputs, as if
+never computed, so that the next `process` or `rerun` computes them again (a stage whose output
+the database no longer has recomputes whatever Prefect's cache remembers): every row that reads
+back is copied into a new file, the damaged one kept beside it (`repair`). Rows of the tables
+that register videos and record runs that sat in a damaged block are lost; the next `process`
+registers its videos again. Run it while no other command uses the data directory.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import duckdb
+
+from storage.artifacts import NotAnArtifact, artifact_path
+from storage.db import connect, transaction
+
+# Stages whose outputs a rerun recomputes: their tables are named "<stage>_..." and keyed by
+# (key, video_id) as `stage_outputs` is (train: video_id the dataset, key the run; evaluate:
+# video_id the run).
+STAGES = ("ingest", "pose", "lift", "dataset", "train", "evaluate")
+# Temporary files of an interrupted write (`storage.files.write_atomic`) older than this are
+# left over by a process that is gone.
+STALE_TEMP_S = 600.0
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing damaged: a stage output (``stage``, ``video_id``, ``key``), or, with ``stage``
+    "database" or "artifacts", something no rerun recomputes."""
+
+    stage: str
+    video_id: str | None
+    key: str | None
+    what: str
+
+    @property
+    def output(self) -> tuple[str, str, str] | None:
+        return (self.stage, self.video_id, self.key) if self.stage in STAGES else None
+
+
+def _first_line(error: BaseException) -> str:
+    """The error's first line; a failed block checksum as where the damaged block is."""
+    text = str(error).strip()
+    found = re.search(r"checksum .* in block at location (\d+)", text)
+    if found:
+        return f"a damaged block (bytes from {found.group(1)}: its checksum does not match)"
+    return text.splitlines()[0] if text else type(error).__name__
+
+
+def _tables(con: duckdb.DuckDBPyConnection) -> dict[str, list[str]]:
+    """Every table of the database with its columns."""
+    tables: dict[str, list[str]] = {}
+    for table, column in con.execute(
+        "SELECT table_name, column_name FROM duckdb_columns() "
+        "WHERE NOT internal AND database_name = current_database() "
+        "ORDER BY table_name, column_index"
+    ).fetchall():
+        tables.setdefault(table, []).append(column)
+    return tables
+
+
+def _stage_of(table: str, columns: list[str]) -> str | None:
+    """The stage whose outputs the table holds; None for the tables that register videos,
+    datasets and runs (`dataset_members` joins outputs into datasets, it holds none)."""
+    stage = table.partition("_")[0]
+    keyed = {"key", "video_id"} <= set(columns)
+    return stage if stage in STAGES and keyed and table != "dataset_members" else None
+
+
+def _read(con: duckdb.DuckDBPyConnection, table: str, where: str = "", params=()) -> None:
+    """Read every column of the rows (hashing them), so that damaged blocks raise."""
+    con.execute(f"SELECT count(*), bit_xor(hash(t)) FROM {table} t {where}", list(params))
+
+
+def _outputs(
+    con: duckdb.DuckDBPyConnection, stage: str, table: str, schema: str = ""
+) -> list[tuple[str, str]]:
+    """(video_id, key) of the stage's outputs with rows in ``table`` or committed (only the
+    committed ones when the table's key columns are unreadable themselves); ``schema`` is the
+    attached database's prefix ("old.") where the tables are another file's."""
+    committed = f"SELECT video_id, key FROM {schema}stage_outputs WHERE stage = ?"
+    try:
+        rows = con.execute(
+            f"SELECT DISTINCT video_id, key FROM {table} UNION {committed} ORDER BY ALL", [stage]
+        ).fetchall()
+    except duckdb.Error:
+        rows = con.execute(f"{committed} ORDER BY ALL", [stage]).fetchall()
+    return [tuple(row) for row in rows]
+
+
+def _artifact_problem(artifacts: Path, name: str) -> str | None:
+    try:
+        path = artifact_path(artifacts, name)
+    except NotAnArtifact:
+        return f"names {name!r}, a path outside the artifact store"
+    if not path.exists():
+        return f"artifact {name[:12]}… is missing"
+    digest = hashlib.sha256()
+    with path.open("rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    if digest.hexdigest() != name[:64]:
+        return f"artifact {name[:12]}… is corrupt (its bytes do not hash to its name)"
+    return None
+
+
+def stale_temporaries(artifacts: Path, now: float | None = None) -> list[Path]:
+    """Temporary files of interrupted writes in the artifact store, older than STALE_TEMP_S."""
+    now = time.time() if now is None else now
+    if not artifacts.exists():
+        return []
+    return sorted(
+        path
+        for path in artifacts.glob("*/.tmp-*")
+        if path.is_file() and now - path.stat().st_mtime > STALE_TEMP_S
+    )
+
+
+def scan(db: Path, artifacts: Path, progress: Callable[[str], None] | None = None) -> list[Problem]:
+    """Everything damaged in the database at ``db`` and the artifact store at ``artifacts``.
+
+    ``progress(table)`` is called as each table is read.
+    """
+    problems: list[Problem] = []
+    try:
+        with connect(db, read_only=True) as con:
+            for table, columns in _tables(con).items():
+                if progress is not None:
+                    progress(table)
+                problems += _table_problems(con, artifacts, table, columns)
+    except duckdb.Error as error:
+        return [Problem("database", None, None, f"{db} cannot be opened: {_first_line(error)}")]
+    problems += [
+        Problem("artifacts", None, None, f"{path} is left over from an interrupted write")
+        for path in stale_temporaries(artifacts)
+    ]
+    return problems
+
+
+def _table_problems(
+    con: duckdb.DuckDBPyConnection, artifacts: Path, table: str, columns: list[str]
+) -> list[Problem]:
+    stage = _stage_of(table, columns)
+    try:
+        _read(con, table)
+        unreadable = None
+    except duckdb.Error as error:
+        unreadable = _first_line(error)
+    if unreadable is not None and stage is None:
+        return [Problem("database", None, None, f"table {table} is damaged: {unreadable}")]
+    if unreadable is not None:
+        found = []
+        for video_id, key in _outputs(con, stage, table):
+            try:
+                _read(con, table, "WHERE key = ? AND video_id = ?", (key, video_id))
+            except duckdb.Error as error:
+                what = f"rows of {table} are damaged: {_first_line(error)}"
+                found.append(Problem(stage, video_id, key, what))
+        return found or [Problem("database", None, None, f"table {table} is damaged: {unreadable}")]
+    if stage is None or "artifact" not in columns:
+        return []
+    found = []
+    for video_id, key, name in con.execute(
+        f"SELECT DISTINCT video_id, key, artifact FROM {table} ORDER BY ALL"
+    ).fetchall():
+        problem = _artifact_problem(artifacts, name)
+        if problem is not None:
+            found.append(Problem(stage, video_id, key, f"{table}: {problem}"))
+    return found
+
+
+def repair(db: Path, artifacts: Path, problems: Iterable[Problem]) -> list[str]:
+    """A new database file holding every row that reads back, but for the damaged outputs among
+    ``problems``; the damaged file is kept beside it (``<name>.damaged-<time>``). Stale
+    temporary files go too. One line per thing done.
+
+    The rows are copied rather than the damaged file written to: DuckDB stops with a fatal
+    error when a write touches a damaged block (seen on a file with 19 flipped blocks). A
+    table's rows are copied output by output, or, for the tables that register videos and
+    record runs, in halving ranges of rows, so that a damaged block loses only the rows it
+    holds.
+    """
+    damaged = {p.output for p in problems if p.output is not None}
+    fresh = db.with_name(db.name + ".repairing")
+    for leftover in (fresh, fresh.with_name(fresh.name + ".wal")):
+        leftover.unlink(missing_ok=True)
+    try:
+        with connect(fresh) as con:  # migrated: every table, empty
+            con.execute(f"ATTACH '{_quoted(db)}' AS old (READ_ONLY)")
+            done = _copy(con, damaged)
+            con.execute("DETACH old")
+            con.execute("CHECKPOINT")
+    except duckdb.Error as error:  # not even the catalogue reads back
+        for partial in (fresh, fresh.with_name(fresh.name + ".wal")):
+            partial.unlink(missing_ok=True)
+        with connect(fresh):
+            pass
+        done = [
+            f"{db} cannot be read at all ({_first_line(error)}): a new, empty database "
+            "replaces it and the next `ringside process` computes everything again"
+        ]
+    aside = db.with_name(f"{db.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}")
+    db.rename(aside)
+    wal = db.with_name(db.name + ".wal")
+    if wal.exists():
+        wal.rename(aside.with_name(aside.name + ".wal"))
+    fresh.rename(db)
+    done.append(f"kept the damaged file as {aside}")
+    for path in stale_temporaries(artifacts):
+        path.unlink(missing_ok=True)
+        done.append(f"removed {path}")
+    return done
+
+
+def _quoted(path: Path) -> str:
+    return str(path).replace("'", "''")
+
+
+def _copy(con: duckdb.DuckDBPyConnection, damaged: set[tuple[str, str, str]]) -> list[str]:
+    """Copy the attached database ``old`` into this one, but for the ``damaged`` outputs."""
+    done = []
+    ours = set(_tables(con))
+    theirs: dict[str, list[str]] = {}
+    for table, column in con.execute(
+        "SELECT table_name, column_name FROM duckdb_columns() WHERE database_name = 'old' "
+        "ORDER BY table_name, column_index"
+    ).fetchall():
+        theirs.setdefault(table, []).append(column)
+    for table, columns in theirs.items():
+        if table not in ours or table == "schema_migrations":
+            continue
+        stage = _stage_of(table, columns)
+        insert = f"INSERT INTO main.{table} BY NAME SELECT * FROM old.{table}"
+        if stage is not None:
+            for video_id, key in _outputs(con, stage, f"old.{table}", "old."):
+                if (stage, video_id, key) in damaged:
+                    continue
+                try:
+                    con.execute(f"{insert} WHERE key = ? AND video_id = ?", [key, video_id])
+                except duckdb.Error:
+                    damaged.add((stage, video_id, key))
+            continue
+        total = con.execute(f"SELECT count(*) FROM old.{table}").fetchone()[0]
+        lost = _copy_rows(con, insert, 0, total)
+        if lost:
+            done.append(f"lost {lost} of {total} rows of {table} (in damaged blocks)")
+    with transaction(con):
+        for stage, video_id, key in sorted(damaged):
+            for table in ("stage_outputs", "stage_metrics"):
+                con.execute(
+                    f"DELETE FROM {table} WHERE stage = ? AND video_id = ? AND key = ?",
+                    [stage, video_id, key],
+                )
+            done.append(
+                f"left out the damaged {stage} output {key[:12]} of {video_id[:12]}: the next "
+                "run computes it again"
+            )
+    return done
+
+
+def _copy_rows(con: duckdb.DuckDBPyConnection, insert: str, start: int, end: int) -> int:
+    """Copy rows ``start`` to ``end`` (rowid) with ``insert``, halving the range around damaged
+    blocks; how many rows could not be read."""
+    if end <= start:
+        return 0
+    try:
+        con.execute(f"{insert} WHERE rowid >= ? AND rowid < ?", [start, end])
+        return 0
+    except duckdb.Error:
+        if end - start == 1:
+            return 1
+        middle = (start + end) // 2
+        return _copy_rows(con, insert, start, middle) + _copy_rows(con, insert, middle, end)

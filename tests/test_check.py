@@ -1,0 +1,187 @@
+"""`ringside check [--repair]` on real damage: flipped bytes in a table's blocks, a truncated and
+an emptied database, deleted artifacts, a path outside the store; then `process` gives back the
+same results."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+from conftest import copy_data, process_argv, query, render_page, run_cli
+
+from storage.artifacts import NotAnArtifact, artifact_path, read_bytes
+from storage.db import connect
+from storage.paths import data_paths
+
+# The per-stage tables whose rows a rerun must give back identically, and the metrics that are
+# timings (they differ from run to run).
+CONTENT = ("ingest_shots", "pose_keypoints", "lift_motion", "lift_bones", "dataset_transitions")
+TIMINGS = {("ingest", "decode_fps"), ("pose", "fps")}
+BLOCK_SIZE, HEADER = 262144, 3 * 4096  # DuckDB's default block size and file header
+
+
+def contents(data) -> dict:
+    """What the per-video stages computed: output keys, content rows (hashed), metrics."""
+    db = data_paths(data).db
+    with connect(db, read_only=True) as con:
+        found = {
+            table: con.execute(
+                f"SELECT video_id, key, count(*), bit_xor(hash(t)) FROM {table} t "
+                "GROUP BY ALL ORDER BY ALL"
+            ).fetchall()
+            for table in CONTENT
+        }
+        found["outputs"] = con.execute(
+            "SELECT stage, video_id, key FROM stage_outputs ORDER BY ALL"
+        ).fetchall()
+        found["metrics"] = [
+            row
+            for row in con.execute(
+                "SELECT stage, video_id, key, name, value FROM stage_metrics ORDER BY ALL"
+            ).fetchall()
+            if (row[0], row[3]) not in TIMINGS
+        ]
+    return found
+
+
+def checkpointed_copy(source, target):
+    """A data directory of the test's own whose database has no write-ahead log (the blocks
+    are all in the file, where the test damages them)."""
+    data = copy_data(source, target)
+    with connect(data_paths(data).db) as con:
+        con.execute("CHECKPOINT")
+    return data
+
+
+def flip_block(db, table: str) -> int:
+    """Overwrite 64 bytes inside the block holding ``table``'s largest column segment; the
+    block's file offset."""
+    with connect(db, read_only=True) as con:
+        block, offset = con.execute(
+            f"SELECT block_id, block_offset FROM pragma_storage_info('{table}') "
+            "WHERE block_id >= 0 ORDER BY count DESC, block_offset DESC LIMIT 1"
+        ).fetchone()
+    where = HEADER + block * BLOCK_SIZE + offset + 16
+    with db.open("r+b") as file:
+        file.seek(where)
+        original = file.read(64)
+        file.seek(where)
+        file.write(bytes(b ^ 0xFF for b in original))
+    return HEADER + block * BLOCK_SIZE
+
+
+def check(capsys, data, *more):
+    code, out, err = run_cli(capsys, "--data", str(data), "check", *more)
+    return code, out + err
+
+
+def test_damaged_blocks_and_lost_files_are_named_then_repaired(
+    tmp_path, capsys, sample_run, sample_video
+):
+    data = checkpointed_copy(sample_run, tmp_path / "data")
+    paths = data_paths(data)
+    before = contents(data)
+    assert check(capsys, data)[0] == 0
+
+    flip_block(paths.db, "pose_keypoints")
+    video = query(data, "SELECT artifact FROM lift_media WHERE kind = 'video'")[0][0]
+    artifact_path(paths.artifacts, video).unlink()
+    stale = paths.artifacts / "ab" / ".tmp-left-by-a-kill"
+    stale.parent.mkdir(exist_ok=True)
+    stale.write_bytes(b"half a checkpoint")
+    os.utime(stale, (0, 0))
+
+    code, out = check(capsys, data)
+    assert code == 1
+    pose_key = query(data, "SELECT key FROM stage_outputs WHERE stage = 'pose'")[0][0]
+    lift_key = query(data, "SELECT key FROM stage_outputs WHERE stage = 'lift'")[0][0]
+    assert f"pose of {before['outputs'][0][1][:12]}, output {pose_key[:12]}" in out, out
+    assert "rows of pose_keypoints are damaged: a damaged block" in out
+    assert f"output {lift_key[:12]}: lift_media: artifact {video[:12]}… is missing" in out
+    assert ".tmp-left-by-a-kill is left over from an interrupted write" in out
+    assert len(out.strip().splitlines()) <= 6, out
+    code, out = check(capsys, data, "--repair")
+    assert code == 0, out
+    assert "repaired: `ringside process`" in out and not stale.exists()
+    assert sorted(p.name for p in data.glob("ringside.duckdb.damaged-*"))
+    assert check(capsys, data)[0] == 0
+
+    argv = process_argv(data, sample_video, "--ingest-chunk-frames", "30")
+    assert run_cli(capsys, *argv)[0] == 0
+    assert contents(data) == before
+
+    # A chunk file that Prefect's cache still names is gone: tracked again, not an error (the
+    # new file has another name: a chunk's .npz holds the time it was written).
+    chunk = next(p for p in paths.artifacts.rglob("*.npz"))
+    chunk.unlink()
+    rerun = ["--data", str(data), "rerun", "pose", "--video", before["outputs"][0][1][:12]]
+    code, _, err = run_cli(capsys, *rerun, "--until", "pose", "--ingest-chunk-frames", "30")
+    assert code == 0, err
+    assert contents(data) == before
+
+
+@pytest.mark.parametrize("how", ["truncated", "emptied"])
+def test_a_truncated_or_emptied_database_is_named_and_repaired(
+    tmp_path, capsys, sample_run, how, monkeypatch
+):
+    data = checkpointed_copy(sample_run, tmp_path / "data")
+    db = data_paths(data).db
+    with db.open("r+b") as file:
+        file.truncate(db.stat().st_size // 2 if how == "truncated" else 0)
+
+    code, out = check(capsys, data)
+    assert code == 1 and out.strip(), out
+    if how == "emptied":
+        assert "cannot be opened" in out and len(out.strip().splitlines()) == 1, out
+        code, _, err = run_cli(capsys, "--data", str(data), "status")
+        assert code == 1 and len(err.strip().splitlines()) == 1, err
+        assert f"the database {db} is damaged" in err and "ringside check --repair" in err
+        from streamlit.testing.v1 import AppTest
+
+        monkeypatch.setenv("RINGSIDE_DATA", str(data))
+        app = AppTest.from_function(render_page, args=("overview",), default_timeout=60).run()
+        assert not app.exception, app.exception
+        assert any("is damaged" in e.value for e in app.error), app.error
+    code, out = check(capsys, data, "--repair")
+    assert code == 0, out
+    # Half the sample's file holds none of DuckDB's catalogue: as with an emptied file nothing
+    # reads back, and a new, empty database takes its place (where `process` starts on a new
+    # machine; the damaged-blocks test above shows `process` giving back what was left out).
+    assert "a new, empty database replaces it" in out
+    assert query(data, "SELECT count(*) FROM stage_outputs") == [(0,)]
+    assert run_cli(capsys, "--data", str(data), "status", "--json")[1].strip() == "[]"
+
+
+def test_a_path_outside_the_store_is_refused_everywhere(tmp_path, capsys, sample_run, monkeypatch):
+    from streamlit.testing.v1 import AppTest
+
+    data = copy_data(sample_run, tmp_path / "data")
+    outside = str(tmp_path / "secret.txt")
+    (tmp_path / "secret.txt").write_text("not for the dashboard")
+    with connect(data_paths(data).db) as con:
+        con.execute("UPDATE lift_media SET artifact = ? WHERE kind = 'video'", [outside])
+
+    with pytest.raises(NotAnArtifact):
+        read_bytes(data_paths(data).artifacts, outside)
+    code, out = check(capsys, data)
+    assert code == 1 and f"names {outside!r}, a path outside the artifact store" in out, out
+
+    monkeypatch.setenv("RINGSIDE_DATA", str(data))
+    app = AppTest.from_function(render_page, args=("lift",), default_timeout=60).run()
+    assert not app.exception, app.exception
+    assert any("not an artifact name" in e.value for e in app.error), app.error
+    assert not app.get("video")
+
+
+def test_check_json_lists_each_problem(tmp_path, capsys, sample_run):
+    data = checkpointed_copy(sample_run, tmp_path / "data")
+    overlay = query(data, "SELECT artifact FROM pose_media WHERE kind = 'overlay'")[0][0]
+    artifact_path(data_paths(data).artifacts, overlay).unlink()
+    code, out = check(capsys, data, "--json")
+    assert code == 1
+    found = json.loads(out)
+    assert [(p["stage"], p["what"]) for p in found["problems"]] == [
+        ("pose", f"pose_media: artifact {overlay[:12]}… is missing")
+    ]
+    assert found["left"] == found["problems"] and found["repaired"] == []
