@@ -230,6 +230,17 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--repair", action="store_true", help="repair what a rerun can give back")
     check.add_argument("--json", action="store_true")
 
+    backup = commands.add_parser(
+        "backup",
+        help="a consistent copy of the database in a folder (taken under its write lock)",
+    )
+    backup.add_argument("folder", type=Path, help="where to write it (a backup there is replaced)")
+    restore = commands.add_parser(
+        "restore",
+        help="put a backup in place of the database (the current file is kept beside it)",
+    )
+    restore.add_argument("folder", type=Path, help="a folder `ringside backup` wrote")
+
     datasets = commands.add_parser(
         "datasets", help="assembled training datasets: key, adversary, videos, transitions"
     )
@@ -635,6 +646,38 @@ def _check(args, data_root: Path) -> int:
                 "backup"
             )
     return EXIT_FAILED if left else 0
+
+
+def _backup(args, data_root: Path) -> int:
+    from storage.backup import DATABASE, backup
+    from storage.paths import data_paths
+
+    db = data_paths(data_root).db
+    if not db.exists():
+        raise FileNotFoundError(f"{db}: no database yet; nothing to back up")
+    manifest = backup(db, args.folder)
+    rows = sum(manifest["rows"].values())
+    print(
+        f"backed up {db} ({manifest['bytes'] / 1e6:.1f} MB, {rows} rows in "
+        f"{len(manifest['rows'])} tables) to {args.folder / DATABASE}; the artifacts stay in "
+        f"{data_paths(data_root).artifacts}"
+    )
+    return 0
+
+
+def _restore(args, data_root: Path) -> int:
+    from storage.backup import restore
+    from storage.paths import data_paths
+
+    paths = data_paths(data_root)
+    aside, problems = restore(paths.db, paths.artifacts, args.folder)
+    kept = f"; the database it replaced is kept as {aside}" if aside else ""
+    print(f"restored {paths.db} from {args.folder}{kept}")
+    if problems:
+        _print_problems(problems)
+        print("`ringside check --repair` removes what is damaged; `process` computes it again")
+        return EXIT_FAILED
+    return 0
 
 
 def _print_problems(problems) -> None:
@@ -1208,6 +1251,10 @@ def _dispatch(raw: list[str], data_root: Path) -> int:
             return _spar(args)
         if args.command == "check":
             return _check(args, data_root)
+        if args.command == "backup":
+            return _backup(args, data_root)
+        if args.command == "restore":
+            return _restore(args, data_root)
         if args.command == "datasets":
             return _datasets(args, data_root)
         if args.command == "assets":

@@ -126,8 +126,11 @@ def stale_temporaries(artifacts: Path, now: float | None = None) -> list[Path]:
     )
 
 
-def scan(db: Path, artifacts: Path, progress: Callable[[str], None] | None = None) -> list[Problem]:
-    """Everything damaged in the database at ``db`` and the artifact store at ``artifacts``.
+def scan(
+    db: Path, artifacts: Path | None, progress: Callable[[str], None] | None = None
+) -> list[Problem]:
+    """Everything damaged in the database at ``db`` and the artifact store at ``artifacts``
+    (None: the database alone, its tables read back but no file looked for).
 
     ``progress(table)`` is called as each table is read.
     """
@@ -140,15 +143,16 @@ def scan(db: Path, artifacts: Path, progress: Callable[[str], None] | None = Non
                 problems += _table_problems(con, artifacts, table, columns)
     except duckdb.Error as error:
         return [Problem("database", None, None, f"{db} cannot be opened: {_first_line(error)}")]
-    problems += [
-        Problem("artifacts", None, None, f"{path} is left over from an interrupted write")
-        for path in stale_temporaries(artifacts)
-    ]
+    if artifacts is not None:
+        problems += [
+            Problem("artifacts", None, None, f"{path} is left over from an interrupted write")
+            for path in stale_temporaries(artifacts)
+        ]
     return problems
 
 
 def _table_problems(
-    con: duckdb.DuckDBPyConnection, artifacts: Path, table: str, columns: list[str]
+    con: duckdb.DuckDBPyConnection, artifacts: Path | None, table: str, columns: list[str]
 ) -> list[Problem]:
     stage = _stage_of(table, columns)
     try:
@@ -167,7 +171,7 @@ def _table_problems(
                 what = f"rows of {table} are damaged: {_first_line(error)}"
                 found.append(Problem(stage, video_id, key, what))
         return found or [Problem("database", None, None, f"table {table} is damaged: {unreadable}")]
-    if stage is None or "artifact" not in columns:
+    if stage is None or "artifact" not in columns or artifacts is None:
         return []
     found = []
     for video_id, key, name in con.execute(

@@ -185,3 +185,24 @@ def test_check_json_lists_each_problem(tmp_path, capsys, sample_run):
         ("pose", f"pose_media: artifact {overlay[:12]}… is missing")
     ]
     assert found["left"] == found["problems"] and found["repaired"] == []
+
+
+def test_a_backup_restores_an_emptied_database(tmp_path, capsys, sample_run):
+    data = checkpointed_copy(sample_run, tmp_path / "data")
+    before = contents(data)
+    folder = tmp_path / "backup"
+    code, out, err = run_cli(capsys, "--data", str(data), "backup", str(folder))
+    assert code == 0 and "backed up" in out, err
+
+    data_paths(data).db.write_bytes(b"")
+    restore = ["--data", str(data), "restore", str(folder)]
+    code, out, err = run_cli(capsys, *restore)
+    assert code == 0, out + err
+    assert contents(data) == before and check(capsys, data)[0] == 0
+    assert [p.stat().st_size for p in data.glob("ringside.duckdb.replaced-*")] == [0]
+
+    # A backup whose bytes changed is refused; the database stays as it was.
+    (folder / "ringside.duckdb").write_bytes(b"not a database")
+    code, _, err = run_cli(capsys, *restore)
+    assert code == 2 and "changed since the backup was taken" in err, err
+    assert len(err.strip().splitlines()) == 1 and contents(data) == before
