@@ -105,6 +105,7 @@ def test_one_person_tracked_as_both_fighters_is_refused(assets, tmp_path):
     calibration = tmp_path / "calibration.json"
     write_calibration(calibration, case.K, np.zeros(5), case.size, 0.0)
     frames = len(case.points)
+    told: list[int] = []
     output = lift_video(
         {
             "adversary": FighterTrack(
@@ -120,7 +121,10 @@ def test_one_person_tracked_as_both_fighters_is_refused(assets, tmp_path):
         config=LiftStageConfig(),
         calibration=calibration,
         artifacts=tmp_path / "artifacts",
+        progress=told.append,
     )
+    # The progress bar is told the shot's frames once its work is done.
+    assert sum(told) == frames and told[-1] == frames
     m = output.metrics
     assert m["frames_rejected_one_person"] == 2 * 16
     assert m["adversary_frames_lifted"] == m["opponent_frames_lifted"] == frames - 16

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -260,12 +260,15 @@ def lift_video(
     config: LiftStageConfig,
     calibration: Path | None,
     artifacts: Path,
+    progress: Callable[[int], None] | None = None,
 ) -> StageOutput:
     """Lift every shot of a video; the rows and metrics of its lift output.
 
     ``fighters`` maps role to its 2D input; ``shots`` are (shot, start, end) frame ranges.
+    ``progress(frames)`` is told each shot's frames once the shot is done.
     Raises :class:`BadInput` when no fighter is seen long enough in any shot.
     """
+    advance = progress or (lambda frames: None)
     frames = next(iter(fighters.values())).keypoints.shape[0]
     qpos = {r: np.full((frames, NQ), np.nan) for r in fighters}
     qvel = {r: np.full((frames, NV), np.nan) for r in fighters}
@@ -283,7 +286,10 @@ def lift_video(
     twice = np.zeros(frames, bool)
     if all(r in fighters for r in ROLES):
         twice = one_person(*(fighters[r].keypoints for r in ROLES), gates)
+    finished = 0  # frames of the shot before, told when the next one starts
     for shot, start, end in shots:
+        advance(finished)
+        finished = end - start
         K, source = _camera_for_shot(config, size, calibration)
         gated, refused, spans = {}, {}, {}
         for role, track in fighters.items():
@@ -369,6 +375,7 @@ def lift_video(
             cleanup_metrics[role].append(
                 {**cleaned.metrics, "floor_penetration_mean_mm": float(sunk.mean() * 1000)}
             )
+    advance(finished)
     if not camera_rows:
         raise BadInput(
             STAGE,

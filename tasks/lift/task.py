@@ -6,6 +6,7 @@ from pathlib import Path
 
 import duckdb
 from prefect.runtime import flow_run
+from tqdm import tqdm
 
 from storage.paths import data_paths
 from tasks.ingest.outputs import IngestOutput
@@ -52,17 +53,22 @@ def lift_task(
     def compute():
         with connect(paths.db, read_only=True) as con:
             fighters = load_fighters(con, ingest.video_id, pose_key, ingest.frames)
-        return lift_video(
-            fighters,
-            key=key,
-            video_id=ingest.video_id,
-            fps=ingest.fps,
-            size=(ingest.width, ingest.height),
-            shots=list(ingest.shots),
-            config=config,
-            calibration=Path(config.calibration) if config.calibration else None,
-            artifacts=paths.artifacts,
-        )
+        # Shown on an interactive terminal only, as pose's.
+        with tqdm(
+            total=ingest.frames, unit="frame", desc=f"lift {Path(ingest.path).name}", disable=None
+        ) as bar:
+            return lift_video(
+                fighters,
+                key=key,
+                video_id=ingest.video_id,
+                fps=ingest.fps,
+                size=(ingest.width, ingest.height),
+                shots=list(ingest.shots),
+                config=config,
+                calibration=Path(config.calibration) if config.calibration else None,
+                artifacts=paths.artifacts,
+                progress=bar.update,
+            )
 
     return run_stage(
         db=paths.db,
