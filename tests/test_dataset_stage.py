@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import mujoco
@@ -332,3 +333,32 @@ def test_damaged_motion_rows_are_named(tmp_path, pair):
         pytest.raises(BadInput, match="not finite at 1 steps from step 7"),
     ):
         load_motion(con, "v", "L")
+
+
+def test_steps_no_boxer_could_make_never_become_transitions(pair):
+    """The dataset stage's own guard: a lift that slipped through its gates (a walker placed
+    300 m off for three steps, a punch flung at 40 m/s for two) loses those steps, as gaps."""
+    far = pair["opponent"].qpos.copy()
+    far[30:33, 0] += 300.0
+    fast = pair["adversary"].qvel.copy()
+    fast[10:12, :3] = [40.0, 0.0, 0.0]
+    flawed = {
+        "adversary": dataclasses.replace(pair["adversary"], qvel=fast),
+        "opponent": dataclasses.replace(pair["opponent"], qpos=far),
+    }
+    frames = int(pair["adversary"].step[-1]) + 1
+    config = DatasetConfig(min_clip_s=0.2, validation_fraction=0.2)
+    out = build_dataset(
+        flawed, key="k", video_id="v", shots=[(0, 0, 2 * frames)], fps=2 * RATE, config=config
+    )
+    # Three steps 300 m apart drop for both fighters, the two fast ones for the adversary.
+    assert out.metrics["steps_rejected"] == 3 * 2 + 2
+    assert any("8 steps left out as implausible" in note for note in out.notes)
+    t = out.rows["dataset_transitions"]
+    own, theirs = block_slices(SELF_BLOCKS), block_slices(OPPONENT_BLOCKS)
+    velocity = own["body_linear_velocities"].start
+    assert np.linalg.norm(t["self"][:, velocity : velocity + 3], axis=1).max() < 8.0
+    present = [o for o in t["opp"] if o is not None]
+    assert max(np.linalg.norm(o[theirs["root_position"]]) for o in present) < 10.0
+    # The walker lost steps 20-24 before: its rows 30-32 are steps 35-37.
+    assert not {35, 36, 37, 10, 11} & set(t["step"][t["agent"] == 0].tolist())

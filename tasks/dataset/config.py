@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from models.settings import setting
@@ -50,9 +51,24 @@ class DatasetConfig:
         "Folder of extra single-actor clips in DeepMimic's motion format (*.txt) added to the "
         "single-actor set; empty adds none.",
     )
+    max_root_speed_m_s: float = setting(
+        8.0,
+        "Steps where a fighter's pelvis moves faster than this (m/s) are left out, as gaps: no "
+        "boxer moves so (the lift's own gate, lift.gates.max_root_speed_m_s, should have caught "
+        "them; this is the last guard before training sees them).",
+    )
+    max_fighter_distance_m: float = setting(
+        10.0,
+        "Steps where the two fighters' pelvises are further apart than this (m) are left out of "
+        "both fighters' motion.",
+    )
     punch: PunchConfig = field(default_factory=PunchConfig)
 
     def __post_init__(self) -> None:
+        for name in ("max_root_speed_m_s", "max_fighter_distance_m"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"dataset.{name} must be a positive number, got {value!r}")
         if self.min_clip_s <= 0:
             raise ValueError(f"dataset.min_clip_s must be positive, got {self.min_clip_s}")
         if not 0.0 <= self.validation_fraction < 1.0:

@@ -14,6 +14,7 @@ functions the training environment uses too.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -38,6 +39,7 @@ from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
 from tasks.errors import BadInput
 from tasks.lift.motion import RATE, FighterMotion, velocities
+from tasks.lift.series import fighter_distance
 from tasks.lift.stage import ROLES
 from tasks.lift.synthetic import load_deepmimic, retarget
 from tasks.runner import StageOutput
@@ -271,6 +273,37 @@ def _label_fighter(
     return punches, steps, (combine(stats, durations) if stats else None)
 
 
+def implausible_steps(
+    fighters: Mapping[str, FighterMotion], config: DatasetConfig
+) -> dict[str, np.ndarray]:
+    """Per fighter, which of its steps (a bool per row) no boxer could have made: the pelvis
+    faster than ``max_root_speed_m_s``, or the two fighters further apart than
+    ``max_fighter_distance_m`` (both fighters' steps)."""
+    bad = {
+        role: np.linalg.norm(m.qvel[:, :3], axis=1) > config.max_root_speed_m_s
+        for role, m in fighters.items()
+    }
+    if all(r in fighters for r in ROLES):
+        a, b = (fighters[r] for r in ROLES)
+        both, in_a, in_b = np.intersect1d(a.step, b.step, return_indices=True)
+        apart = fighter_distance(a.qpos[in_a], b.qpos[in_b]) > config.max_fighter_distance_m
+        bad[ROLES[0]][in_a[apart]] = True
+        bad[ROLES[1]][in_b[apart]] = True
+    return bad
+
+
+def _without(motion: FighterMotion, drop: np.ndarray) -> FighterMotion:
+    keep = ~drop
+    return dataclasses.replace(
+        motion,
+        step=motion.step[keep],
+        qpos=motion.qpos[keep],
+        qvel=motion.qvel[keep],
+        joints=motion.joints[keep],
+        contacts=motion.contacts[keep],
+    )
+
+
 def build_dataset(
     fighters: Mapping[str, FighterMotion],
     *,
@@ -292,6 +325,19 @@ def build_dataset(
     Raises:
         BadInput: when no fighter has a clip of ``min_clip_s``.
     """
+    # The last guard before training: steps no boxer could have made become gaps.
+    implausible = implausible_steps(fighters, config)
+    fighters = {role: _without(m, implausible[role]) for role, m in fighters.items()}
+    dropped = int(sum(d.sum() for d in implausible.values()))
+    notes = []
+    if dropped:
+        notes.append(
+            f"{dropped} steps left out as implausible: a pelvis faster than "
+            f"{config.max_root_speed_m_s:g} m/s or fighters more than "
+            f"{config.max_fighter_distance_m:g} m apart (dataset.max_root_speed_m_s, "
+            "dataset.max_fighter_distance_m)"
+        )
+    fighters = {role: m for role, m in fighters.items() if len(m.step)}
     min_steps = max(2, math.ceil(config.min_clip_s * RATE))
     last = max(int(m.step.max()) for m in fighters.values() if len(m.step))
     validation_from = math.ceil((last + 1) * (1 - config.validation_fraction))
@@ -357,7 +403,8 @@ def build_dataset(
                 for name, values in s.distributions.items()
             ],
         },
-        metrics=_metrics(clips, transitions, punch_rows, statistics),
+        metrics={**_metrics(clips, transitions, punch_rows, statistics), "steps_rejected": dropped},
+        notes=tuple(notes),
     )
 
 
