@@ -134,11 +134,12 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> Path
 
 
 def moving_box_frames(n: int, background: tuple[int, int, int], start: int = 0) -> list:
-    """A grey box sliding across a plain background: motion, but no cut."""
+    """A grey box sliding to and fro across a plain background: motion, but no cut (a box that
+    jumped back to its start would be a change of picture, which the cut detector finds)."""
     frames = []
     for i in range(start, start + n):
         frame = np.full((96, 128, 3), background, np.uint8)
-        x = 8 + (i * 3) % 90
+        x = 8 + abs((i * 3) % 180 - 90)
         cv2.rectangle(frame, (x, 30), (x + 24, 70), (128, 128, 128), -1)
         frames.append(frame)
     return frames

@@ -131,3 +131,30 @@ def test_colours_and_declarations():
 def test_config_rejects_nonsense(field: str, value):
     with pytest.raises(ValueError, match=f"ingest.{field}"):
         IngestConfig(**{field: value})
+
+
+@pytest.mark.parametrize("view", ["mirrored", "reframed"])
+def test_a_cut_to_a_view_of_the_same_colours_is_found(sample_video: Path, tmp_path: Path, view):
+    """The sample, cut at frame 50 to its mirror image or to a 2x crop of its centre: the colour
+    histograms barely change (that cut was missed before: 0 shot cuts), the picture does."""
+    capture = cv2.VideoCapture(str(sample_video))
+    frames = []
+    while len(frames) < 100:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(cv2.resize(frame, (272, 480), interpolation=cv2.INTER_AREA))
+    capture.release()
+    h, w = frames[0].shape[:2]
+    if view == "mirrored":
+        after = [cv2.flip(f, 1) for f in frames[50:]]
+    else:
+        after = [
+            cv2.resize(f[h // 4 : 3 * h // 4, w // 4 : 3 * w // 4], (w, h)) for f in frames[50:]
+        ]
+    scan = scan_video(write_video(tmp_path / "cut.mp4", frames[:50] + after), IngestConfig())
+    assert [(s.start, s.end) for s in scan.shots] == [(0, 50), (50, 100)]
+    if view == "mirrored":
+        assert scan.distances[50] < IngestConfig().cut_threshold  # the colours alone miss it
+    whole = scan_video(write_video(tmp_path / "whole.mp4", frames), IngestConfig())
+    assert len(whole.shots) == 1

@@ -35,6 +35,16 @@ class IngestConfig:
         "Bhattacharyya distance (0-1) between the hue-saturation histograms of consecutive "
         "frames above which a shot cut is declared.",
     )
+    structure_threshold: float = setting(
+        0.2,
+        "Structure distance (0-1: one minus the correlation of consecutive frames' grey "
+        "thumbnails, halved) above which a shot cut is declared too: a cut to a mirrored or "
+        "re-framed view keeps the colours (histogram distance 0.02-0.06 on the sample's views) "
+        "but not the picture (0.21-0.41 mirrored, 0.36-0.52 a 2x crop; consecutive frames of the "
+        "sample 0.004 at most, a pan of 5 % of the frame width per frame 0.12; "
+        "benchmarks/cut_distances.py). A whip pan faster than about 9 % of the width per frame "
+        "reads as a cut.",
+    )
     min_shot_frames: int = setting(
         12, "A cut closer than this many frames to the previous one is ignored (flashes, strobes)."
     )
@@ -57,8 +67,9 @@ class IngestConfig:
     )
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.cut_threshold <= 1.0:
-            raise ValueError(f"ingest.cut_threshold must be in (0, 1], got {self.cut_threshold}")
+        for name in ("cut_threshold", "structure_threshold"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise ValueError(f"ingest.{name} must be in (0, 1], got {getattr(self, name)}")
         for name in (
             "min_shot_frames",
             "histogram_width",

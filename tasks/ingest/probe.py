@@ -111,17 +111,43 @@ def histogram_distance(a: np.ndarray, b: np.ndarray) -> float:
     return float(cv2.compareHist(a, b, cv2.HISTCMP_BHATTACHARYYA))
 
 
-class CutDetector:
-    """Declares a cut at frame ``i`` when the distance to frame ``i - 1`` exceeds ``threshold``
-    and the previous cut is at least ``min_shot_frames`` back."""
+# Width (pixels) of the grey thumbnails whose correlation is the structure distance: small
+# enough that noise and small motions blur away, large enough to hold the picture's layout.
+STRUCTURE_WIDTH = 64
 
-    def __init__(self, threshold: float, min_shot_frames: int):
+
+def grey_thumbnail(frame_bgr: np.ndarray, width: int = STRUCTURE_WIDTH) -> np.ndarray:
+    """The frame in grey, ``width`` pixels wide, slightly blurred, with zero mean and unit
+    variance (a flat frame stays all zeros)."""
+    h, w = frame_bgr.shape[:2]
+    grey = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    small = cv2.resize(grey, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (3, 3), 0)
+    small -= small.mean()
+    spread = float(small.std())
+    return small / spread if spread > 1e-6 else small
+
+
+def structure_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """(1 - correlation) / 2 of two `grey_thumbnail`s: 0 the same picture, 0.5 unrelated, 1 its
+    negative. Colour histograms miss a cut to a mirrored or re-framed view; this does not."""
+    return float((1.0 - (a * b).mean()) / 2.0)
+
+
+class CutDetector:
+    """Declares a cut at frame ``i`` when the histogram distance to frame ``i - 1`` exceeds
+    ``threshold`` or the structure distance exceeds ``structure_threshold``, and the previous
+    cut is at least ``min_shot_frames`` back."""
+
+    def __init__(self, threshold: float, min_shot_frames: int, structure_threshold: float = 1.0):
         self.threshold = threshold
+        self.structure_threshold = structure_threshold
         self.min_shot_frames = min_shot_frames
         self.last_cut = 0
 
-    def update(self, frame: int, distance: float) -> bool:
-        if distance > self.threshold and frame - self.last_cut >= self.min_shot_frames:
+    def update(self, frame: int, distance: float, structure: float = 0.0) -> bool:
+        changed = distance > self.threshold or structure > self.structure_threshold
+        if changed and frame - self.last_cut >= self.min_shot_frames:
             self.last_cut = frame
             return True
         return False
@@ -192,10 +218,12 @@ def scan_video(path: Path, config: IngestConfig) -> Scan:
         fps = float(capture.get(cv2.CAP_PROP_FPS))
         declared = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
         codec = fourcc_text(capture.get(cv2.CAP_PROP_FOURCC))
-        detector = CutDetector(config.cut_threshold, config.min_shot_frames)
+        detector = CutDetector(
+            config.cut_threshold, config.min_shot_frames, config.structure_threshold
+        )
         distances: list[float] = []
         cuts: list[tuple[int, float, bytes]] = []
-        previous = None
+        previous = previous_grey = None
         size = (0, 0)
         frames = tqdm(
             _frames(capture),
@@ -205,15 +233,16 @@ def scan_video(path: Path, config: IngestConfig) -> Scan:
             disable=None,
         )
         for index, frame in enumerate(frames):
-            hist = hs_histogram(frame, config.histogram_width)
+            hist, grey = hs_histogram(frame, config.histogram_width), grey_thumbnail(frame)
             distance = 0.0 if previous is None else histogram_distance(previous, hist)
+            structure = 0.0 if previous_grey is None else structure_distance(previous_grey, grey)
             distances.append(distance)
             if index == 0:
                 size = (frame.shape[1], frame.shape[0])
                 cuts.append((0, math.nan, _thumbnail(frame, config.thumbnail_width)))
-            elif detector.update(index, distance):
+            elif detector.update(index, distance, structure):
                 cuts.append((index, distance, _thumbnail(frame, config.thumbnail_width)))
-            previous = hist
+            previous, previous_grey = hist, grey
     finally:
         capture.release()
 
