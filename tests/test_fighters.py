@@ -11,9 +11,11 @@ import pytest
 from tasks.pose.fighters import (
     FighterConfig,
     adversary_by_colour,
+    choice_margin,
     colour_template,
     link_fragments,
     pick_fighters,
+    rank_pairs,
 )
 from tasks.pose.tracking import (
     DESCRIPTOR_SIZE,
@@ -197,3 +199,33 @@ def test_link_fragments_joins_one_person_and_keeps_others_apart():
     assert mapping == {0: 0, 3: 3}
     with pytest.raises(ValueError, match="max_gap_frames"):
         link_fragments([a], max_gap_frames=0)
+
+
+def test_the_choice_says_how_clear_it_was():
+    """Two fighters and a spectator: a clear choice. Two similar pairs side by side (a crowd, or
+    two bouts in one frame): a choice barely better than the next. A pair seen together a
+    third of the time: a pair that may not be fighting."""
+    n = 90
+    t = np.arange(n)
+    fighters = [
+        make_track(1, 0, 270 + 20 * np.sin(t / 9), 320, 200),
+        make_track(3, 0, 380 - 20 * np.sin(t / 7), 318, 195),
+    ]
+    spectator = make_track(0, 0, np.full(n, 40.0), 150, 90)
+    clear = rank_pairs([spectator, *fighters], (WIDTH, HEIGHT))
+    assert clear[0].track_ids == (1, 3) and clear[0].together == 1.0
+    assert choice_margin(clear) > 0.3
+
+    twins = [
+        make_track(5, 0, 130 + 20 * np.sin(t / 9), 320, 195),
+        make_track(6, 0, 200 - 20 * np.sin(t / 7), 318, 200),
+    ]
+    crowd = rank_pairs([*fighters, *twins], (WIDTH, HEIGHT))
+    # The best scoring pair joins a fighter to a stranger, 1 % above the real pair: the margin
+    # is what tells the analyst to look.
+    assert crowd[0].track_ids == (1, 6) and crowd[1].track_ids == (1, 3)
+    assert choice_margin(crowd) < 0.02
+
+    apart = [fighters[0], make_track(3, 0, 380 - 20 * np.sin(t / 7), 318, 195, seen=t < 30)]
+    assert rank_pairs(apart, (WIDTH, HEIGHT))[0].together == pytest.approx(1 / 3)
+    assert choice_margin([]) == 0.0 and choice_margin(rank_pairs(fighters, (WIDTH, HEIGHT))) == 1.0

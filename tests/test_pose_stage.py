@@ -222,3 +222,22 @@ def test_overlay_starts_where_the_fighters_appear(tmp_path, sample_video):
     # The skeletons are drawn: the overlay differs from the footage it was drawn on.
     footage = cv2.resize(sample[start - 60], drawn[0].shape[1::-1], interpolation=cv2.INTER_AREA)
     assert np.abs(drawn[0].astype(int) - footage.astype(int)).mean() > 1.0
+
+
+def test_two_pairs_side_by_side_get_a_note_naming_the_next_candidates(
+    tmp_path, capsys, sample_video
+):
+    """The sample twice, side by side: four people, two pairs. Whichever two the stage takes,
+    the choice is barely better than the next, and the analyst is told which tracks to look
+    at (before, a crowd gave only "the adversary is a guess")."""
+    _, frames = read_video(sample_video)
+    tiled = [
+        np.hstack([cv2.resize(f, (272, 480), interpolation=cv2.INTER_AREA)] * 2) for f in frames
+    ]
+    video = write_video(tmp_path / "two_pairs.mp4", tiled, fps=60.0)
+    data = tmp_path / "data"
+    code, out, err = run_cli(capsys, *process_argv(data, video, until="pose"))
+    assert code == 0, err
+    m = metrics(data)
+    assert m["fighter_choice_margin"] < 0.1 and m["tracks"] >= 4
+    assert "may not be two people fighting" in out and "next candidates: tracks" in out, out

@@ -54,6 +54,17 @@ class PoseConfig:
     min_fighter_share: float = setting(
         0.2, "A track seen in less than this share of its shot's frames is never a fighter."
     )
+    min_together_share: float = setting(
+        0.5,
+        "A shot whose chosen fighters are seen together in less than this share of its frames "
+        "gets a note (a crowd, one person, passers-by: perhaps not two people fighting), naming "
+        "the next candidate pairs for `ringside pick`.",
+    )
+    min_choice_margin: float = setting(
+        0.1,
+        "A shot whose chosen pair scores less than this share above the next pair gets the same "
+        "note (metric fighter_choice_margin: 1 with a single candidate pair).",
+    )
     link_gap_s: float = setting(
         2.0,
         "Tracks of one shot that end and start again within this many seconds, near where the "
@@ -88,7 +99,14 @@ class PoseConfig:
         for name in ("overlap_frames", "stills"):
             if getattr(self, name) < 0:
                 raise ValueError(f"pose.{name} must be at least 0, got {getattr(self, name)}")
-        for name in ("detection_score", "pose_score", "redetect_iou", "min_fighter_share"):
+        for name in (
+            "detection_score",
+            "pose_score",
+            "redetect_iou",
+            "min_fighter_share",
+            "min_together_share",
+            "min_choice_margin",
+        ):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"pose.{name} must be in [0, 1], got {getattr(self, name)}")
         if self.backend == "onnx" and not (self.detector_model and self.pose_model):

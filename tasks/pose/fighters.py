@@ -8,7 +8,6 @@ shot (or any span of frames) and are pure.
 from __future__ import annotations
 
 import itertools
-import math
 import re
 from dataclasses import dataclass
 
@@ -124,28 +123,33 @@ def pair_terms(
     return float(similar), float(together), float(near)
 
 
-def pick_fighters(
+@dataclass(frozen=True)
+class PairScore:
+    """A candidate pair of fighters: its score, its two track ids (ascending) and the share of
+    the span's frames in which both are seen."""
+
+    score: float
+    track_ids: tuple[int, int]
+    together: float
+
+
+def rank_pairs(
     tracks: list[TrackSummary],
     frame_size: tuple[int, int],
     *,
     num_frames: int | None = None,
     config: FighterConfig | None = None,
-) -> list[int]:
-    """Ids of the (up to) two tracks that are the fighters, referee and crowd left out.
+) -> list[PairScore]:
+    """Every pair of tracks seen together in at least one frame, best first.
 
-    Each track gets :func:`track_scores` (presence, size, centrality); each pair seen together in
-    at least one frame gets the mean of its two track scores plus the weighted mean of
-    :func:`pair_terms` (similar size, together, near). The best pair wins.
+    A pair's score is the mean of its two :func:`track_scores` (presence, size, centrality) plus
+    the weighted mean of its :func:`pair_terms` (similar size, together, near).
 
     Args:
         tracks: the tracks of one span of frames (e.g. a shot).
         frame_size: (width, height) of the frames in pixels.
         num_frames: frames in the span; default from the first to the last frame any track saw.
         config: the weights; default :class:`FighterConfig`.
-
-    Returns:
-        The two ids in ascending order; one id if no two tracks are ever seen together (the
-        best single track); [] if there are no tracks.
     """
     config = config or FighterConfig()
     width, height = _check_frame_size(frame_size)
@@ -159,16 +163,52 @@ def pick_fighters(
     pair_weights = np.array(
         [config.similar_size_weight, config.together_weight, config.near_weight]
     )
-    best: tuple[float, list[int]] = (-math.inf, [tracks[int(np.argmax(single))].track_id])
+    ranked = []
     for i, j in itertools.combinations(range(len(tracks)), 2):
         terms = pair_terms(tracks[i], tracks[j], num_frames, config)
         if terms is None:
             continue
         bonus = np.dot(terms, pair_weights) / pair_weights.sum() if pair_weights.sum() else 0.0
-        score = (single[i] + single[j]) / 2 + bonus
-        if score > best[0]:
-            best = (score, sorted([tracks[i].track_id, tracks[j].track_id]))
-    return best[1]
+        ids = sorted([tracks[i].track_id, tracks[j].track_id])
+        ranked.append(PairScore(float((single[i] + single[j]) / 2 + bonus), tuple(ids), terms[1]))
+    # Ties keep the order of the tracks, as the first pair found used to win.
+    return sorted(ranked, key=lambda p: -p.score)
+
+
+def pick_fighters(
+    tracks: list[TrackSummary],
+    frame_size: tuple[int, int],
+    *,
+    num_frames: int | None = None,
+    config: FighterConfig | None = None,
+) -> list[int]:
+    """Ids of the (up to) two tracks that are the fighters, referee and crowd left out: the best
+    pair of :func:`rank_pairs`.
+
+    Returns:
+        The two ids in ascending order; one id if no two tracks are ever seen together (the
+        best single track); [] if there are no tracks.
+    """
+    ranked = rank_pairs(tracks, frame_size, num_frames=num_frames, config=config)
+    if ranked:
+        return list(ranked[0].track_ids)
+    if not tracks:
+        return []
+    config = config or FighterConfig()
+    if num_frames is None:
+        num_frames = max(t.last_frame for t in tracks) - min(t.first_frame for t in tracks) + 1
+    single = track_scores(tracks, _check_frame_size(frame_size), num_frames, config)
+    return [tracks[int(np.argmax(single))].track_id]
+
+
+def choice_margin(ranked: list[PairScore]) -> float:
+    """How clearly the best pair beat the next: (best - second) / best score, 1 with no second
+    pair, 0 with no pair at all."""
+    if not ranked:
+        return 0.0
+    if len(ranked) == 1 or ranked[0].score <= 0:
+        return 1.0 if len(ranked) == 1 else 0.0
+    return float((ranked[0].score - ranked[1].score) / ranked[0].score)
 
 
 def link_fragments(

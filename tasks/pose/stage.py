@@ -27,9 +27,12 @@ from tasks.pose.chunk import ChunkTracks, track_chunk
 from tasks.pose.config import PoseConfig
 from tasks.pose.fighters import (
     FighterConfig,
+    PairScore,
     adversary_by_colour,
+    choice_margin,
     link_fragments,
     pick_fighters,
+    rank_pairs,
 )
 from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, VideoTracks, merge_chunks, summaries
@@ -184,11 +187,70 @@ def process_chunk(
 
 
 @dataclass(frozen=True)
+class ShotChoice:
+    """How the fighters of one shot were chosen: the ranked candidate pairs (`rank_pairs`,
+    best first; the best is the fighters unless the analyst picked otherwise) and the shot's
+    frames."""
+
+    shot: int
+    frames: int
+    ranked: tuple[PairScore, ...]
+
+
+@dataclass(frozen=True)
 class Roles:
-    """Each track's role and how the adversary was told apart."""
+    """Each track's role, how the adversary was told apart, and how the fighters were chosen."""
 
     by_track: dict[int, str]
     source: str  # 'pick', 'colour', 'appearance' or 'guess'
+    choices: tuple[ShotChoice, ...] = ()
+
+    def choice_metrics(self) -> dict[str, float]:
+        """Over the shots with a candidate pair, weighted by their frames: how clearly the
+        chosen pair beat the next (`choice_margin`) and the share of frames it was seen
+        together in."""
+        chosen = [c for c in self.choices if c.ranked]
+        weights = np.array([c.frames for c in chosen], dtype=float)
+        if not chosen or weights.sum() <= 0:
+            return {}
+        return {
+            "fighter_choice_margin": float(
+                np.average([choice_margin(list(c.ranked)) for c in chosen], weights=weights)
+            ),
+            "fighters_together_share": float(
+                np.average([c.ranked[0].together for c in chosen], weights=weights)
+            ),
+        }
+
+    def choice_notes(self, min_together: float, min_margin: float) -> list[str]:
+        """A note per shot whose chosen pair is unconvincing: seen together in less than
+        ``min_together`` of its frames (a crowd, one person, passers-by), or barely better than
+        the next pair; naming the next candidates for `ringside pick`."""
+        notes = []
+        for choice in self.choices:
+            if not choice.ranked:
+                continue
+            best, others = choice.ranked[0], choice.ranked[1:3]
+            margin = choice_margin(list(choice.ranked))
+            if best.together >= min_together and margin >= min_margin:
+                continue
+            why = (
+                f"seen together in only {best.together:.0%} of its frames"
+                if best.together < min_together
+                else f"barely better than the next pair (margin {margin:.0%})"
+            )
+            nexts = "; ".join(
+                f"tracks {a} and {b} (score {p.score:.2f})"
+                for p in others
+                for a, b in [p.track_ids]
+            )
+            hint = f"; next candidates: {nexts}" if nexts else ""
+            notes.append(
+                f"shot {choice.shot}: the fighters (tracks {best.track_ids[0]} and "
+                f"{best.track_ids[1]}) are {why}; this may not be two people fighting. "
+                f"Check the overlay, and set the adversary with `ringside pick`{hint}"
+            )
+        return notes
 
 
 def assign_roles(
@@ -214,6 +276,7 @@ def assign_roles(
     if pick is not None and pick not in all_tracks:
         raise BadInput("pick", f"track {pick} does not exist; tracks are {sorted(all_tracks)}")
     roles = {t: "other" for t in all_tracks}
+    choices: list[ShotChoice] = []
     reference: dict[str, np.ndarray] = {}
     source = "pick" if pick is not None else "colour" if colour else "guess"
     shots = sorted(set(tracks.track_shot[list(all_tracks)].tolist())) if all_tracks else []
@@ -227,6 +290,8 @@ def assign_roles(
         candidates = [
             s for s in joined if s.frames_observed >= min_share * shot_frames.get(shot, 1)
         ]
+        ranked = rank_pairs(candidates, frame_size, num_frames=shot_frames.get(shot), config=config)
+        choices.append(ShotChoice(shot, shot_frames.get(shot, 0), tuple(ranked)))
         fighters = pick_fighters(
             candidates, frame_size, num_frames=shot_frames.get(shot), config=config
         )
@@ -254,7 +319,7 @@ def assign_roles(
             reference = {
                 ("adversary" if f == adversary else "opponent"): people[f].colour for f in fighters
             }
-    return Roles(roles, source)
+    return Roles(roles, source, tuple(choices))
 
 
 @dataclass(frozen=True, eq=False)
@@ -453,6 +518,7 @@ def assemble(
         notes.append(
             "no colour or pick given: the adversary is a guess; set it with `ringside pick`"
         )
+    notes += roles.choice_notes(config.min_together_share, config.min_choice_margin)
     media = render_overlay(
         video, fighters, fps=fps, frames=frames, size=size, config=config, artifacts=artifacts
     )
@@ -477,6 +543,7 @@ def assemble(
         "joints_filled": float(sum(f.filled for f in fighters.values())),
         "detections_per_frame": len(tracks.det_frame) / frames,
         "adversary_guessed": float(roles.source == "guess"),
+        **roles.choice_metrics(),
         "fps": frames / max(seconds, 1e-9),
     }
     for role, fighter in fighters.items():
