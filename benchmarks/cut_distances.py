@@ -21,6 +21,7 @@ import cv2
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from benchmarks._common import FRAMES  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.ingest.config import IngestConfig  # noqa: E402
 from tasks.ingest.probe import (  # noqa: E402
@@ -29,18 +30,11 @@ from tasks.ingest.probe import (  # noqa: E402
     hs_histogram,
     structure_distance,
 )
+from tasks.pose.frames import read_frames  # noqa: E402
 
 
 def frames_of(path: Path) -> list:
-    capture = cv2.VideoCapture(str(path))
-    frames = []
-    while True:
-        ok, frame = capture.read()
-        if not ok:
-            break
-        frames.append(frame)
-    capture.release()
-    return frames
+    return [frame for _, frame in read_frames(path, 0, FRAMES)]
 
 
 def distances(a, b) -> tuple[float, float]:

@@ -155,10 +155,7 @@ def rank_pairs(
     width, height = _check_frame_size(frame_size)
     if not tracks:
         return []
-    if num_frames is None:
-        num_frames = max(t.last_frame for t in tracks) - min(t.first_frame for t in tracks) + 1
-    if num_frames < 1:
-        raise ValueError(f"num_frames must be at least 1, got {num_frames}")
+    num_frames = _span(tracks, num_frames)
     single = track_scores(tracks, (width, height), num_frames, config)
     pair_weights = np.array(
         [config.similar_size_weight, config.together_weight, config.near_weight]
@@ -194,11 +191,19 @@ def pick_fighters(
         return list(ranked[0].track_ids)
     if not tracks:
         return []
-    config = config or FighterConfig()
+    single = track_scores(
+        tracks, _check_frame_size(frame_size), _span(tracks, num_frames), config or FighterConfig()
+    )
+    return [tracks[int(np.argmax(single))].track_id]
+
+
+def _span(tracks: list[TrackSummary], num_frames: int | None) -> int:
+    """``num_frames``, by default from the first to the last frame any track saw."""
     if num_frames is None:
         num_frames = max(t.last_frame for t in tracks) - min(t.first_frame for t in tracks) + 1
-    single = track_scores(tracks, _check_frame_size(frame_size), num_frames, config)
-    return [tracks[int(np.argmax(single))].track_id]
+    if num_frames < 1:
+        raise ValueError(f"num_frames must be at least 1, got {num_frames}")
+    return num_frames
 
 
 def choice_margin(ranked: list[PairScore]) -> float:
