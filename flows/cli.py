@@ -369,6 +369,20 @@ def _print_summary(summaries: list, data_root: Path, as_json: bool) -> None:
     print("see them with: ringside status | ringside metrics")
 
 
+def _crash_stale_flow_runs(data_root: Path) -> None:
+    """Tidy Prefect before a run: a killed command's flow runs would read RUNNING for ever. A
+    failure here must not stop the run, so it is only logged."""
+    from flows.runs import crash_stale_flow_runs
+
+    try:
+        marked = crash_stale_flow_runs(str(data_root))
+    except Exception as error:  # the API unreachable, a changed Prefect: the run goes on
+        logging.getLogger("ringside").debug("stale flow runs not marked: %s", error)
+        return
+    if marked:
+        logging.getLogger("ringside").info("marked %d stale flow runs as crashed", marked)
+
+
 def _process(
     args,
     data_root: Path,
@@ -1217,6 +1231,8 @@ def _prefect_settings_of_this_command():
 
 def _dispatch(raw: list[str], data_root: Path) -> int:
     args = build_parser().parse_args(raw)
+    if args.command in FLOW_COMMANDS:
+        _crash_stale_flow_runs(data_root)
     import duckdb
 
     from storage.assets import AssetError

@@ -1,4 +1,5 @@
-"""What every stage flow does after its task returns: note the run, publish the metrics."""
+"""What every stage flow does after its task returns: note the run, publish the metrics; and
+what a command does about the flow runs a killed one left running."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from prefect.runtime import flow_run
 
 from storage.db import connect
 from storage.paths import data_paths
-from storage.records import record_run
+from storage.records import record_run, stale_runs
 from tasks.errors import BadInput
 from tasks.runner import StageResult, committed
 
@@ -88,3 +89,53 @@ def reuse_or_run(
             record_failure(data_root, video_id, stage, key, error)
             raise
     return result, settle(data_root, result)
+
+
+def crash_stale_flow_runs(data_root: str) -> int:
+    """Mark as Crashed the flow runs a killed command left RUNNING in Prefect (they stay so for
+    ever, in the UI too): those of its stages (`stale_runs`) and the flows above them. Returns
+    how many were marked."""
+    import uuid
+
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.filters import (
+        FlowRunFilter,
+        FlowRunFilterId,
+        FlowRunFilterState,
+        FlowRunFilterStateType,
+    )
+    from prefect.client.schemas.objects import StateType
+    from prefect.states import Crashed
+
+    db = data_paths(data_root).db
+    if not db.exists():
+        return 0
+    with connect(db, read_only=True) as con:
+        stale = [uuid.UUID(run) for run in stale_runs(con)]
+    if not stale:
+        return 0
+    running = FlowRunFilterState(type=FlowRunFilterStateType(any_=[StateType.RUNNING]))
+    marked: set = set()
+    with get_client(sync_client=True) as client:
+        runs = client.read_flow_runs(
+            flow_run_filter=FlowRunFilter(id=FlowRunFilterId(any_=stale), state=running)
+        )
+        while runs:
+            above = []
+            for run in runs:
+                if run.id in marked:
+                    continue
+                client.set_flow_run_state(
+                    run.id,
+                    Crashed(message="its process stopped (killed); seen by a later command"),
+                    force=True,
+                )
+                marked.add(run.id)
+                if run.parent_task_run_id is not None:
+                    above.append(client.read_task_run(run.parent_task_run_id).flow_run_id)
+            runs = [
+                parent
+                for parent in (client.read_flow_run(i) for i in above if i is not None)
+                if parent.state is not None and parent.state.type == StateType.RUNNING
+            ]
+    return len(marked)

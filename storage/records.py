@@ -212,6 +212,22 @@ def process_alive(pid: int) -> bool:
     return True
 
 
+def stale_runs(con: duckdb.DuckDBPyConnection) -> list[str]:
+    """Run ids (Prefect flow run ids) of stages noted as ``running`` by a process that is gone
+    without noting an end: the runs a kill left behind."""
+    rows = con.execute(
+        """
+        SELECT r.run_id, r.worker FROM stage_runs r
+        WHERE r.state = 'running' AND NOT EXISTS (
+            SELECT 1 FROM stage_runs e
+            WHERE e.run_id = r.run_id AND e.stage = r.stage AND e.video_id = r.video_id
+              AND e.state != 'running'
+        )
+        """
+    ).fetchall()
+    return sorted({run_id for run_id, worker in rows if not worker_alive(worker)})
+
+
 def latest_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
     """Per video and stage, the newest run event whose output still exists, or that failed or is
     running. A ``running`` event whose process has gone (killed, or crashed on a bug) reads as

@@ -439,6 +439,66 @@ def test_killed_mid_stage_loses_nothing_and_rerun_finishes(
     assert count(db, "SELECT count(*) FROM videos") == 2
 
 
+KILLED_IN_POSE = """
+import sys, time
+import tasks.pose.task as pose
+
+def stalled(*args, **kwargs):
+    print("mid-pose", flush=True)
+    time.sleep(600)
+
+pose.process_chunk = stalled
+from flows.cli import main
+main(sys.argv[1:])
+"""
+
+
+def test_the_next_command_marks_a_killed_commands_flow_runs_crashed(tmp_path, capsys, sample_video):
+    """A command killed in the pose stage leaves its flow runs RUNNING in Prefect (for ever, in
+    `ringside serve`'s UI too); the next command on the data directory marks them Crashed, the
+    stage's and the pipeline's above it."""
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.objects import StateType
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    from flows.serve import private_server, stop_private_servers
+    from storage.records import stale_runs
+
+    data = tmp_path / "data"
+    victim = subprocess.Popen(
+        [sys.executable, "-c", KILLED_IN_POSE, *process_argv(data, sample_video, until="pose")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        assert victim.stdout.readline().strip() == "mid-pose"
+    finally:
+        os.killpg(victim.pid, signal.SIGKILL)
+        victim.wait()
+    with connect(data / "ringside.duckdb", read_only=True) as con:
+        (stale,) = stale_runs(con)
+
+    code, _, err = run_cli(capsys, *process_argv(data, sample_video, until="ingest"))
+    assert code == 0, err
+    api = private_server(data)
+    try:
+        with (
+            temporary_settings(updates={PREFECT_API_URL: api}),
+            get_client(sync_client=True) as client,
+        ):
+            pose = client.read_flow_run(stale)
+            pipeline = client.read_flow_run(
+                client.read_task_run(pose.parent_task_run_id).flow_run_id
+            )
+    finally:
+        stop_private_servers()
+    assert pose.state.type == StateType.CRASHED, pose.state
+    assert pipeline.state.type == StateType.CRASHED, pipeline.state
+    assert "killed" in pose.state.message
+
+
 def test_every_command_prints_its_help(capsys):
     """Settings' help texts hold '%' (argparse's format character): each command's --help works."""
     commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
