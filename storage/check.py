@@ -23,13 +23,15 @@ import duckdb
 
 from storage.artifacts import NotAnArtifact, artifact_path
 from storage.db import connect, transaction
+from storage.files import TEMPORARY
+from storage.records import process_alive
 
 # Stages whose outputs a rerun recomputes: their tables are named "<stage>_..." and keyed by
 # (key, video_id) as `stage_outputs` is (train: video_id the dataset, key the run; evaluate:
 # video_id the run).
 STAGES = ("ingest", "pose", "lift", "dataset", "train", "evaluate")
-# Temporary files of an interrupted write (`storage.files.write_atomic`) older than this are
-# left over by a process that is gone.
+# A temporary file whose name does not say its writer (an older version's) and is older than
+# this was left by a process that is gone.
 STALE_TEMP_S = 600.0
 
 
@@ -115,15 +117,22 @@ def _artifact_problem(artifacts: Path, name: str) -> str | None:
 
 
 def stale_temporaries(artifacts: Path, now: float | None = None) -> list[Path]:
-    """Temporary files of interrupted writes in the artifact store, older than STALE_TEMP_S."""
+    """Temporary files of interrupted writes in the artifact store: their writer (named in the
+    file's name, `storage.files.write_atomic`) is gone, or, for a name without one, they are
+    older than STALE_TEMP_S."""
     now = time.time() if now is None else now
     if not artifacts.exists():
         return []
-    return sorted(
-        path
-        for path in artifacts.glob("*/.tmp-*")
-        if path.is_file() and now - path.stat().st_mtime > STALE_TEMP_S
-    )
+    stale = []
+    for path in artifacts.glob(f"*/{TEMPORARY}*"):
+        writer = path.name.removeprefix(TEMPORARY).split("-", 1)[0]
+        if writer.isdigit():
+            gone = not process_alive(int(writer))
+        else:
+            gone = now - path.stat().st_mtime > STALE_TEMP_S
+        if gone and path.is_file():
+            stale.append(path)
+    return sorted(stale)
 
 
 def scan(

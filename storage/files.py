@@ -12,11 +12,16 @@ from tqdm import tqdm
 HASH_BLOCK = 4 << 20
 
 
+# How the temporary files of `write_atomic` are named: TEMPORARY, the writer's pid, a dash.
+TEMPORARY = ".tmp-"
+
+
 def write_atomic(path: Path, data: bytes) -> None:
     """Write ``data`` beside ``path`` and rename it into place: a killed process leaves either
     the old file or the new one, never a partial file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
+    # The writer's pid in the name tells a later reader whether the file is still being written.
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f"{TEMPORARY}{os.getpid()}-")
     try:
         with os.fdopen(fd, "wb") as out:
             out.write(data)

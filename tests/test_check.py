@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 
 import pytest
 from conftest import copy_data, process_argv, query, render_page, run_cli
 
 from storage.artifacts import NotAnArtifact, artifact_path, read_bytes
+from storage.check import stale_temporaries
 from storage.db import connect
 from storage.paths import data_paths
 
@@ -206,3 +208,15 @@ def test_a_backup_restores_an_emptied_database(tmp_path, capsys, sample_run):
     code, _, err = run_cli(capsys, *restore)
     assert code == 2 and "changed since the backup was taken" in err, err
     assert len(err.strip().splitlines()) == 1 and contents(data) == before
+
+
+def test_a_temporary_file_is_stale_once_its_writer_is_gone(tmp_path):
+    exited = subprocess.Popen(["true"])
+    exited.wait()
+    folder = tmp_path / "artifacts" / "ab"
+    folder.mkdir(parents=True)
+    mine = folder / f".tmp-{os.getpid()}-abc"  # being written by this (live) process
+    dead = folder / f".tmp-{exited.pid}-def"
+    for path in (mine, dead):
+        path.write_bytes(b"half")
+    assert stale_temporaries(tmp_path / "artifacts") == [dead]
