@@ -68,6 +68,9 @@ def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
     code, out, _ = run_cli(capsys, *curves, "--json")
     rows = json.loads(out)
     assert code == 0 and [r["iterations"] for r in rows] == ["0-0", "1-1"]
+    # A block not yet full names the iterations it holds (the dashboard's "newest point").
+    code, out, _ = run_cli(capsys, *curves[:-1], "5", "--json")
+    assert code == 0 and [r["iterations"] for r in json.loads(out)] == ["0-1"]
     falls = query(
         sample_run,
         "SELECT value FROM train_iterations WHERE key = ? AND name = 'falls_per_min' "

@@ -63,7 +63,8 @@ def learning_curves(
     con: duckdb.DuckDBPyConnection, key: str, *, every: int = 100, names=CURVES
 ) -> list[dict]:
     """Means of the run's per-iteration metrics over blocks of ``every`` iterations, one row per
-    block: {"iterations": "0-99", name: mean, ...}. ``key`` may be a prefix of the run key."""
+    block: {"iterations": "0-99", name: mean, ...} (the newest block names only the iterations
+    it holds). ``key`` may be a prefix of the run key."""
     found = con.execute(
         "SELECT DISTINCT key FROM train_iterations WHERE key LIKE ? || '%'", [key]
     ).fetchall()
@@ -75,10 +76,16 @@ def learning_curves(
         "WHERE key = ? AND list_contains(?, name) GROUP BY ALL ORDER BY ALL",
         [every, found[0][0], list(names)],
     ).fetchall()
+    # The iterations each block holds: the newest may not be full yet.
+    spans = con.execute(
+        "SELECT iteration // ? AS block, min(iteration), max(iteration) FROM train_iterations "
+        "WHERE key = ? GROUP BY ALL",
+        [every, found[0][0]],
+    ).fetchall()
+    held = {block: f"{first}-{last}" for block, first, last in spans}
     blocks: dict[int, dict] = {}
     for block, name, value in rows:
-        row = blocks.setdefault(block, {"iterations": f"{block * every}-{(block + 1) * every - 1}"})
-        row[name] = value
+        blocks.setdefault(block, {"iterations": held[block]})[name] = value
     return list(blocks.values())
 
 
