@@ -10,7 +10,8 @@ parent pid, with its start time, not by name) and counted again once they have h
 Each round has a data directory of its own, so kills land in every stage; after the kill the
 same command runs to the end there, and the round counts as clean when no process was left, no
 temporary file is in the artifact store, `ringside check` finds nothing damaged and the
-per-video stages' keys equal an uninterrupted run's. Last line: the clean rounds.
+per-video stages' keys equal an uninterrupted run's. Last line: the clean rounds of those where
+the kill came before the run finished.
 """
 
 from __future__ import annotations
@@ -114,7 +115,7 @@ def main() -> None:
         whole = Path(tmp) / "whole"
         took = run(whole)
         print(f"an uninterrupted run: {took:.0f} s")
-        clean = 0
+        clean = killed = 0
         for kill in range(args.kills):
             data = Path(tmp) / f"killed-{kill}"
             victim = subprocess.Popen(
@@ -134,6 +135,7 @@ def main() -> None:
                 tree = {victim.pid: _stat(victim.pid)[1], **descendants(victim.pid)}
                 victim.kill()  # the command only: what it started must end by itself
                 victim.wait()
+            killed += 1
             time.sleep(5)
             left = survivors(tree)
             # The same command again, to the end: what the kill left behind is cleared.
@@ -149,7 +151,7 @@ def main() -> None:
                 f"{problems or 'clean'}, per-video results as uninterrupted: {same}"
             )
             shutil.rmtree(data)
-    print(f"kills_leaving_nothing: {clean}/{args.kills}")
+    print(f"kills_leaving_nothing: {clean}/{killed}")
 
 
 if __name__ == "__main__":
