@@ -37,6 +37,11 @@ from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 
 
+def pytest_sessionfinish(session, exitstatus) -> None:
+    """The suite's Prefect home goes with the session (one was left in /tmp per run)."""
+    shutil.rmtree(_PREFECT_HOME, ignore_errors=True)
+
+
 @pytest.fixture(scope="session")
 def assets() -> Path:
     """The pulled assets (weights, sample videos), fetched once if missing."""
