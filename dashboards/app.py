@@ -28,7 +28,7 @@ import streamlit as st
 from dashboards import queries
 from flows.config import PIPELINE_STAGES, STAGES
 from storage.artifacts import NotAnArtifact, artifact_path
-from storage.db import DatabaseBusy, connect, damaged_database, utcnow
+from storage.db import DatabaseBusy, connect, damaged_database, error_line, utcnow
 from storage.paths import data_paths
 from tasks.dataset.labels import HANDS, KINDS
 from tasks.dataset.statistics import DISTRIBUTIONS, SCALARS
@@ -159,7 +159,7 @@ def read(read_with: Callable[[duckdb.DuckDBPyConnection], T]) -> T | None:
         if not damaged_database(error):
             raise
         st.error(
-            f"The database `{db}` is damaged ({str(error).strip().splitlines()[0]}): "
+            f"The database `{db}` is damaged ({error_line(error)}): "
             "`ringside check` says what is affected, `ringside check --repair` recomputes it."
         )
         return None

@@ -223,9 +223,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="read every table and artifact back; say what is damaged (--repair: recompute it)",
         description="Reads every row of every table (DuckDB checks its blocks only when they "
         "are read) and hashes every file the database names, then prints per stage and video "
-        "what is damaged; exit code 1 when something is. --repair removes the damaged outputs "
-        "so that the next `ringside process` (or `rerun`) computes them again, rebuilds damaged "
-        "tables from their healthy rows and deletes temporary files of interrupted writes.",
+        "what is damaged; exit code 1 when something is. --repair copies every row that reads "
+        "back into a new database file, leaving out the damaged outputs so that the next "
+        "`ringside process` (or `rerun`) computes them again, keeps the damaged file beside it "
+        "and deletes temporary files of interrupted writes.",
     )
     check.add_argument("--repair", action="store_true", help="repair what a rerun can give back")
     check.add_argument("--json", action="store_true")
@@ -395,7 +396,7 @@ def _process(
     from flows.config import load_config
     from flows.pipeline import PipelineFailed, video_to_opponent
     from flows.serve import run_parameters
-    from storage.check import stale_temporaries
+    from storage.check import remove_stale_temporaries
     from storage.paths import data_paths
     from tasks.ingest.probe import check_file
 
@@ -404,8 +405,7 @@ def _process(
         check_file(Path(video))
     config = load_config(args.config, _overrides(args))
     # Half-written files of a process killed mid-write (`storage.files.write_atomic`).
-    for path in stale_temporaries(data_paths(data_root).artifacts):
-        path.unlink(missing_ok=True)
+    remove_stale_temporaries(data_paths(data_root).artifacts)
     parameters = run_parameters(
         data_root,
         videos,
@@ -620,6 +620,7 @@ def _check(args, data_root: Path) -> int:
     from tqdm import tqdm
 
     from storage.check import repair, scan
+    from storage.db import error_line
     from storage.paths import data_paths
 
     paths = data_paths(data_root)
@@ -633,7 +634,7 @@ def _check(args, data_root: Path) -> int:
         try:
             done = repair(paths.db, paths.artifacts, problems)
         except duckdb.Error as error:
-            done = [f"failed: {str(error).strip().splitlines()[0]}"]
+            done = [f"failed: {error_line(error)}"]
         left = scan(paths.db, paths.artifacts)
     else:
         left = problems
@@ -1236,7 +1237,7 @@ def _dispatch(raw: list[str], data_root: Path) -> int:
     import duckdb
 
     from storage.assets import AssetError
-    from storage.db import DatabaseBusy, damaged_database
+    from storage.db import DatabaseBusy, damaged_database, error_line
     from storage.paths import data_paths
     from tasks.errors import BadInput
 
@@ -1302,7 +1303,7 @@ def _dispatch(raw: list[str], data_root: Path) -> int:
             raise
         print(
             f"ringside: error: the database {data_paths(data_root).db} is damaged "
-            f"({str(error).strip().splitlines()[0]}); `ringside check` says what is affected "
+            f"({error_line(error)}); `ringside check` says what is affected "
             "and `ringside check --repair` recomputes it",
             file=sys.stderr,
         )

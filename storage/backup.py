@@ -8,7 +8,6 @@ change, and `ringside check` says which the restored database names but cannot f
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 import time
@@ -16,18 +15,10 @@ from pathlib import Path
 
 from storage.check import Problem, scan
 from storage.db import connect, utcnow
-from storage.files import write_atomic
+from storage.files import sha256_file, write_atomic
 
 DATABASE = "ringside.duckdb"
 MANIFEST = "backup.json"
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def backup(db: Path, out: Path) -> dict:
@@ -47,7 +38,7 @@ def backup(db: Path, out: Path) -> dict:
     manifest = {
         "source": str(db),
         "taken_at": utcnow().isoformat(timespec="seconds"),
-        "sha256": _sha256(partial),
+        "sha256": sha256_file(partial),
         "bytes": partial.stat().st_size,
         "rows": tables,
     }
@@ -68,7 +59,7 @@ def restore(db: Path, artifacts: Path, backup_dir: Path) -> tuple[Path | None, l
         raise ValueError(
             f"{backup_dir} is not a backup (`ringside backup DIR` makes one): {error}"
         ) from None
-    if not source.exists() or _sha256(source) != manifest.get("sha256"):
+    if not source.exists() or sha256_file(source) != manifest.get("sha256"):
         raise ValueError(f"{source} is missing or changed since the backup was taken")
     broken = scan(source, None)
     if broken:

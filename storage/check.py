@@ -12,8 +12,6 @@ registers its videos again. Run it while no other command uses the data director
 
 from __future__ import annotations
 
-import hashlib
-import re
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -22,8 +20,8 @@ from pathlib import Path
 import duckdb
 
 from storage.artifacts import NotAnArtifact, artifact_path
-from storage.db import connect, transaction
-from storage.files import TEMPORARY
+from storage.db import connect, error_line, transaction
+from storage.files import TEMPORARY, sha256_file
 from storage.records import process_alive
 
 # Stages whose outputs a rerun recomputes: their tables are named "<stage>_..." and keyed by
@@ -50,22 +48,15 @@ class Problem:
         return (self.stage, self.video_id, self.key) if self.stage in STAGES else None
 
 
-def _first_line(error: BaseException) -> str:
-    """The error's first line; a failed block checksum as where the damaged block is."""
-    text = str(error).strip()
-    found = re.search(r"checksum .* in block at location (\d+)", text)
-    if found:
-        return f"a damaged block (bytes from {found.group(1)}: its checksum does not match)"
-    return text.splitlines()[0] if text else type(error).__name__
-
-
-def _tables(con: duckdb.DuckDBPyConnection) -> dict[str, list[str]]:
-    """Every table of the database with its columns."""
+def _tables(con: duckdb.DuckDBPyConnection, database: str | None = None) -> dict[str, list[str]]:
+    """Every table of the connection's database (or of the attached ``database``), with its
+    columns."""
     tables: dict[str, list[str]] = {}
     for table, column in con.execute(
         "SELECT table_name, column_name FROM duckdb_columns() "
-        "WHERE NOT internal AND database_name = current_database() "
-        "ORDER BY table_name, column_index"
+        "WHERE NOT internal AND database_name = coalesce(?, current_database()) "
+        "ORDER BY table_name, column_index",
+        [database],
     ).fetchall():
         tables.setdefault(table, []).append(column)
     return tables
@@ -107,11 +98,7 @@ def _artifact_problem(artifacts: Path, name: str) -> str | None:
         return f"names {name!r}, a path outside the artifact store"
     if not path.exists():
         return f"artifact {name[:12]}… is missing"
-    digest = hashlib.sha256()
-    with path.open("rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    if digest.hexdigest() != name[:64]:
+    if sha256_file(path) != name[:64]:
         return f"artifact {name[:12]}… is corrupt (its bytes do not hash to its name)"
     return None
 
@@ -135,6 +122,14 @@ def stale_temporaries(artifacts: Path, now: float | None = None) -> list[Path]:
     return sorted(stale)
 
 
+def remove_stale_temporaries(artifacts: Path) -> list[Path]:
+    """Delete the `stale_temporaries`; the paths deleted."""
+    stale = stale_temporaries(artifacts)
+    for path in stale:
+        path.unlink(missing_ok=True)
+    return stale
+
+
 def scan(
     db: Path, artifacts: Path | None, progress: Callable[[str], None] | None = None
 ) -> list[Problem]:
@@ -151,7 +146,7 @@ def scan(
                     progress(table)
                 problems += _table_problems(con, artifacts, table, columns)
     except duckdb.Error as error:
-        return [Problem("database", None, None, f"{db} cannot be opened: {_first_line(error)}")]
+        return [Problem("database", None, None, f"{db} cannot be opened: {error_line(error)}")]
     if artifacts is not None:
         problems += [
             Problem("artifacts", None, None, f"{path} is left over from an interrupted write")
@@ -168,7 +163,7 @@ def _table_problems(
         _read(con, table)
         unreadable = None
     except duckdb.Error as error:
-        unreadable = _first_line(error)
+        unreadable = error_line(error)
     if unreadable is not None and stage is None:
         return [Problem("database", None, None, f"table {table} is damaged: {unreadable}")]
     if unreadable is not None:
@@ -177,7 +172,7 @@ def _table_problems(
             try:
                 _read(con, table, "WHERE key = ? AND video_id = ?", (key, video_id))
             except duckdb.Error as error:
-                what = f"rows of {table} are damaged: {_first_line(error)}"
+                what = f"rows of {table} are damaged: {error_line(error)}"
                 found.append(Problem(stage, video_id, key, what))
         return found or [Problem("database", None, None, f"table {table} is damaged: {unreadable}")]
     if stage is None or "artifact" not in columns or artifacts is None:
@@ -205,8 +200,7 @@ def repair(db: Path, artifacts: Path, problems: Iterable[Problem]) -> list[str]:
     """
     damaged = {p.output for p in problems if p.output is not None}
     fresh = db.with_name(db.name + ".repairing")
-    for leftover in (fresh, fresh.with_name(fresh.name + ".wal")):
-        leftover.unlink(missing_ok=True)
+    _unlink_with_wal(fresh)
     try:
         with connect(fresh) as con:  # migrated: every table, empty
             con.execute(f"ATTACH '{_quoted(db)}' AS old (READ_ONLY)")
@@ -214,12 +208,11 @@ def repair(db: Path, artifacts: Path, problems: Iterable[Problem]) -> list[str]:
             con.execute("DETACH old")
             con.execute("CHECKPOINT")
     except duckdb.Error as error:  # not even the catalogue reads back
-        for partial in (fresh, fresh.with_name(fresh.name + ".wal")):
-            partial.unlink(missing_ok=True)
+        _unlink_with_wal(fresh)
         with connect(fresh):
             pass
         done = [
-            f"{db} cannot be read at all ({_first_line(error)}): a new, empty database "
+            f"{db} cannot be read at all ({error_line(error)}): a new, empty database "
             "replaces it and the next `ringside process` computes everything again"
         ]
     aside = db.with_name(f"{db.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}")
@@ -229,10 +222,13 @@ def repair(db: Path, artifacts: Path, problems: Iterable[Problem]) -> list[str]:
         wal.rename(aside.with_name(aside.name + ".wal"))
     fresh.rename(db)
     done.append(f"kept the damaged file as {aside}")
-    for path in stale_temporaries(artifacts):
-        path.unlink(missing_ok=True)
-        done.append(f"removed {path}")
+    done += [f"removed {path}" for path in remove_stale_temporaries(artifacts)]
     return done
+
+
+def _unlink_with_wal(path: Path) -> None:
+    for file in (path, path.with_name(path.name + ".wal")):
+        file.unlink(missing_ok=True)
 
 
 def _quoted(path: Path) -> str:
@@ -243,13 +239,7 @@ def _copy(con: duckdb.DuckDBPyConnection, damaged: set[tuple[str, str, str]]) ->
     """Copy the attached database ``old`` into this one, but for the ``damaged`` outputs."""
     done = []
     ours = set(_tables(con))
-    theirs: dict[str, list[str]] = {}
-    for table, column in con.execute(
-        "SELECT table_name, column_name FROM duckdb_columns() WHERE database_name = 'old' "
-        "ORDER BY table_name, column_index"
-    ).fetchall():
-        theirs.setdefault(table, []).append(column)
-    for table, columns in theirs.items():
+    for table, columns in _tables(con, "old").items():
         if table not in ours or table == "schema_migrations":
             continue
         stage = _stage_of(table, columns)

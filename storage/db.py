@@ -6,6 +6,7 @@ wait for the file's lock when another process holds it.
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from collections.abc import Iterator
@@ -35,6 +36,16 @@ _DAMAGE = ("corrupt database file", "not a valid duckdb database", "could not re
 def damaged_database(error: BaseException) -> bool:
     """Whether ``error`` is DuckDB finding the database file damaged."""
     return isinstance(error, duckdb.Error) and any(d in str(error).lower() for d in _DAMAGE)
+
+
+def error_line(error: BaseException) -> str:
+    """An error in one line: its first line, a failed block checksum as where the damaged block
+    is (DuckDB's own message runs on with two long checksums)."""
+    text = str(error).strip()
+    found = re.search(r"checksum .* in block at location (\d+)", text)
+    if found:
+        return f"a damaged block (bytes from {found.group(1)}: its checksum does not match)"
+    return text.splitlines()[0] if text else type(error).__name__
 
 
 def _is_lock_error(error: duckdb.Error) -> bool:

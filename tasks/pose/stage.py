@@ -240,9 +240,8 @@ class Roles:
                 else f"barely better than the next pair (margin {margin:.0%})"
             )
             nexts = "; ".join(
-                f"tracks {a} and {b} (score {p.score:.2f})"
+                f"tracks {p.track_ids[0]} and {p.track_ids[1]} (score {p.score:.2f})"
                 for p in others
-                for a, b in [p.track_ids]
             )
             hint = f"; next candidates: {nexts}" if nexts else ""
             notes.append(
@@ -292,8 +291,13 @@ def assign_roles(
         ]
         ranked = rank_pairs(candidates, frame_size, num_frames=shot_frames.get(shot), config=config)
         choices.append(ShotChoice(shot, shot_frames.get(shot, 0), tuple(ranked)))
-        fighters = pick_fighters(
-            candidates, frame_size, num_frames=shot_frames.get(shot), config=config
+        # The best pair (pick_fighters' answer), ranked once; with no pair, its best single track.
+        fighters = (
+            list(ranked[0].track_ids)
+            if ranked
+            else pick_fighters(
+                candidates, frame_size, num_frames=shot_frames.get(shot), config=config
+            )
         )
         if not fighters:
             continue
