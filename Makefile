@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test setup browser assets lint bench clean
+.PHONY: demo test test-kills setup browser assets lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,6 +36,11 @@ demo: $(STAMP)
 test: $(STAMP) browser lint
 	$(BIN)/ringside assets pull --dev
 	$(BIN)/python -m pytest
+
+# SIGKILL at 20 random moments of a pipeline run (tests/test_kills.py, about 20 minutes).
+test-kills: $(STAMP)
+	$(BIN)/ringside assets pull --dev
+	$(BIN)/python -m pytest -m slow -s tests/test_kills.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

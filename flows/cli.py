@@ -1318,7 +1318,16 @@ def run() -> None:
     still alive: dozens of `nanobind: leaked ...` lines after our one line. The logs are sent
     to Prefect's server first, then the exit handlers run (Prefect stops that server in one)."""
     signal.signal(signal.SIGTERM, _stop)
-    code = main()
+    try:
+        code = main()
+    except KeyboardInterrupt:
+        # Prefect has marked the interrupted flow runs Crashed on its way out; the traceback
+        # and DuckDB's leak reports after it would tell the user nothing more.
+        print(
+            "ringside: error: stopped by Ctrl-C; the same command picks up where it stopped",
+            file=sys.stderr,
+        )
+        code = 128 + signal.SIGINT
     if code != 0:
         _leave(code)
     sys.exit(code)

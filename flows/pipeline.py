@@ -39,8 +39,24 @@ def chunk_runner(workers: int):
     if address:
         from prefect_dask import DaskTaskRunner
 
+        check_scheduler(address)
         return DaskTaskRunner(address=address)
     return ThreadPoolTaskRunner(max_workers=workers)
+
+
+def check_scheduler(address: str, timeout_s: float = 5.0) -> None:
+    """Fail in one line when no Dask scheduler answers at ``address``, instead of Dask's 30 s
+    wait inside the pose stage and a traceback of 170 lines."""
+    from distributed import Client
+
+    try:
+        Client(address, timeout=timeout_s, set_as_default=False).close()
+    except (OSError, TimeoutError, ValueError) as error:
+        raise BadInput(
+            f"RINGSIDE_DASK_ADDRESS={address}",
+            f"no Dask scheduler answers ({error}); start one "
+            "(`dask scheduler`) or unset the variable to track pose on this machine's threads",
+        ) from None
 
 
 def stages_until(until: str | None) -> tuple[str, ...]:

@@ -201,15 +201,17 @@ def private_server(data_root: str | Path) -> str:
     with (home / "server-start.lock").open("a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         server = start_server(data_root, port)
+        # Stopped on the way out from here on: a SIGTERM while it migrates its database once
+        # left it running after the command had gone.
+        atexit.register(stop_server, server, 5.0)
+        _private.append(server)
         up = wait_until_up(api_url, server, timeout_s)
     if not up:
-        stop_server(server)
+        stop_private_servers()
         raise RuntimeError(
             f"Prefect's server did not start within {timeout_s:g} s; its log: "
             f"{data_paths(data_root).prefect_home / SERVER_LOG}"
         )
-    atexit.register(stop_server, server, 5.0)
-    _private.append(server)
     return api_url
 
 

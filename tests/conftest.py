@@ -155,3 +155,61 @@ def two_shot_video(tmp_path: Path) -> Path:
     """30 frames of a blue scene, then 30 of a red one: one cut, at frame 30."""
     frames = moving_box_frames(30, (200, 60, 20)) + moving_box_frames(30, (20, 40, 210), 30)
     return write_video(tmp_path / "two_shots.mp4", frames)
+
+
+def child_pids(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie does not)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+# The per-stage tables whose rows a rerun must give back identically, and the metrics that are
+# timings (they differ from run to run).
+CONTENT = ("ingest_shots", "pose_keypoints", "lift_motion", "lift_bones", "dataset_transitions")
+PER_VIDEO = ("ingest", "pose", "lift", "dataset")
+TIMINGS = {("ingest", "decode_fps"), ("pose", "fps")}
+
+
+def stage_contents(data: Path) -> dict:
+    """What the per-video stages computed: output keys, content rows (hashed), metrics (timings
+    left out); what a resumed or repaired run must give back identically."""
+    from storage.db import connect
+
+    db = data_paths(data).db
+    with connect(db, read_only=True) as con:
+        found = {
+            table: con.execute(
+                f"SELECT video_id, key, count(*), bit_xor(hash(t)) FROM {table} t "
+                "GROUP BY ALL ORDER BY ALL"
+            ).fetchall()
+            for table in CONTENT
+        }
+        found["outputs"] = con.execute(
+            "SELECT stage, video_id, key FROM stage_outputs "
+            f"WHERE stage IN {PER_VIDEO} ORDER BY ALL"
+        ).fetchall()
+        found["metrics"] = [
+            row
+            for row in con.execute(
+                "SELECT stage, video_id, key, name, value FROM stage_metrics "
+                f"WHERE stage IN {PER_VIDEO} ORDER BY ALL"
+            ).fetchall()
+            if (row[0], row[3]) not in TIMINGS
+        ]
+    return found

@@ -9,42 +9,14 @@ import os
 import subprocess
 
 import pytest
-from conftest import copy_data, process_argv, query, render_page, run_cli
+from conftest import copy_data, process_argv, query, render_page, run_cli, stage_contents
 
 from storage.artifacts import NotAnArtifact, artifact_path, read_bytes
 from storage.check import stale_temporaries
 from storage.db import connect
 from storage.paths import data_paths
 
-# The per-stage tables whose rows a rerun must give back identically, and the metrics that are
-# timings (they differ from run to run).
-CONTENT = ("ingest_shots", "pose_keypoints", "lift_motion", "lift_bones", "dataset_transitions")
-TIMINGS = {("ingest", "decode_fps"), ("pose", "fps")}
 BLOCK_SIZE, HEADER = 262144, 3 * 4096  # DuckDB's default block size and file header
-
-
-def contents(data) -> dict:
-    """What the per-video stages computed: output keys, content rows (hashed), metrics."""
-    db = data_paths(data).db
-    with connect(db, read_only=True) as con:
-        found = {
-            table: con.execute(
-                f"SELECT video_id, key, count(*), bit_xor(hash(t)) FROM {table} t "
-                "GROUP BY ALL ORDER BY ALL"
-            ).fetchall()
-            for table in CONTENT
-        }
-        found["outputs"] = con.execute(
-            "SELECT stage, video_id, key FROM stage_outputs ORDER BY ALL"
-        ).fetchall()
-        found["metrics"] = [
-            row
-            for row in con.execute(
-                "SELECT stage, video_id, key, name, value FROM stage_metrics ORDER BY ALL"
-            ).fetchall()
-            if (row[0], row[3]) not in TIMINGS
-        ]
-    return found
 
 
 def checkpointed_copy(source, target):
@@ -83,7 +55,7 @@ def test_damaged_blocks_and_lost_files_are_named_then_repaired(
 ):
     data = checkpointed_copy(sample_run, tmp_path / "data")
     paths = data_paths(data)
-    before = contents(data)
+    before = stage_contents(data)
     assert check(capsys, data)[0] == 0
 
     flip_block(paths.db, "pose_keypoints")
@@ -111,7 +83,7 @@ def test_damaged_blocks_and_lost_files_are_named_then_repaired(
 
     argv = process_argv(data, sample_video, "--ingest-chunk-frames", "30")
     assert run_cli(capsys, *argv)[0] == 0
-    assert contents(data) == before
+    assert stage_contents(data) == before
 
     # A chunk file that Prefect's cache still names is gone: tracked again, not an error (the
     # new file has another name: a chunk's .npz holds the time it was written).
@@ -120,7 +92,7 @@ def test_damaged_blocks_and_lost_files_are_named_then_repaired(
     rerun = ["--data", str(data), "rerun", "pose", "--video", before["outputs"][0][1][:12]]
     code, _, err = run_cli(capsys, *rerun, "--until", "pose", "--ingest-chunk-frames", "30")
     assert code == 0, err
-    assert contents(data) == before
+    assert stage_contents(data) == before
 
 
 @pytest.mark.parametrize("how", ["truncated", "emptied"])
@@ -191,7 +163,7 @@ def test_check_json_lists_each_problem(tmp_path, capsys, sample_run):
 
 def test_a_backup_restores_an_emptied_database(tmp_path, capsys, sample_run):
     data = checkpointed_copy(sample_run, tmp_path / "data")
-    before = contents(data)
+    before = stage_contents(data)
     folder = tmp_path / "backup"
     code, out, err = run_cli(capsys, "--data", str(data), "backup", str(folder))
     assert code == 0 and "backed up" in out, err
@@ -200,14 +172,14 @@ def test_a_backup_restores_an_emptied_database(tmp_path, capsys, sample_run):
     restore = ["--data", str(data), "restore", str(folder)]
     code, out, err = run_cli(capsys, *restore)
     assert code == 0, out + err
-    assert contents(data) == before and check(capsys, data)[0] == 0
+    assert stage_contents(data) == before and check(capsys, data)[0] == 0
     assert [p.stat().st_size for p in data.glob("ringside.duckdb.replaced-*")] == [0]
 
     # A backup whose bytes changed is refused; the database stays as it was.
     (folder / "ringside.duckdb").write_bytes(b"not a database")
     code, _, err = run_cli(capsys, *restore)
     assert code == 2 and "changed since the backup was taken" in err, err
-    assert len(err.strip().splitlines()) == 1 and contents(data) == before
+    assert len(err.strip().splitlines()) == 1 and stage_contents(data) == before
 
 
 def test_a_temporary_file_is_stale_once_its_writer_is_gone(tmp_path):

@@ -9,6 +9,7 @@ import os
 import re
 import shutil
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -20,6 +21,8 @@ import numpy as np
 import pytest
 from conftest import (
     TINY_PIPELINE_FLAGS,
+    alive,
+    child_pids,
     count,
     moving_box_frames,
     process_argv,
@@ -525,27 +528,6 @@ def test_an_error_in_a_flow_is_one_line_and_nothing_after_it(tmp_path):
     assert "no dataset 'nope'" in done.stderr
 
 
-def _children(pid: int) -> list[int]:
-    """Processes whose parent is ``pid`` (Linux /proc)."""
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            found.append(int(stat.parent.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
 def test_a_command_killed_with_sigkill_leaves_no_prefect_server(tmp_path, sample_video):
     """`kill -9` gives the command no chance to stop anything: the Prefect server it started
     goes with it (Prefect's own temporary server stayed, about 257 MB each)."""
@@ -557,37 +539,48 @@ def test_a_command_killed_with_sigkill_leaves_no_prefect_server(tmp_path, sample
     servers: list[int] = []
     deadline = time.monotonic() + 120
     while not servers and time.monotonic() < deadline and command.poll() is None:
-        servers = _children(command.pid)
+        servers = child_pids(command.pid)
         time.sleep(0.2)
     time.sleep(5)  # the server is up and the command at work
-    servers = _children(command.pid)
+    servers = child_pids(command.pid)
     assert servers and command.poll() is None, "the command started no server"
     command.kill()
     command.wait()
     deadline = time.monotonic() + 10
-    while any(_alive(pid) for pid in servers) and time.monotonic() < deadline:
+    while any(alive(pid) for pid in servers) and time.monotonic() < deadline:
         time.sleep(0.2)
-    assert not any(_alive(pid) for pid in servers)
+    assert not any(alive(pid) for pid in servers)
 
 
-def test_sigterm_stops_a_command_in_one_line_within_5_s(tmp_path, sample_video):
+@pytest.mark.parametrize(
+    ("stop", "how"), [(signal.SIGTERM, "SIGTERM"), (signal.SIGINT, "Ctrl-C")], ids=["term", "int"]
+)
+def test_a_stop_signal_ends_a_command_in_one_line_within_5_s(tmp_path, sample_video, stop, how):
+    # As a user runs it: Prefect's home in the data directory, where its runs are looked up.
+    env = {k: v for k, v in os.environ.items() if k != "PREFECT_HOME"}
     command = subprocess.Popen(
         [sys.executable, "-m", "flows.cli", "--data", str(tmp_path / "data"), "process",
          str(sample_video), "--adversary", "A"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
     )  # fmt: skip
     deadline = time.monotonic() + 120
-    while not _children(command.pid) and time.monotonic() < deadline:
+    database = tmp_path / "data" / "ringside.duckdb"  # written once the pipeline's flow runs
+    while not database.exists() and time.monotonic() < deadline:
         time.sleep(0.2)
-    time.sleep(5)
-    servers = _children(command.pid)
+    time.sleep(3)
+    servers = child_pids(command.pid)
     assert servers and command.poll() is None
-    command.terminate()
+    command.send_signal(stop)
     stopped = time.monotonic()
     _, err = command.communicate(timeout=30)
     assert time.monotonic() - stopped < 5.0
     assert command.returncode != 0
     assert err.splitlines() == [
-        "ringside: error: stopped by SIGTERM; the same command picks up where it stopped"
+        f"ringside: error: stopped by {how}; the same command picks up where it stopped"
     ]
-    assert not any(_alive(pid) for pid in servers)
+    assert [Path(f"/proc/{pid}/cmdline").read_bytes() for pid in servers if alive(pid)] == []
+    # Its flow runs were marked as it stopped, not left Running for a later command to find.
+    with sqlite3.connect(tmp_path / "data" / "prefect" / "prefect.db") as prefect_db:
+        states = dict(prefect_db.execute("SELECT name, state_type FROM flow_run").fetchall())
+    assert states and "RUNNING" not in states.values(), states
+    assert "CRASHED" in states.values(), states

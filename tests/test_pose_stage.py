@@ -3,12 +3,22 @@
 from __future__ import annotations
 
 import json
+import os
+import sqlite3
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from conftest import moving_box_frames, process_argv, query, read_video, run_cli, write_video
+from conftest import (
+    child_pids,
+    moving_box_frames,
+    process_argv,
+    query,
+    read_video,
+    run_cli,
+    write_video,
+)
 
 import tasks.pose.task
 from flows.cli import main
@@ -182,25 +192,55 @@ def test_one_person_is_one_fighter_and_says_so(tmp_path, capsys, assets):
 
 
 def test_chunks_run_on_a_dask_cluster(tmp_path, capsys, sample_video, monkeypatch, processed):
+    """Worker processes started before the command (as on other machines) track the chunks,
+    report them to the command's Prefect server and start no Prefect server of their own."""
     from distributed import LocalCluster
 
     data = tmp_path / "data"
     with LocalCluster(
-        n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cluster:
+        workers = [worker.process.process.pid for worker in cluster.workers.values()]
         monkeypatch.setenv("RINGSIDE_DASK_ADDRESS", cluster.scheduler_address)
         code, out, err = run_cli(
             capsys,
             *process_argv(data, sample_video, "--ingest-chunk-frames", "30"),
             "--json",
         )
+        started_by_workers = [child for worker in workers for child in child_pids(worker)]
+        # Results the workers computed, by task name: the 4 chunks.
+        computed = {
+            name: prefix.state_counts["memory"]
+            for name, prefix in cluster.scheduler.task_prefixes.items()
+        }
     assert code == 0, err
+    assert len(workers) == 2 and started_by_workers == []
+    assert computed == {"pose_chunk_task": 4}, computed
     assert [s["state"] for s in json.loads(out)] == ["done"] * 5
+    # Prefect's database (the tests' shared Prefect home) holds the chunk runs of this command.
+    with sqlite3.connect(Path(os.environ["PREFECT_HOME"]) / "prefect.db") as prefect_db:
+        chunks = prefect_db.execute(
+            "SELECT t.state_type FROM task_run t JOIN flow_run f ON t.flow_run_id = f.id "
+            "WHERE t.name LIKE 'pose-chunk-%' AND f.parameters LIKE ?",
+            [f"%{data}%"],
+        ).fetchall()
+    assert chunks == [("COMPLETED",)] * 4
     # The same keypoints as the threaded run of the module's fixture (whose roles a pick may
     # have swapped since, hence the comparison without roles).
     sql = "SELECT DISTINCT frame, raw_x FROM pose_keypoints ORDER BY frame, raw_x"
     assert len(query(data, sql)) == 200
     assert query(data, sql) == query(processed, sql)
+
+
+def test_a_dask_scheduler_that_does_not_answer_is_one_line(
+    tmp_path, capsys, sample_video, monkeypatch
+):
+    monkeypatch.setenv("RINGSIDE_DASK_ADDRESS", "tcp://127.0.0.1:9")
+    code, out, err = run_cli(capsys, *process_argv(tmp_path / "data", sample_video))
+    assert code == 2
+    (line,) = err.splitlines()
+    assert line.startswith("ringside: error: RINGSIDE_DASK_ADDRESS=tcp://127.0.0.1:9: no Dask")
+    assert "unset the variable" in line
 
 
 def test_overlay_starts_where_the_fighters_appear(tmp_path, sample_video):
