@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-kills setup browser assets lint bench clean
+.PHONY: demo test test-kills setup browser postgres assets lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[dev]'
 	touch $(STAMP)
 
-setup: $(STAMP) browser
+setup: $(STAMP) browser postgres
 
 # The dashboard's browser tests drive Debian's chromium, never a browser downloaded by Playwright.
 browser:
@@ -27,13 +27,26 @@ browser:
 		echo "as root: apt-get install --no-install-recommends chromium"; \
 	fi
 
+# The PostgreSQL test (tests/test_postgres.py) runs Debian's server in a temporary cluster.
+postgres:
+	@if ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1; then \
+		:; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+		echo "installing Debian's PostgreSQL server for the PostgreSQL test:"; \
+		echo "apt-get update && apt-get install -y --no-install-recommends postgresql"; \
+		apt-get update -qq && apt-get install -y -qq --no-install-recommends postgresql; \
+	else \
+		echo "note: no PostgreSQL server, so the PostgreSQL test will be skipped;"; \
+		echo "as root: apt-get install --no-install-recommends postgresql"; \
+	fi
+
 assets: $(STAMP)
 	$(BIN)/ringside assets pull
 
 demo: $(STAMP)
 	$(BIN)/ringside demo
 
-test: $(STAMP) browser lint
+test: $(STAMP) browser postgres lint
 	$(BIN)/ringside assets pull --dev
 	$(BIN)/python -m pytest
 

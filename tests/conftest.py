@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import tempfile
+import time
+import urllib.request
 from pathlib import Path
 
 _PREFECT_HOME = tempfile.mkdtemp(prefix="ringside-test-prefect-")
@@ -213,3 +216,35 @@ def stage_contents(data: Path) -> dict:
             if (row[0], row[3]) not in TIMINGS
         ]
     return found
+
+
+# Prefect's API, as its UI reads it, and waiting on it (the served-server tests).
+WAIT_S = 150.0
+
+
+def api_post(api: str, path: str, body: dict) -> list[dict]:
+    request = urllib.request.Request(
+        f"{api}/{path}",
+        data=json.dumps(body).encode(),
+        method="POST",
+        headers={"Content-Type": "application/json"},
+    )
+    with urllib.request.urlopen(request, timeout=10) as answer:
+        return json.loads(answer.read())
+
+
+def flow_runs(api: str, flow: str) -> list[dict]:
+    """Every flow run of ``flow`` that Prefect's API (and so its UI) lists."""
+    return api_post(api, "flow_runs/filter", {"flows": {"name": {"any_": [flow]}}})
+
+
+def wait_for(what: str, check, timeout_s: float = WAIT_S, log: Path | None = None):
+    """``check()``'s first truthy value, polled until ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        found = check()
+        if found:
+            return found
+        time.sleep(1.0)
+    tail = log.read_text(errors="replace")[-3000:] if log and log.exists() else ""
+    raise AssertionError(f"timed out after {timeout_s:.0f} s waiting for {what}\n{tail}")

@@ -12,21 +12,20 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
-import urllib.request
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from unittest import mock
 
 import pytest
-from conftest import query, run_cli
+from conftest import WAIT_S, api_post, flow_runs, query, run_cli, wait_for
 
 from flows.serve import (
     RunProgress,
     answers,
+    free_port,
     parse_when,
     pipeline_parameters,
     run_name,
@@ -39,41 +38,6 @@ from flows.watch import SeenFile, list_videos, sort_files
 
 REPO = Path(__file__).resolve().parent.parent
 EVERY_S = 10  # the watched folder's schedule in the test: an interval of seconds
-WAIT_S = 150.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def api_post(api: str, path: str, body: dict) -> list[dict]:
-    request = urllib.request.Request(
-        f"{api}/{path}",
-        data=json.dumps(body).encode(),
-        method="POST",
-        headers={"Content-Type": "application/json"},
-    )
-    with urllib.request.urlopen(request, timeout=10) as answer:
-        return json.loads(answer.read())
-
-
-def flow_runs(api: str, flow: str) -> list[dict]:
-    """Every flow run of ``flow`` that Prefect's API (and so its UI) lists."""
-    return api_post(api, "flow_runs/filter", {"flows": {"name": {"any_": [flow]}}})
-
-
-def wait_for(what: str, check, timeout_s: float = WAIT_S, log: Path | None = None):
-    """``check()``'s first truthy value, polled until ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        found = check()
-        if found:
-            return found
-        time.sleep(1.0)
-    tail = log.read_text(errors="replace")[-3000:] if log and log.exists() else ""
-    raise AssertionError(f"timed out after {timeout_s:.0f} s waiting for {what}\n{tail}")
 
 
 def ringside(capsys, *argv: str) -> tuple[int, str, str]:
