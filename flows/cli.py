@@ -307,7 +307,23 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument(
         "--port", type=int, default=4200, metavar="N", help="the server's port (default 4200)"
     )
+    serve.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="run the pipeline's runs on N process workers of the work pool 'ringside', N at "
+        "a time (default 0: one at a time in this process's runner)",
+    )
     _config_flags(serve)
+
+    worker = commands.add_parser(
+        "worker",
+        help="take the pipeline's runs from the work pool of a `ringside serve --workers N`",
+    )
+    worker.add_argument(
+        "--limit", type=int, default=1, metavar="N", help="runs at a time (default 1)"
+    )
 
     schedule = commands.add_parser(
         "schedule", help="run the pipeline on videos later, through `ringside serve`"
@@ -1048,6 +1064,8 @@ def _serve(args, data_root: Path) -> int:
 
     if not 0 < args.port < 65536:
         raise ValueError(f"--port must be between 1 and 65535, got {args.port}")
+    if args.workers < 0:
+        raise ValueError(f"--workers must be 0 or more, got {args.workers}")
     watch = None
     if args.watch is None:
         for flag in ("adversary", "adversary_colour", "cron", "every", "until"):
@@ -1113,15 +1131,52 @@ def _serve(args, data_root: Path) -> int:
                 f"watching {watch.folder.resolve()} {when} for new videos of {watch.adversary}",
                 flush=True,
             )
-        served.serve_deployments(deployments)
+        served.serve_deployments(deployments, data_root, args.workers)
     except (KeyboardInterrupt, SystemExit):  # SystemExit: Prefect's own SIGTERM handler
         pass
     finally:
         served.clear_served(data_root, os.getpid())
         if server is not None:
-            served.stop_server(server)
+            served.stop_process(server)
         signal.signal(signal.SIGTERM, previous)
     print("serving stopped", file=sys.stderr)
+    return 0
+
+
+def _worker(args, data_root: Path) -> int:
+    import signal
+
+    from flows import serve as served
+    from tasks.errors import BadInput
+
+    if args.limit < 1:
+        raise ValueError(f"--limit must be at least 1, got {args.limit}")
+    api = os.environ.get("PREFECT_API_URL")
+    if api is None:
+        raise BadInput(
+            str(data_root),
+            f"{served.NO_SERVER} (on another machine: set PREFECT_API_URL to its server)",
+        )
+    served.ensure_work_pool()
+
+    def stop(_signum, _frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    worker = served.start_worker(data_root, args.limit)
+    print(
+        f"taking runs from work pool '{served.WORK_POOL}' of {api}, {args.limit} at a time "
+        f"(log: {data_root / 'prefect' / served.WORKER_LOG}; Ctrl-C stops)",
+        flush=True,
+    )
+    try:
+        worker.wait()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        served.stop_workers([worker])
+        signal.signal(signal.SIGTERM, previous)
+    print("worker stopped", file=sys.stderr)
     return 0
 
 
@@ -1288,6 +1343,8 @@ def _dispatch(raw: list[str], data_root: Path) -> int:
             return _dashboard(args, data_root)
         if args.command == "serve":
             return _serve(args, data_root)
+        if args.command == "worker":
+            return _worker(args, data_root)
         if args.command == "schedule":
             return _schedule(args, data_root)
         if args.command == "demo":

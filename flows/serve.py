@@ -43,6 +43,10 @@ SERVED_FILE = "served.json"
 SERVER_LOG = "server.log"
 # The machine has few cores: one flow run at a time, pipeline or watcher, the others wait.
 RUN_LIMIT = 1
+# `ringside worker` and `ringside serve --workers N` take the pipeline's runs from this Prefect
+# process work pool, each one run at a time.
+WORK_POOL = "ringside"
+WORKER_LOG = "worker.log"
 # Prefect's defaults suit hourly schedules: its scheduler looks at changed deployments every 5 s
 # and tops up schedules every 60 s, a served runner asks for due runs every 10 s. Shorter loops
 # let a schedule of seconds fire on time and a `ringside schedule` run start within seconds; each
@@ -203,7 +207,7 @@ def private_server(data_root: str | Path) -> str:
         server = start_server(data_root, port)
         # Stopped on the way out from here on: a SIGTERM while it migrates its database once
         # left it running after the command had gone.
-        atexit.register(stop_server, server, 5.0)
+        atexit.register(stop_process, server, 5.0)
         _private.append(server)
         up = wait_until_up(api_url, server, timeout_s)
     if not up:
@@ -228,7 +232,47 @@ def stop_private_servers() -> None:
         for worker in (APILogWorker, EventsWorker):
             worker.drain_all(timeout=5.0, at_exit=False)
     while _private:
-        stop_server(_private.pop(), 5.0)
+        stop_process(_private.pop(), 5.0)
+
+
+def stop_workers(workers: list[subprocess.Popen], timeout_s: float = 10.0) -> None:
+    """Stop Prefect workers and the flow runs they started, each within ``timeout_s``.
+
+    Each worker starts its runs in sessions of their own, where no signal to the worker reaches
+    them, so the runs get SIGTERM first, and their worker, still up, marks each one that ended
+    unfinished as Crashed (a rerun resumes it). Then each worker gets two signals: Prefect's
+    worker takes a first one as "finish first" (an idle one was still running minutes later)
+    and a second as "stop now". What is left after ``timeout_s`` is killed.
+    """
+    import psutil
+
+    def end(processes: list) -> None:
+        for process in processes:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                process.terminate()
+        _, left = psutil.wait_procs(processes, timeout=timeout_s)
+        for process in left:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                process.kill()
+
+    runs = []
+    for worker in workers:
+        with contextlib.suppress(psutil.NoSuchProcess):
+            runs += psutil.Process(worker.pid).children(recursive=True)
+    if runs:
+        end(runs)
+        time.sleep(1.0)  # the workers see their runs end and report them
+    for worker in workers:
+        if worker.poll() is None:
+            worker.send_signal(signal.SIGTERM)
+    time.sleep(0.2)
+    left = []
+    for worker in workers:
+        with contextlib.suppress(psutil.NoSuchProcess):
+            left.append(psutil.Process(worker.pid))
+    end(left)
+    for worker in workers:
+        worker.wait()
 
 
 def wait_until_up(api_url: str, server: subprocess.Popen, timeout_s: float = 180.0) -> bool:
@@ -241,16 +285,16 @@ def wait_until_up(api_url: str, server: subprocess.Popen, timeout_s: float = 180
     return False
 
 
-def stop_server(server: subprocess.Popen, timeout_s: float = 30.0) -> None:
-    """SIGTERM (uvicorn shuts down gracefully), then SIGKILL if it will not go."""
-    if server.poll() is not None:
+def stop_process(process: subprocess.Popen, timeout_s: float = 30.0) -> None:
+    """SIGTERM (a server or worker shuts down gracefully), then SIGKILL if it will not go."""
+    if process.poll() is not None:
         return
-    server.send_signal(signal.SIGTERM)
+    process.send_signal(signal.SIGTERM)
     try:
-        server.wait(timeout=timeout_s)
+        process.wait(timeout=timeout_s)
     except subprocess.TimeoutExpired:
-        server.kill()
-        server.wait()
+        process.kill()
+        process.wait()
 
 
 def log_tail(data_root: str | Path, lines: int = 20) -> str:
@@ -485,17 +529,58 @@ def deployments(data_root: str | Path, config: dict, watch: Watch | None) -> lis
     return found
 
 
-def serve_deployments(found: list) -> None:
-    """Serve ``found`` from one runner, ``RUN_LIMIT`` runs at a time, until Ctrl-C or SIGTERM;
-    the runner pauses the schedules as it stops."""
+def serve_deployments(found: list, data_root: str | Path, workers: int = 0) -> None:
+    """Serve ``found`` until Ctrl-C or SIGTERM: from one runner, ``RUN_LIMIT`` runs at a time,
+    or, with ``workers``, the pipeline (``found[0]``) on the work pool, where that many process
+    workers started here (and any `ringside worker` elsewhere) take its runs, one each at a time.
+    The runner pauses the schedules as it stops; the workers stop with it."""
     import asyncio
 
     from prefect.runner import Runner
 
+    started: list[subprocess.Popen] = []
+    if workers:
+        ensure_work_pool()
+        pipeline, *found = found
+        pipeline.apply(work_pool_name=WORK_POOL)
     runner = Runner(name=DEPLOYMENT, limit=RUN_LIMIT, pause_on_shutdown=True)
     for deployment in found:
         runner.add_deployment(deployment)
-    asyncio.run(_run_until_stopped(runner))
+    try:
+        started.extend(start_worker(data_root) for _ in range(workers))
+        asyncio.run(_run_until_stopped(runner))
+    finally:
+        stop_workers(started)
+
+
+def ensure_work_pool() -> None:
+    """Create the process work pool `WORK_POOL` on the current Prefect server if it is missing."""
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.actions import WorkPoolCreate
+    from prefect.exceptions import ObjectAlreadyExists
+
+    with get_client(sync_client=True) as client, contextlib.suppress(ObjectAlreadyExists):
+        client.create_work_pool(WorkPoolCreate(name=WORK_POOL, type="process"))
+
+
+def start_worker(data_root: str | Path, limit: int = 1) -> subprocess.Popen:
+    """A Prefect process worker on `WORK_POOL` of the server ``PREFECT_API_URL`` names, taking
+    ``limit`` runs at a time, each in a process of its own; its log goes to
+    ``DATA/prefect/worker.log``. It dies with this process, as the private servers do."""
+    log_path = data_paths(data_root).prefect_home / WORKER_LOG
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    command = [sys.executable, "-m", "prefect", "worker", "start", "--pool", WORK_POOL]
+    command += ["--type", "process", "--limit", str(limit)]
+    with log_path.open("ab") as log:
+        return subprocess.Popen(
+            command,
+            env={**os.environ, **SERVER_LOG_SETTINGS},
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+            preexec_fn=_die_with_parent if sys.platform == "linux" else None,
+        )
 
 
 async def _run_until_stopped(runner) -> None:

@@ -1,0 +1,92 @@
+"""Workers: `ringside serve --workers 1` and a `ringside worker` beside it take four scheduled
+runs from the work pool, two at a time, against a real Prefect server; the DuckDB file ends as a
+serial run leaves it."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import signal
+import subprocess
+import sys
+from datetime import datetime
+from pathlib import Path
+
+import psutil
+from conftest import WAIT_S, flow_runs, run_cli, stage_contents, wait_for
+
+from flows.serve import WORK_POOL, free_port, run_progress, served_api
+from storage.check import scan
+from storage.paths import data_paths
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _overlap(a: dict, b: dict) -> float:
+    """Seconds two finished flow runs ran at the same time."""
+    start = max(datetime.fromisoformat(a["start_time"]), datetime.fromisoformat(b["start_time"]))
+    end = min(datetime.fromisoformat(a["end_time"]), datetime.fromisoformat(b["end_time"]))
+    return (end - start).total_seconds()
+
+
+def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video):
+    data = tmp_path / "data"
+    videos = [sample_video.with_name(f"cam0{i}.mp4") for i in range(1, 5)]
+    # As a user runs them: Prefect's home in the data directory.
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_HOME", "PREFECT_API_URL")}
+    ringside = [sys.executable, "-m", "flows.cli", "--data", str(data)]
+    logs = {name: (tmp_path / f"{name}.log").open("w") for name in ("serve", "worker")}
+    serve = subprocess.Popen(
+        [*ringside, "serve", "--port", str(free_port()), "--workers", "1"],
+        cwd=REPO, env=env, stdout=logs["serve"], stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    worker = None
+    try:
+        api = wait_for("`ringside serve --workers 1`", lambda: served_api(data))
+        worker = subprocess.Popen(
+            [*ringside, "worker"], cwd=REPO, env=env, stdout=logs["worker"],
+            stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        scheduled = []
+        for video in videos:
+            done = subprocess.run(
+                [*ringside, "schedule", str(video), "--adversary", "A", "--until", "ingest",
+                 "--json"],
+                cwd=REPO, env=env, capture_output=True, text=True, timeout=WAIT_S,
+            )  # fmt: skip
+            assert done.returncode == 0, done.stderr[-2000:]
+            scheduled.append(json.loads(done.stdout)["flow_run_id"])
+        for run_id in scheduled:
+            progress = wait_for(
+                "the scheduled runs to finish",
+                lambda run_id=run_id: (p := run_progress(data, run_id)).finished and p,
+                log=tmp_path / "serve.log",
+            )
+            assert progress.succeeded, progress.message
+        runs = [r for r in flow_runs(api, "video_to_opponent") if r["id"] in scheduled]
+        assert len(runs) == 4
+        assert {r["work_pool_name"] for r in runs} == {WORK_POOL}
+        # Two processes took them, two at a time: some pair of runs overlapped.
+        assert max(_overlap(a, b) for a, b in itertools.combinations(runs, 2)) > 0
+        below = psutil.Process(serve.pid).children(recursive=True)
+        below += psutil.Process(worker.pid).children(recursive=True)
+    finally:
+        for process in (worker, serve):
+            if process is not None:
+                process.send_signal(signal.SIGTERM)
+                assert process.wait(timeout=60) == 0
+        for log in logs.values():
+            log.close()
+    # Stopped, the server and the workers with them.
+    assert [p.pid for p in below if p.is_running() and p.status() != psutil.STATUS_ZOMBIE] == []
+    assert "worker stopped" in (tmp_path / "worker.log").read_text()
+    # The database holds what one process running the four videos in turn writes.
+    assert scan(data_paths(data).db, data_paths(data).artifacts) == []
+    serial = tmp_path / "serial"
+    code, _, err = run_cli(
+        capsys, "--data", str(serial), "process", *map(str, videos), "--adversary", "A",
+        "--until", "ingest",
+    )  # fmt: skip
+    assert code == 0, err
+    assert stage_contents(data) == stage_contents(serial)
