@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import subprocess
 import time
 from pathlib import Path
 
+import imageio_ffmpeg
+
+from storage.assets import SAMPLE_VIDEO, pull
+from storage.paths import data_paths
 from tasks.lift.stage import FighterTrack, fighter_tracks
 from tasks.pose.config import PoseConfig
 from tasks.pose.stage import assemble, model_files, plan_spans, process_chunk
@@ -63,3 +68,15 @@ class Timer:
             finally:
                 self.spent[name] = self.spent.get(name, 0.0) + time.perf_counter() - start
             yield item
+
+
+def looped_sample(folder: Path, loops: int) -> Path:
+    """The bundled sample played ``loops`` times in one file (stream copy: the seams join one
+    camera to itself, so they are not cuts)."""
+    assets = data_paths().assets
+    pull(assets, log=lambda _line: None)
+    out = folder / "looped.mp4"
+    ffmpeg = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error"]
+    source = ["-stream_loop", str(loops - 1), "-i", str(assets / SAMPLE_VIDEO)]
+    subprocess.run([*ffmpeg, *source, "-c", "copy", str(out)], check=True)
+    return out

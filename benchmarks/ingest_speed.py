@@ -8,47 +8,20 @@ second of both and, last, their ratio (1.0 would mean the scan costs nothing bey
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import cv2
-import imageio_ffmpeg
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
-from storage.paths import data_paths  # noqa: E402
+from benchmarks._common import looped_sample  # noqa: E402
 from tasks.ingest.config import IngestConfig  # noqa: E402
 from tasks.ingest.probe import scan_video  # noqa: E402
 
 LOOPS = 10
-
-
-def looped_sample(folder: Path) -> Path:
-    assets = data_paths().assets
-    pull(assets, log=lambda _line: None)
-    sample = assets / SAMPLE_VIDEO
-    out = folder / "looped.mp4"
-    subprocess.run(
-        [
-            imageio_ffmpeg.get_ffmpeg_exe(),
-            "-y",
-            "-loglevel",
-            "error",
-            "-stream_loop",
-            str(LOOPS - 1),
-            "-i",
-            str(sample),
-            "-c",
-            "copy",
-            str(out),
-        ],
-        check=True,
-    )
-    return out
 
 
 def bare_decode(path: Path) -> int:
@@ -71,7 +44,7 @@ def best_of(runs: int, work) -> tuple[float, object]:
 
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
-        video = looped_sample(Path(tmp))
+        video = looped_sample(Path(tmp), LOOPS)
         decode_s, frames = best_of(3, lambda: bare_decode(video))
         scan_s, scan = best_of(3, lambda: scan_video(video, IngestConfig()))
     assert scan.probe.frames == frames, (scan.probe.frames, frames)
