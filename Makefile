@@ -14,31 +14,29 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP) browser postgres
 
-# The dashboard's browser tests drive Debian's chromium, never a browser downloaded by Playwright.
-browser:
-	@if [ -x /usr/bin/chromium ]; then \
+# Debian packages some tests need, installed when missing and `make` runs as root; elsewhere a
+# note says which test will be skipped. $(1): a shell test true when the package is there,
+# $(2): the package, $(3): the test that needs it.
+define debian_package
+	@if $(1); then \
 		:; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-		echo "installing Debian's chromium for the dashboard's browser tests:"; \
-		echo "apt-get update && apt-get install -y --no-install-recommends chromium"; \
-		apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium; \
+		echo "installing Debian's $(2) for $(3):"; \
+		echo "apt-get update && apt-get install -y --no-install-recommends $(2)"; \
+		apt-get update -qq && apt-get install -y -qq --no-install-recommends $(2); \
 	else \
-		echo "note: no /usr/bin/chromium, so the dashboard's browser test will be skipped;"; \
-		echo "as root: apt-get install --no-install-recommends chromium"; \
+		echo "note: no $(2), so $(3) will be skipped;"; \
+		echo "as root: apt-get install --no-install-recommends $(2)"; \
 	fi
+endef
+
+# The dashboard's browser tests drive Debian's chromium, never a browser downloaded by Playwright.
+browser:
+	$(call debian_package,[ -x /usr/bin/chromium ],chromium,the dashboard's browser test)
 
 # The PostgreSQL test (tests/test_postgres.py) runs Debian's server in a temporary cluster.
 postgres:
-	@if ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1; then \
-		:; \
-	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-		echo "installing Debian's PostgreSQL server for the PostgreSQL test:"; \
-		echo "apt-get update && apt-get install -y --no-install-recommends postgresql"; \
-		apt-get update -qq && apt-get install -y -qq --no-install-recommends postgresql; \
-	else \
-		echo "note: no PostgreSQL server, so the PostgreSQL test will be skipped;"; \
-		echo "as root: apt-get install --no-install-recommends postgresql"; \
-	fi
+	$(call debian_package,ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1,postgresql,the PostgreSQL test)
 
 assets: $(STAMP)
 	$(BIN)/ringside assets pull

@@ -1375,16 +1375,8 @@ def run() -> None:
     still alive: dozens of `nanobind: leaked ...` lines after our one line. The logs are sent
     to Prefect's server first, then the exit handlers run (Prefect stops that server in one)."""
     signal.signal(signal.SIGTERM, _stop)
-    try:
-        code = main()
-    except KeyboardInterrupt:
-        # Prefect has marked the interrupted flow runs Crashed on its way out; the traceback
-        # and DuckDB's leak reports after it would tell the user nothing more.
-        print(
-            "ringside: error: stopped by Ctrl-C; the same command picks up where it stopped",
-            file=sys.stderr,
-        )
-        code = 128 + signal.SIGINT
+    signal.signal(signal.SIGINT, _interrupt)
+    code = main()
     if code != 0:
         _leave(code)
     sys.exit(code)
@@ -1398,13 +1390,27 @@ def _leave(code: int) -> None:
     os._exit(code)
 
 
-def _stop(signum: int, _frame) -> None:
+# What stopped the command, for its last line: SIGTERM, or Ctrl-C (`_interrupt`).
+_stopped_by = {"signal": signal.SIGTERM}
+
+
+def _interrupt(_signum: int, _frame) -> None:
+    """Ctrl-C ends a command as SIGTERM does. Inside a flow Prefect turns SIGTERM into marking
+    the flow runs Crashed and cancelling their tasks; a KeyboardInterrupt, it lets wait for the
+    pose stage's chunk threads (a Ctrl-C once took over 30 s to end a command). `serve` and
+    `dashboard` take SIGTERM as their own stop, as they took Ctrl-C."""
+    _stopped_by["signal"] = signal.SIGINT
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _stop(_signum: int, _frame) -> None:
     """SIGTERM: one line, Prefect's server stopped, out (what is committed stays committed)."""
+    how = "Ctrl-C" if _stopped_by["signal"] == signal.SIGINT else "SIGTERM"
     print(
-        "ringside: error: stopped by SIGTERM; the same command picks up where it stopped",
+        f"ringside: error: stopped by {how}; the same command picks up where it stopped",
         file=sys.stderr,
     )
-    _leave(128 + signum)
+    _leave(128 + _stopped_by["signal"])
 
 
 if __name__ == "__main__":

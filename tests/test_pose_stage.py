@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import os
 import sqlite3
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -23,6 +25,8 @@ from conftest import (
 import tasks.pose.task
 from flows.cli import main
 from storage.artifacts import artifact_path
+
+REPO = Path(__file__).resolve().parent.parent
 
 
 def metrics(data: Path, stage: str = "pose") -> dict[str, float]:
@@ -192,29 +196,56 @@ def test_one_person_is_one_fighter_and_says_so(tmp_path, capsys, assets):
 
 
 def test_chunks_run_on_a_dask_cluster(tmp_path, capsys, sample_video, monkeypatch, processed):
-    """Worker processes started before the command (as on other machines) track the chunks,
-    report them to the command's Prefect server and start no Prefect server of their own."""
-    from distributed import LocalCluster
+    """Two `dask worker` processes started before the command (as on other machines) track the
+    chunks, report them to the command's Prefect server and start no Prefect server of their
+    own."""
+    from distributed import Client, LocalCluster
 
     data = tmp_path / "data"
+    worker_env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
     with LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        n_workers=0, processes=False, protocol="tcp", dashboard_address=None
     ) as cluster:
-        workers = [worker.process.process.pid for worker in cluster.workers.values()]
-        monkeypatch.setenv("RINGSIDE_DASK_ADDRESS", cluster.scheduler_address)
-        code, out, err = run_cli(
-            capsys,
-            *process_argv(data, sample_video, "--ingest-chunk-frames", "30"),
-            "--json",
-        )
-        started_by_workers = [child for worker in workers for child in child_pids(worker)]
-        # Results the workers computed, by task name: the 4 chunks.
-        computed = {
-            name: prefix.state_counts["memory"]
-            for name, prefix in cluster.scheduler.task_prefixes.items()
-        }
+        workers = [
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "distributed.cli.dask_worker",
+                    cluster.scheduler_address,
+                    "--nthreads",
+                    "1",
+                    "--no-nanny",
+                    "--no-dashboard",
+                ],
+                cwd=REPO,
+                env=worker_env,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )  # fmt: skip
+            for _ in range(2)
+        ]
+        try:
+            with Client(cluster) as client:
+                client.wait_for_workers(2, timeout=120)
+            monkeypatch.setenv("RINGSIDE_DASK_ADDRESS", cluster.scheduler_address)
+            code, out, err = run_cli(
+                capsys,
+                *process_argv(data, sample_video, "--ingest-chunk-frames", "30"),
+                "--json",
+            )
+            started_by_workers = [child for w in workers for child in child_pids(w.pid)]
+            # Results the workers computed, by task name: the 4 chunks.
+            computed = {
+                name: prefix.state_counts["memory"]
+                for name, prefix in cluster.scheduler.task_prefixes.items()
+            }
+        finally:
+            for worker in workers:
+                worker.terminate()
+                worker.wait(timeout=60)
     assert code == 0, err
-    assert len(workers) == 2 and started_by_workers == []
+    assert started_by_workers == []
     assert computed == {"pose_chunk_task": 4}, computed
     assert [s["state"] for s in json.loads(out)] == ["done"] * 5
     # Prefect's database (the tests' shared Prefect home) holds the chunk runs of this command.

@@ -14,7 +14,7 @@ from datetime import datetime
 from pathlib import Path
 
 import psutil
-from conftest import WAIT_S, flow_runs, run_cli, stage_contents, wait_for
+from conftest import WAIT_S, api_post, flow_runs, run_cli, stage_contents, wait_for
 
 from flows.serve import WORK_POOL, free_port, run_progress, served_api
 from storage.check import scan
@@ -48,6 +48,16 @@ def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video
             [*ringside, "worker"], cwd=REPO, env=env, stdout=logs["worker"],
             stderr=subprocess.STDOUT,
         )  # fmt: skip
+        # Both workers take runs before any is scheduled (on a busy machine one came late).
+        wait_for(
+            "two workers online on the pool",
+            lambda: [
+                w
+                for w in api_post(api, f"work_pools/{WORK_POOL}/workers/filter", {})
+                if w["status"] == "ONLINE"
+            ][1:],
+            log=tmp_path / "worker.log",
+        )
         scheduled = []
         for video in videos:
             done = subprocess.run(
