@@ -56,6 +56,9 @@ SERVER_SETTINGS = {
     "PREFECT_SERVER_SERVICES_SCHEDULER_RECENT_DEPLOYMENTS_LOOP_SECONDS": "2",
 }
 RUNNER_SETTINGS = {"PREFECT_RUNNER_POLL_FREQUENCY": "2"}
+# Workers likewise: Prefect's ask every 10 s, so two runs scheduled together often ran one after
+# the other on two idle workers.
+WORKER_SETTINGS = {"PREFECT_WORKER_QUERY_SECONDS": "2"}
 # server.log keeps the server's warnings and errors (a failing scheduler says so there), not a
 # line per request: the runner alone asks every 2 s.
 SERVER_LOG_SETTINGS = {
@@ -574,7 +577,7 @@ def start_worker(data_root: str | Path, limit: int = 1) -> subprocess.Popen:
     with log_path.open("ab") as log:
         return subprocess.Popen(
             command,
-            env={**os.environ, **SERVER_LOG_SETTINGS},
+            env={**WORKER_SETTINGS, **os.environ, **SERVER_LOG_SETTINGS},
             stdout=log,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,

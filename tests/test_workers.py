@@ -13,9 +13,10 @@ import sys
 import urllib.error
 from datetime import datetime
 from pathlib import Path
+from unittest import mock
 
 import psutil
-from conftest import WAIT_S, api_post, flow_runs, run_cli, stage_contents, wait_for
+from conftest import api_post, flow_runs, run_cli, stage_contents, wait_for
 
 from flows.serve import WORK_POOL, free_port, run_progress, served_api
 from storage.check import scan
@@ -62,15 +63,16 @@ def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video
         )  # fmt: skip
         # Both workers take runs before any is scheduled (on a busy machine one came late).
         wait_for("two workers online on the pool", lambda: online_workers(api) >= 2)
+        # Scheduled together (in this process: a `schedule` command each took seconds to start).
         scheduled = []
-        for video in videos:
-            done = subprocess.run(
-                [*ringside, "schedule", str(video), "--adversary", "A", "--until", "ingest",
-                 "--json"],
-                cwd=REPO, env=env, capture_output=True, text=True, timeout=WAIT_S,
-            )  # fmt: skip
-            assert done.returncode == 0, done.stderr[-2000:]
-            scheduled.append(json.loads(done.stdout)["flow_run_id"])
+        with mock.patch.dict(os.environ):
+            for video in videos:
+                code, out, err = run_cli(
+                    capsys, "--data", str(data), "schedule", str(video), "--adversary", "A",
+                    "--until", "ingest", "--json",
+                )  # fmt: skip
+                assert code == 0, err
+                scheduled.append(json.loads(out)["flow_run_id"])
         for run_id in scheduled:
             progress = wait_for(
                 "the scheduled runs to finish",
