@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-kills setup browser postgres assets lint bench clean
+.PHONY: demo test test-slow setup browser postgres assets lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -48,10 +48,11 @@ test: $(STAMP) browser postgres lint
 	$(BIN)/ringside assets pull --dev
 	$(BIN)/python -m pytest
 
-# SIGKILL at 20 random moments of a pipeline run (tests/test_kills.py, about 20 minutes).
-test-kills: $(STAMP)
+# The tests too long for `make test` and CI: SIGKILL at 20 random moments of a pipeline run
+# (tests/test_kills.py, about 16 minutes) and two pipeline workers (tests/test_workers.py).
+test-slow: $(STAMP) postgres
 	$(BIN)/ringside assets pull --dev
-	$(BIN)/python -m pytest -m slow -s tests/test_kills.py
+	$(BIN)/python -m pytest -m slow -s
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

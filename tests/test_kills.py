@@ -1,6 +1,6 @@
 """SIGKILL at 20 random moments of `ringside process`, each time in a fresh data directory; then
 see what is left. About 20 minutes on 2 cores, so it is marked ``slow``: `make test` leaves it
-out (it would take CI's whole budget) and `make test-kills` runs it.
+out (it would take CI's whole budget) and `make test-slow` runs it.
 
 On the bundled sample with the tiny training and evaluation settings (a checkpoint every 5
 iterations, so that kills land in every stage, checkpoint writes included): each round starts

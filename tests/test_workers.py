@@ -1,6 +1,6 @@
 """Workers: `ringside serve --workers 1` and a `ringside worker` beside it take four scheduled
 runs from the work pool, two at a time, against a real Prefect server; the DuckDB file ends as a
-serial run leaves it."""
+serial run leaves it. Slow: `make test-slow` runs it."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from pathlib import Path
 from unittest import mock
 
 import psutil
+import pytest
 from conftest import api_post, flow_runs, run_cli, stage_contents, wait_for
 
 from flows.serve import WORK_POOL, free_port, run_progress, served_api
@@ -43,6 +44,8 @@ def _overlap(a: dict, b: dict) -> float:
     return (end - start).total_seconds()
 
 
+# A minute long: with it CI's suite came near its 20 minutes, so `make test-slow` runs it.
+@pytest.mark.slow
 def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video):
     data = tmp_path / "data"
     videos = [sample_video.with_name(f"cam0{i}.mp4") for i in range(1, 5)]
