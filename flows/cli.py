@@ -1016,8 +1016,22 @@ def wait_until_serving(url: str, server: subprocess.Popen, timeout_s: float = 60
     return False
 
 
+@contextlib.contextmanager
+def _sigterm_as_ctrl_c():
+    """SIGTERM (a service manager, a test) raises KeyboardInterrupt while inside, so the
+    long-running commands stop on it as on Ctrl-C, stopping what they started."""
+
+    def stop(_signum, _frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def _dashboard(args, data_root: Path) -> int:
-    import signal
     import webbrowser
 
     if not 0 < args.port < 65536:
@@ -1029,12 +1043,8 @@ def _dashboard(args, data_root: Path) -> int:
         os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY")
     )
 
-    def stop(_signum, _frame):
-        raise KeyboardInterrupt
-
-    # A SIGTERM (a service manager, a test) stops the server as Ctrl-C does, not orphaning it.
-    previous = signal.signal(signal.SIGTERM, stop)
-    try:
+    # A SIGTERM stops the server as Ctrl-C does, not orphaning it.
+    with _sigterm_as_ctrl_c():
         server = subprocess.Popen(dashboard_command(data_root, host=args.host, port=args.port))
         print(f"dashboard of {data_root} at {url} (Ctrl-C stops it)", flush=True)
         try:
@@ -1051,13 +1061,9 @@ def _dashboard(args, data_root: Path) -> int:
                 server.wait()
             print("dashboard stopped", file=sys.stderr)
             return 0
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _serve(args, data_root: Path) -> int:
-    import signal
-
     from flows import serve as served
     from flows.config import load_config
     from tasks.errors import BadInput
@@ -1099,53 +1105,47 @@ def _serve(args, data_root: Path) -> int:
     for name, value in served.RUNNER_SETTINGS.items():
         os.environ.setdefault(name, value)
     deployments = served.deployments(data_root, config, watch)
-
-    def stop(_signum, _frame):
-        raise KeyboardInterrupt
-
     # SIGTERM stops it as Ctrl-C does, the server included (below); once serving, SIGTERM
     # cancels the runner instead (see serve_deployments).
-    previous = signal.signal(signal.SIGTERM, stop)
     server = None
-    try:
-        if own_server:
-            server = served.start_server(data_root, args.port)
-            if not served.wait_until_up(api, server):
-                print(served.log_tail(data_root), file=sys.stderr)
-                log = served.served_file(data_root).with_name(served.SERVER_LOG)
-                print(
-                    f"ringside: error: Prefect's server did not start; see {log}", file=sys.stderr
-                )
-                return EXIT_FAILED
-        ui = api.removesuffix("/api")
-        served.write_served(data_root, served.Served(api, ui, os.getpid()))
-        print(f"Prefect UI: {ui} (Ctrl-C stops serving)", flush=True)
-        print(
-            f"serving {served.PIPELINE_FLOW}/{served.DEPLOYMENT} on {data_root}: "
-            "`ringside schedule`, the dashboard's reruns and the UI's Run start it",
-            flush=True,
-        )
-        if watch is not None:
-            when = f"every {watch.every_s:g} s" if watch.every_s else f"on cron '{watch.cron}'"
+    with _sigterm_as_ctrl_c():
+        try:
+            if own_server:
+                server = served.start_server(data_root, args.port)
+                if not served.wait_until_up(api, server):
+                    print(served.log_tail(data_root), file=sys.stderr)
+                    log = served.served_file(data_root).with_name(served.SERVER_LOG)
+                    print(
+                        f"ringside: error: Prefect's server did not start; see {log}",
+                        file=sys.stderr,
+                    )
+                    return EXIT_FAILED
+            ui = api.removesuffix("/api")
+            served.write_served(data_root, served.Served(api, ui, os.getpid()))
+            print(f"Prefect UI: {ui} (Ctrl-C stops serving)", flush=True)
             print(
-                f"watching {watch.folder.resolve()} {when} for new videos of {watch.adversary}",
+                f"serving {served.PIPELINE_FLOW}/{served.DEPLOYMENT} on {data_root}: "
+                "`ringside schedule`, the dashboard's reruns and the UI's Run start it",
                 flush=True,
             )
-        served.serve_deployments(deployments, data_root, args.workers)
-    except (KeyboardInterrupt, SystemExit):  # SystemExit: Prefect's own SIGTERM handler
-        pass
-    finally:
-        served.clear_served(data_root, os.getpid())
-        if server is not None:
-            served.stop_process(server)
-        signal.signal(signal.SIGTERM, previous)
+            if watch is not None:
+                when = f"every {watch.every_s:g} s" if watch.every_s else f"on cron '{watch.cron}'"
+                print(
+                    f"watching {watch.folder.resolve()} {when} for new videos of {watch.adversary}",
+                    flush=True,
+                )
+            served.serve_deployments(deployments, data_root, args.workers)
+        except (KeyboardInterrupt, SystemExit):  # SystemExit: Prefect's own SIGTERM handler
+            pass
+        finally:
+            served.clear_served(data_root, os.getpid())
+            if server is not None:
+                served.stop_process(server)
     print("serving stopped", file=sys.stderr)
     return 0
 
 
 def _worker(args, data_root: Path) -> int:
-    import signal
-
     from flows import serve as served
     from tasks.errors import BadInput
 
@@ -1158,24 +1158,19 @@ def _worker(args, data_root: Path) -> int:
             f"{served.NO_SERVER} (on another machine: set PREFECT_API_URL to its server)",
         )
     served.ensure_work_pool()
-
-    def stop(_signum, _frame):
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, stop)
-    worker = served.start_worker(data_root, args.limit)
-    print(
-        f"taking runs from work pool '{served.WORK_POOL}' of {api}, {args.limit} at a time "
-        f"(log: {data_root / 'prefect' / served.WORKER_LOG}; Ctrl-C stops)",
-        flush=True,
-    )
-    try:
-        worker.wait()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        served.stop_workers([worker])
-        signal.signal(signal.SIGTERM, previous)
+    with _sigterm_as_ctrl_c():
+        worker = served.start_worker(data_root, args.limit)
+        print(
+            f"taking runs from work pool '{served.WORK_POOL}' of {api}, {args.limit} at a time "
+            f"(log: {served.worker_log(data_root)}; Ctrl-C stops)",
+            flush=True,
+        )
+        try:
+            worker.wait()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            served.stop_workers([worker])
     print("worker stopped", file=sys.stderr)
     return 0
 

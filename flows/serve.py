@@ -262,9 +262,14 @@ def stop_workers(workers: list[subprocess.Popen], timeout_s: float = 10.0) -> No
     for worker in workers:
         with contextlib.suppress(psutil.NoSuchProcess):
             runs += psutil.Process(worker.pid).children(recursive=True)
+    run_ids = set()
+    for run in runs:
+        with contextlib.suppress(psutil.Error):
+            run_ids.add(run.environ().get("PREFECT__FLOW_RUN_ID"))
+    run_ids.discard(None)
     if runs:
         end(runs)
-        time.sleep(1.0)  # the workers see their runs end and report them
+        _wait_until_ended(run_ids, timeout_s)
     for worker in workers:
         if worker.poll() is None:
             worker.send_signal(signal.SIGTERM)
@@ -276,6 +281,34 @@ def stop_workers(workers: list[subprocess.Popen], timeout_s: float = 10.0) -> No
     end(left)
     for worker in workers:
         worker.wait()
+
+
+def _wait_until_ended(run_ids: set[str], timeout_s: float) -> None:
+    """Wait until the flow runs ``run_ids`` are no longer RUNNING in Prefect (their worker
+    reports each ended run), for at most ``timeout_s``."""
+    import uuid
+
+    import httpx
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.filters import (
+        FlowRunFilter,
+        FlowRunFilterId,
+        FlowRunFilterState,
+        FlowRunFilterStateType,
+    )
+    from prefect.client.schemas.objects import StateType
+
+    if not run_ids:
+        return
+    running = FlowRunFilter(
+        id=FlowRunFilterId(any_=[uuid.UUID(run) for run in run_ids]),
+        state=FlowRunFilterState(type=FlowRunFilterStateType(any_=[StateType.RUNNING])),
+    )
+    deadline = time.monotonic() + timeout_s
+    # A server already gone cannot be told anything more: nothing to wait for then.
+    with contextlib.suppress(httpx.HTTPError), get_client(sync_client=True) as client:
+        while client.read_flow_runs(flow_run_filter=running) and time.monotonic() < deadline:
+            time.sleep(0.2)
 
 
 def wait_until_up(api_url: str, server: subprocess.Popen, timeout_s: float = 180.0) -> bool:
@@ -566,11 +599,16 @@ def ensure_work_pool() -> None:
         client.create_work_pool(WorkPoolCreate(name=WORK_POOL, type="process"))
 
 
+def worker_log(data_root: str | Path) -> Path:
+    """Where the process workers started on this data directory write their log."""
+    return data_paths(data_root).prefect_home / WORKER_LOG
+
+
 def start_worker(data_root: str | Path, limit: int = 1) -> subprocess.Popen:
     """A Prefect process worker on `WORK_POOL` of the server ``PREFECT_API_URL`` names, taking
     ``limit`` runs at a time, each in a process of its own; its log goes to
     ``DATA/prefect/worker.log``. It dies with this process, as the private servers do."""
-    log_path = data_paths(data_root).prefect_home / WORKER_LOG
+    log_path = worker_log(data_root)
     log_path.parent.mkdir(parents=True, exist_ok=True)
     command = [sys.executable, "-m", "prefect", "worker", "start", "--pool", WORK_POOL]
     command += ["--type", "process", "--limit", str(limit)]
