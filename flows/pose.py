@@ -62,7 +62,7 @@ def _track_chunks(
     paths = data_paths(data_root)
     models = model_files(settings, paths.assets)
     hashes = (sha256_file(models[0]), sha256_file(models[1]))
-    spans = plan_spans(list(ingest.chunks), settings.overlap_frames)
+    spans = plan_spans(list(ingest.chunks), settings.overlap_frames, ingest.source_frames)
 
     def arguments(span: ChunkSpan) -> tuple:
         key = chunk_key(settings, ingest.video_id, span, hashes)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import subprocess
 import tempfile
 import time
 import urllib.request
@@ -138,6 +139,20 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float = 30.0) -> Path
     for frame in frames:
         writer.write(frame)
     writer.release()
+    return path
+
+
+def dropped_frames_copy(source: Path, path: Path, keep_from: int, every: int) -> Path:
+    """A variable-frame-rate copy of ``source`` as a camera dropping frames makes it: every
+    frame before ``keep_from``, then one in ``every``, each at its original time (H.264 by the
+    ffmpeg imageio-ffmpeg ships; timestamps passed through, not re-timed)."""
+    import imageio_ffmpeg
+
+    keep = f"lt(n\\,{keep_from})+not(mod(n-{keep_from}\\,{every}))"
+    command = [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-y", "-i", str(source)]
+    command += ["-vf", f"select='{keep}'", "-fps_mode", "passthrough"]
+    command += ["-c:v", "libx264", "-crf", "12", "-preset", "veryfast", str(path)]
+    subprocess.run(command, check=True)
     return path
 
 

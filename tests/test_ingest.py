@@ -5,7 +5,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import moving_box_frames, write_video
+from conftest import dropped_frames_copy, moving_box_frames, read_video, write_video
 
 from storage.artifacts import read_bytes
 from tasks.errors import BadInput
@@ -21,6 +21,7 @@ from tasks.ingest.probe import (
     scan_video,
 )
 from tasks.ingest.stage import ingest_video
+from tasks.pose.frames import read_frames
 
 
 def test_find_cuts_threshold_and_minimum_shot():
@@ -158,3 +159,43 @@ def test_a_cut_to_a_view_of_the_same_colours_is_found(sample_video: Path, tmp_pa
         assert scan.distances[50] < IngestConfig().cut_threshold  # the colours alone miss it
     whole = scan_video(write_video(tmp_path / "whole.mp4", frames), IngestConfig())
     assert len(whole.shots) == 1
+
+
+def test_a_camera_dropping_frames_is_retimed_by_its_timestamps(sample_video: Path, tmp_path: Path):
+    """The sample (60 fps) with one frame in three dropped from frame 50 on, each kept frame at
+    its own time: a variable-rate file OpenCV calls 42.3 fps (67 frames over 1.58 s). Ingest
+    puts it back on the 60 fps grid, each grid frame showing the frame on screen then, so later
+    stages' times are real."""
+    video = dropped_frames_copy(sample_video, tmp_path / "vfr.mp4", keep_from=50, every=3)
+    assert cv2.VideoCapture(str(video)).get(cv2.CAP_PROP_FPS) == pytest.approx(42.3, abs=0.1)
+    probe = scan_video(video, IngestConfig()).probe
+    assert probe.fps == pytest.approx(60.0) and probe.frames_decoded == 67
+    assert probe.frames == 99 and probe.duration_s == pytest.approx(1.65)
+    kept = [*range(50), *range(50, 100, 3)]
+    shown = [max(k for k in kept if k <= frame) for frame in range(probe.frames)]
+    assert [kept[i] for i in probe.source_frames] == shown
+
+    _, original = read_video(sample_video)
+    grid = [frame for _, frame in read_frames(video, 0, probe.frames, probe.source_frames)]
+    error = [np.abs(grid[i].astype(int) - original[shown[i]]).mean() for i in range(len(grid))]
+    assert max(error) < 1.5  # the same pictures, H.264 twice
+    # A chunk read from the middle lands on the same frames.
+    assert all(
+        np.array_equal(frame, grid[i])
+        for i, frame in read_frames(video, 60, 75, probe.source_frames[60:75])
+    )
+
+    output = ingest_video(
+        identify(video), declare("A"), IngestConfig(), key="k", artifacts=tmp_path / "store"
+    )
+    assert output.metrics["variable_frame_rate"] == 1.0 and output.metrics["fps"] == 60.0
+    assert output.metrics["frames"] == 99 and output.metrics["frames_decoded"] == 67
+    assert output.notes == (
+        "variable frame rate (20 to 60 fps): re-timed by the container's timestamps to 60 fps, "
+        "67 decoded frames on 99 grid frames (32 show the frame before again)",
+    )
+
+
+def test_even_frame_intervals_are_kept_as_they_are(sample_video: Path, tmp_path: Path):
+    probe = scan_video(sample_video, IngestConfig()).probe
+    assert probe.source_frames is None and probe.frames == probe.frames_decoded == 100

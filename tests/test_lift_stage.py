@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import query, read_video, run_cli
+from conftest import dropped_frames_copy, process_argv, query, read_video, run_cli
 from test_lift_series import colour_pixels
 
 from storage.artifacts import artifact_path
@@ -192,3 +192,41 @@ def test_frames_without_the_fighter_are_bridged(assets, tmp_path):
     m = evaluate_lift(dataclasses.replace(case, inputs=inputs), LiftStageConfig(), tmp_path)
     assert m["adversary_frames_lifted"] == len(case.points)
     assert m["output_pa_mpjpe_mm"] < 40
+
+
+def _walking_speeds(data: Path, video_id: str) -> dict[str, tuple[float, float]]:
+    """Per fighter, the pelvis's mean horizontal speed (m/s) before and after 50/60 s."""
+    rows = query(
+        data,
+        "SELECT role, time_s, qpos[1], qpos[2] FROM lift_motion WHERE video_id = ? "
+        "ORDER BY role, step",
+        [video_id],
+    )
+    speeds = {}
+    for role in ("adversary", "opponent"):
+        t, x, y = np.array([r[1:] for r in rows if r[0] == role]).T
+        split = int(np.searchsorted(t, 50 / 60))
+        parts = []
+        for a, b in ((0, split), (split, len(t))):
+            path = np.hypot(np.diff(x[a:b]), np.diff(y[a:b])).sum()
+            parts.append(path / (t[b - 1] - t[a]))
+        speeds[role] = tuple(parts)
+    return speeds
+
+
+def test_a_camera_dropping_frames_moves_the_fighters_at_their_real_speed(
+    sample_run, sample_video, tmp_path, capsys
+):
+    """The sample with one frame in three dropped from frame 50 on (each kept frame at its own
+    time): lifted, the fighters walk as fast as in the sample before and after the drop. Taken
+    as a constant 42.3 fps, as OpenCV reports it, the adversary's 0.62 and 0.76 m/s were 0.43
+    and 1.26 m/s."""
+    video = dropped_frames_copy(sample_video, tmp_path / "vfr.mp4", keep_from=50, every=3)
+    data = tmp_path / "data"
+    code, out, _ = run_cli(capsys, *process_argv(data, video, until="lift"))
+    assert code == 0 and "variable frame rate (20 to 60 fps)" in out
+    (video_id,) = query(data, "SELECT video_id FROM videos")[0]
+    (sample_id,) = query(sample_run, "SELECT video_id FROM videos")[0]
+    retimed, truth = _walking_speeds(data, video_id), _walking_speeds(sample_run, sample_id)
+    for role in truth:
+        assert np.allclose(retimed[role], truth[role], rtol=0.2), (role, retimed, truth)

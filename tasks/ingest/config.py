@@ -59,6 +59,13 @@ class IngestConfig:
         "Share of the frames the container declares that may fail to decode before the file is "
         "called truncated.",
     )
+    frame_interval_spread: float = setting(
+        0.25,
+        "A video whose frame intervals (the container's timestamps) spread more than this share "
+        "around their median (5th to 95th percentile) has a variable frame rate: it is re-timed "
+        "onto a constant grid at its fastest rate (each grid frame shows the frame shown at that "
+        "moment), so that every later stage's times are real. Phones' small jitter stays under it.",
+    )
     thumbnail_width: int = setting(320, "Width (pixels) of the still stored for each shot.")
     min_frames: int = setting(
         10,
@@ -67,6 +74,10 @@ class IngestConfig:
     )
 
     def __post_init__(self) -> None:
+        if not self.frame_interval_spread > 0.0:
+            raise ValueError(
+                f"ingest.frame_interval_spread must be positive, got {self.frame_interval_spread}"
+            )
         for name in ("cut_threshold", "structure_threshold"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"ingest.{name} must be in (0, 1], got {getattr(self, name)}")

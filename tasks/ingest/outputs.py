@@ -22,6 +22,8 @@ class IngestOutput:
     colour: str | None
     chunks: tuple[tuple[int, int, int, int], ...]  # (chunk, shot, start, end)
     shots: tuple[tuple[int, int, int], ...]  # (shot, start, end)
+    # Variable frame rate: the decoded frame shown at each frame of the constant grid.
+    source_frames: tuple[int, ...] | None = None
 
     @property
     def shot_frames(self) -> dict[int, int]:
@@ -33,7 +35,7 @@ def load_ingest(con: duckdb.DuckDBPyConnection, video_id: str, key: str) -> Inge
     """The ingest output ``key`` of ``video_id``; KeyError if it was never committed."""
     probe = con.execute(
         """
-        SELECT p.path, p.fps, p.frames, p.width, p.height, a.name, a.colour
+        SELECT p.path, p.fps, p.frames, p.width, p.height, a.name, a.colour, p.source_frames
         FROM ingest_probes p JOIN ingest_adversaries a USING (key, video_id)
         WHERE p.key = ? AND p.video_id = ?
         """,
@@ -51,7 +53,18 @@ def load_ingest(con: duckdb.DuckDBPyConnection, video_id: str, key: str) -> Inge
         "WHERE key = ? AND video_id = ? ORDER BY shot",
         [key, video_id],
     ).fetchall()
-    path, fps, frames, width, height, name, colour = probe
+    path, fps, frames, width, height, name, colour, source = probe
     return IngestOutput(
-        video_id, key, path, fps, frames, width, height, name, colour, tuple(chunks), tuple(shots)
+        video_id,
+        key,
+        path,
+        fps,
+        frames,
+        width,
+        height,
+        name,
+        colour,
+        tuple(chunks),
+        tuple(shots),
+        None if source is None else tuple(source),
     )

@@ -30,7 +30,9 @@ class VideoFile:
 
 @dataclass(frozen=True)
 class Probe:
-    """What decoding the whole file found."""
+    """What decoding the whole file found. ``fps`` and ``frames`` describe the constant-rate
+    timeline every later stage uses; for a variable-rate video, ``source_frames[i]`` is the
+    decoded frame shown at grid frame ``i`` (``None``: the grid is the decoded frames)."""
 
     fps: float
     frames: int
@@ -39,6 +41,9 @@ class Probe:
     height: int
     codec: str
     duration_s: float
+    frames_decoded: int
+    source_frames: np.ndarray | None = None
+    fps_range: tuple[float, float] | None = None  # slowest, fastest rate of a variable video
 
 
 @dataclass(frozen=True)
@@ -159,6 +164,28 @@ def find_cuts(distances: np.ndarray, threshold: float, min_shot_frames: int) -> 
     return [i for i in range(1, len(distances)) if detector.update(i, float(distances[i]))]
 
 
+def retime(times_s: np.ndarray, spread: float) -> tuple[float, np.ndarray] | None:
+    """For decoded frames shown at ``times_s``: ``None`` when their intervals are even (within
+    ``spread`` of the median, 5th to 95th percentile), else the grid rate (the fastest
+    interval's) and, per grid frame, the decoded frame on screen at that moment."""
+    times_s = np.asarray(times_s, dtype=np.float64)
+    intervals = np.diff(times_s)
+    # Timestamps that do not increase (a container without them) say nothing: keep the frames.
+    if len(intervals) < 2 or not np.all(np.isfinite(intervals)) or np.any(intervals <= 0):
+        return None
+    low, median, high = np.percentile(intervals, [5, 50, 95])
+    if (high - low) / median <= spread:
+        return None
+    rate = round(1.0 / low, 3)  # the timestamps' rounding aside, a rate like 60 reads 60
+    grid = (
+        times_s[0] + np.arange(int(np.floor((times_s[-1] - times_s[0]) * rate + 1e-6)) + 1) / rate
+    )
+    # The frame on screen at t is the last one shown at or before it (a tolerance of a
+    # thousandth of an interval absorbs the timestamps' millisecond rounding).
+    shown = np.searchsorted(times_s, grid + 1e-3 * low, side="right") - 1
+    return rate, shown.clip(0, len(times_s) - 1)
+
+
 def plan_chunks(shots: list[Shot], chunk_frames: int) -> list[Chunk]:
     """Split every shot into chunks of at most ``chunk_frames`` frames, in frame order."""
     chunks: list[Chunk] = []
@@ -222,6 +249,7 @@ def scan_video(path: Path, config: IngestConfig) -> Scan:
             config.cut_threshold, config.min_shot_frames, config.structure_threshold
         )
         distances: list[float] = []
+        times_ms: list[float] = []
         cuts: list[tuple[int, float, bytes]] = []
         previous = previous_grey = None
         size = (0, 0)
@@ -237,6 +265,7 @@ def scan_video(path: Path, config: IngestConfig) -> Scan:
             distance = 0.0 if previous is None else histogram_distance(previous, hist)
             structure = 0.0 if previous_grey is None else structure_distance(previous_grey, grey)
             distances.append(distance)
+            times_ms.append(capture.get(cv2.CAP_PROP_POS_MSEC))
             if index == 0:
                 size = (frame.shape[1], frame.shape[0])
                 cuts.append((0, math.nan, _thumbnail(frame, config.thumbnail_width)))
@@ -264,18 +293,30 @@ def scan_video(path: Path, config: IngestConfig) -> Scan:
             "are needed (ingest.min_frames)",
         )
 
-    ends = [start for start, _, _ in cuts[1:]] + [decoded]
+    frames, source, fps_range = decoded, None, None
+    retimed = retime(np.asarray(times_ms) / 1000.0, config.frame_interval_spread)
+    if retimed is not None:
+        fps, source = retimed
+        frames = len(source)
+        intervals = np.diff(times_ms) / 1000.0
+        fps_range = (float(1.0 / intervals.max()), float(1.0 / intervals.min()))
+        # A cut opens the shot at the first grid frame showing the frame after it.
+        cuts = [(int(np.searchsorted(source, start)), d, png) for start, d, png in cuts]
+    ends = [start for start, _, _ in cuts[1:]] + [frames]
     shots = [
         Shot(i, start, end, None if i == 0 else distance, png)
         for i, ((start, distance, png), end) in enumerate(zip(cuts, ends, strict=True))
     ]
     probe = Probe(
         fps=fps,
-        frames=decoded,
+        frames=frames,
         frames_declared=declared,
         width=size[0],
         height=size[1],
         codec=codec,
-        duration_s=decoded / fps,
+        duration_s=frames / fps,
+        frames_decoded=decoded,
+        source_frames=source,
+        fps_range=fps_range,
     )
     return Scan(probe, np.asarray(distances, dtype=np.float64), shots)

@@ -72,6 +72,7 @@ def ingest_video(
                 p.height,
                 p.codec,
                 p.duration_s,
+                None if p.source_frames is None else p.source_frames.tolist(),
             )
         ],
         "ingest_adversaries": [(key, vid, declaration.name, declaration.colour, declaration.notes)],
@@ -87,6 +88,17 @@ def ingest_video(
         "shot_cuts": float(len(scan.shots) - 1),
         "chunks": float(len(chunks)),
         "size_mb": video.size_bytes / 1e6,
-        "decode_fps": p.frames / max(seconds, 1e-9),
+        "decode_fps": p.frames_decoded / max(seconds, 1e-9),
+        "frames_decoded": float(p.frames_decoded),
+        "variable_frame_rate": float(p.source_frames is not None),
     }
-    return StageOutput(rows, metrics)
+    notes = ()
+    if p.source_frames is not None:
+        slowest, fastest = p.fps_range
+        repeated = int(p.frames - len(set(p.source_frames.tolist())))
+        notes = (
+            f"variable frame rate ({slowest:.3g} to {fastest:.3g} fps): re-timed by the "
+            f"container's timestamps to {p.fps:.4g} fps, {p.frames_decoded} decoded frames on "
+            f"{p.frames} grid frames ({repeated} show the frame before again)",
+        )
+    return StageOutput(rows, metrics, notes)

@@ -22,13 +22,15 @@ JOIN_IOU = 0.5
 @dataclass(frozen=True)
 class ChunkSpan:
     """Where a chunk sits: frames ``[start, end)`` are its own, ``[read_start, start)`` are
-    re-read to join it to the previous chunk of the same shot."""
+    re-read to join it to the previous chunk of the same shot. ``source``: for a variable-rate
+    video, the decoded frame shown at each of frames ``[read_start, end)``."""
 
     index: int
     shot: int
     start: int
     end: int
     read_start: int
+    source: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import tempfile
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -104,13 +104,19 @@ def chunk_key(config: PoseConfig, video_id: str, span: ChunkSpan, models: tuple[
     )[:24]
 
 
-def plan_spans(chunks: list[tuple[int, int, int, int]], overlap: int) -> list[ChunkSpan]:
+def plan_spans(
+    chunks: list[tuple[int, int, int, int]],
+    overlap: int,
+    source_frames: Sequence[int] | None = None,
+) -> list[ChunkSpan]:
     """Spans for ingest's chunks ``(index, shot, start, end)``: a chunk continuing its shot
-    re-reads ``overlap`` frames before its start."""
+    re-reads ``overlap`` frames before its start. ``source_frames``: ingest's re-timing of a
+    variable-rate video, each span's part of it goes with the span (and into its key)."""
     spans, previous_shot = [], None
     for index, shot, start, end in sorted(chunks):
         read_start = max(0, start - overlap) if shot == previous_shot else start
-        spans.append(ChunkSpan(index, shot, start, end, read_start))
+        source = None if source_frames is None else tuple(source_frames[read_start:end])
+        spans.append(ChunkSpan(index, shot, start, end, read_start, source))
         previous_shot = shot
     return spans
 
@@ -176,7 +182,7 @@ def process_chunk(
     detector, estimator = BACKENDS[config.backend].build(*models, config)
     detector = TiledDetector(detector, config.detector_tiles)
     return track_chunk(
-        read_frames(video, span.read_start, span.end),
+        read_frames(video, span.read_start, span.end, span.source),
         start=span.read_start,
         end=span.end,
         fps=fps,
@@ -429,10 +435,12 @@ def render_overlay(
     size: tuple[int, int],
     config: PoseConfig,
     artifacts: Path,
+    source_frames: Sequence[int] | None = None,
 ) -> list[tuple]:
     """The overlay MP4 of ``overlay_seconds`` from where the fighters are first seen (together
     if they ever are: the review must show the skeletons the later stages use, however late in
-    the video they appear) and the PNG stills, stored as artifacts.
+    the video they appear) and the PNG stills, stored as artifacts. ``source_frames``: ingest's
+    re-timing of a variable-rate video.
 
     Returns ``pose_media`` rows without their key and video id: (kind, frame, artifact); the
     overlay's frame is the video frame it starts at.
@@ -450,10 +458,15 @@ def render_overlay(
         else min(frames, start + round(config.overlay_seconds * fps))
     )
     out_size = overlay_size(*size, config.overlay_max_side)
+
+    def frames_of(first: int, last: int):
+        source = None if source_frames is None else source_frames[first:last]
+        return read_frames(video, first, last, source)
+
     with tempfile.TemporaryDirectory(prefix="ringside-overlay-") as tmp:
         path = Path(tmp) / "overlay.mp4"
         with H264Writer(path, out_size, fps) as writer:
-            for index, frame in read_frames(video, start, end):
+            for index, frame in frames_of(start, end):
                 writer.write(draw_people(frame, _people_at(index, fighters)))
         media.append(("overlay", start, put_bytes(artifacts, path.read_bytes(), ".mp4")))
     pool = both if len(both) else np.arange(frames)
@@ -462,7 +475,7 @@ def render_overlay(
         if config.stills and len(pool)
         else []
     ):
-        _, frame = next(read_frames(video, index, index + 1))
+        _, frame = next(frames_of(index, index + 1))
         drawn = draw_people(frame, _people_at(index, fighters))
         small = cv2.resize(
             drawn, overlay_size(*size, config.overlay_max_side), interpolation=cv2.INTER_AREA
@@ -491,6 +504,7 @@ def assemble(
     pick: int | None,
     config: PoseConfig,
     artifacts: Path,
+    source_frames: Sequence[int] | None = None,
 ) -> StageOutput:
     """Join the chunks, choose and refine the fighters, render the overlay; rows and metrics.
 
@@ -524,7 +538,14 @@ def assemble(
         )
     notes += roles.choice_notes(config.min_together_share, config.min_choice_margin)
     media = render_overlay(
-        video, fighters, fps=fps, frames=frames, size=size, config=config, artifacts=artifacts
+        video,
+        fighters,
+        fps=fps,
+        frames=frames,
+        size=size,
+        config=config,
+        artifacts=artifacts,
+        source_frames=source_frames,
     )
     seconds = sum(c.seconds for c in chunks) + time.perf_counter() - start
 

@@ -91,6 +91,7 @@ def pose_task(
             pick=pick,
             config=config,
             artifacts=paths.artifacts,
+            source_frames=ingest.source_frames,
         )
 
     return run_stage(
