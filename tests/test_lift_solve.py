@@ -546,6 +546,25 @@ def test_cleanup_pushes_overlapping_fighters_apart() -> None:
         assert result.metrics["contact_slide_cm_per_frame_after"] < 0.2
 
 
+def test_a_fighter_entering_late_is_cleaned_over_its_own_frames() -> None:
+    """Blue enters 40 frames after red. Cleaned together, blue stays where its lift put it from
+    its first frame: before, both were filtered over the shot with blue parked 1 km away while
+    absent, and blue's first frames came out up to 214 m off (a person stepping out from
+    behind an occluder in a video)."""
+    bones = (BONES, BoneLengths().scaled(0.97))
+    models = tuple(mujoco.MjModel.from_xml_string(single_scene_mjcf(b)) for b in bones)
+    red, red_contacts = boxing_motion(90, np.random.default_rng(1))
+    blue, blue_contacts = boxing_motion(50, np.random.default_rng(2))
+    blue = _turned(blue, math.pi, np.array([1.5, 0.0, 0.0]))
+    first, second = cleanup_pair(
+        models, (red, blue), (red_contacts, blue_contacts), fps=FPS, spans=((0, 90), (40, 90))
+    )
+    assert first.qpos.shape == red.shape and second.qpos.shape == blue.shape
+    moved = np.linalg.norm(second.qpos[:, :3] - blue[:, :3], axis=1)
+    assert moved.max() < 0.1, moved.max()
+    assert np.linalg.norm(first.qpos[:, :3] - red[:, :3], axis=1).max() < 0.1
+
+
 def test_qvel_is_the_central_difference_of_qpos(
     scene: mujoco.MjModel, truth: dict[str, np.ndarray]
 ) -> None:

@@ -295,7 +295,7 @@ def test_overlay_starts_where_the_fighters_appear(tmp_path, sample_video):
     assert np.abs(drawn[0].astype(int) - footage.astype(int)).mean() > 1.0
 
 
-def test_two_pairs_side_by_side_get_a_note_naming_the_next_candidates(
+def test_two_pairs_side_by_side_get_a_note_and_one_pair_reaches_the_dataset(
     tmp_path, capsys, sample_video
 ):
     """The sample twice, side by side: four people, two pairs. Whichever two the stage takes,
@@ -307,8 +307,22 @@ def test_two_pairs_side_by_side_get_a_note_naming_the_next_candidates(
     ]
     video = write_video(tmp_path / "two_pairs.mp4", tiled, fps=60.0)
     data = tmp_path / "data"
-    code, out, err = run_cli(capsys, *process_argv(data, video, until="pose"))
+    code, out, err = run_cli(capsys, *process_argv(data, video))
     assert code == 0, err
     m = metrics(data)
     assert m["fighter_choice_margin"] < 0.1 and m["tracks"] >= 4
     assert "may not be two people fighting" in out and "next candidates: tracks" in out, out
+    # Through to the dataset: the two fighters are one pair, on one copy (not a fighter and a
+    # stranger from the other copy), and they stand as far apart as in the sample.
+    sides = query(
+        data,
+        "SELECT frame, list_avg(x) >= 272 AS right_copy FROM pose_keypoints ORDER BY frame, role",
+    )
+    together = {}
+    for frame, right in sides:
+        together.setdefault(frame, []).append(right)
+    both = [s for s in together.values() if len(s) == 2]
+    assert len(both) >= 95 and all(s[0] == s[1] for s in both)
+    lift = metrics(data, "lift")
+    assert 1.0 < lift["fighter_distance_mean_m"] < 1.6, lift["fighter_distance_mean_m"]
+    assert query(data, "SELECT count(*) FROM dataset_transitions WHERE kind = 'interaction'")[0][0]

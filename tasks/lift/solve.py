@@ -1751,6 +1751,7 @@ def cleanup_pair(
     *,
     fps: float,
     config: LiftConfig = LiftConfig(),  # noqa: B008 (frozen, so a safe default)
+    spans: tuple[tuple[int, int], tuple[int, int]] | None = None,
 ) -> tuple[Cleaned, Cleaned]:
     """`cleanup` of two fighters of one world, leaving no overlap between them.
 
@@ -1761,21 +1762,28 @@ def cleanup_pair(
 
     Args:
         models: each fighter's model (see `cleanup`).
-        qpos: each fighter's (T, 35) motion, same T.
-        contacts: each fighter's (T, 2) bool foot contacts.
+        qpos: each fighter's (T_i, 35) motion over its own frames.
+        contacts: each fighter's (T_i, 2) bool foot contacts.
         fps: frames per second.
         config: the settings.
+        spans: each fighter's frames [start, end) on one timeline (T_i = end - start); None:
+            both cover the same frames. Each is cleaned over its own frames only (filtered over
+            a frame where it is absent, its first frames took on a stand-in's position 1 km
+            away: a fighter entering 48 frames after the other was placed 214 m off); the other
+            stands 1 km away where absent, out of reach.
 
     Returns:
         The two `Cleaned`, in the order given.
     """
+    if spans is None:
+        spans = ((0, len(qpos[0])), (0, len(qpos[1])))
     first = cleanup(
         models[0],
         qpos[0],
         contacts[0],
         fps=fps,
         config=config,
-        other_qpos=qpos[1],
+        other_qpos=_over(qpos[1], spans[1], spans[0]),
         other_model=models[1],
     )
     second = cleanup(
@@ -1784,7 +1792,17 @@ def cleanup_pair(
         contacts[1],
         fps=fps,
         config=replace(config, separation_share=1.0),
-        other_qpos=first.qpos,
+        other_qpos=_over(first.qpos, spans[0], spans[1]),
         other_model=models[0],
     )
     return first, second
+
+
+def _over(qpos: np.ndarray, span: tuple[int, int], frames: tuple[int, int]) -> np.ndarray:
+    """A fighter's ``qpos`` over ``span`` of a timeline, given over ``frames`` of it: where it
+    is absent, it stands 1 km away (nothing can touch it), in its nearest pose."""
+    (a, b), (start, end) = span, frames
+    nearest = np.clip(np.arange(start, end), a, b - 1) - a
+    out = qpos[nearest].copy()
+    out[(np.arange(start, end) < a) | (np.arange(start, end) >= b), 0] += 1000.0
+    return out

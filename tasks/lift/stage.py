@@ -133,13 +133,6 @@ def _camera_for_shot(
     return K, "calibration"
 
 
-def _parked(qpos: np.ndarray) -> np.ndarray:
-    """``qpos`` moved 1 km away: an opponent that is not there cannot be touched."""
-    far = qpos.copy()
-    far[:, 0] += 1000.0
-    return far
-
-
 def _median_distance(spans: dict[str, tuple[int, int]], roots: list[np.ndarray]) -> float | None:
     """Median distance (m) between the two fighters' placed pelvises over the frames both are
     seen; None with fewer than two fighters or no shared frame."""
@@ -207,8 +200,8 @@ def _believed(
 def _clean_shot(fitted: dict, fps: float, config: LiftStageConfig) -> dict[str, Cleaned]:
     """Each fitted fighter of a shot cleaned up in MuJoCo, the two together when both are there.
 
-    ``fitted`` maps role to (first frame, end frame, Lifted3D, qpos). Two fighters are cleaned
-    over the frames either is seen; where one is not, it stands parked far away.
+    ``fitted`` maps role to (first frame, end frame, Lifted3D, qpos). Each is cleaned over its
+    own frames; where the other is not seen, it stands parked far away.
     """
     models = {
         role: mujoco.MjModel.from_xml_string(single_scene_mjcf(lifted.bones))
@@ -217,36 +210,16 @@ def _clean_shot(fitted: dict, fps: float, config: LiftStageConfig) -> dict[str, 
     if len(fitted) == 1:
         ((role, (_, _, lifted, fit)),) = fitted.items()
         return {role: cleanup(models[role], fit, lifted.contacts, fps=fps, config=config.solve)}
-    lo = min(a for a, _, _, _ in fitted.values())
-    hi = max(b for _, b, _, _ in fitted.values())
-    roles, padded, padded_contacts = list(fitted), [], []
-    for role in roles:
-        a, b, lifted, fit = fitted[role]
-        q = _parked(np.repeat(fit[:1], hi - lo, axis=0))
-        q[a - lo : b - lo] = fit
-        c = np.zeros((hi - lo, 2), bool)
-        c[a - lo : b - lo] = lifted.contacts
-        padded.append(q)
-        padded_contacts.append(c)
+    roles = list(fitted)
     pair = cleanup_pair(
         tuple(models[r] for r in roles),
-        tuple(padded),
-        tuple(padded_contacts),
+        tuple(fitted[r][3] for r in roles),
+        tuple(fitted[r][2].contacts for r in roles),
         fps=fps,
         config=config.solve,
+        spans=tuple((fitted[r][0], fitted[r][1]) for r in roles),
     )
-    out = {}
-    for role, cleaned in zip(roles, pair, strict=True):
-        a, b = fitted[role][0] - lo, fitted[role][1] - lo
-        out[role] = dataclasses.replace(
-            cleaned,
-            qpos=cleaned.qpos[a:b],
-            qvel=cleaned.qvel[a:b],
-            points=cleaned.points[a:b],
-            contacts=cleaned.contacts[a:b],
-            settle=cleaned.settle[a:b],
-        )
-    return out
+    return dict(zip(roles, pair, strict=True))
 
 
 def lift_video(
