@@ -20,6 +20,7 @@ from tasks.pose.refine import (
     confidence_weighted,
     fill_gaps,
     fix_flips,
+    flip_bones,
     flip_groups,
     flip_permutation,
     jitter_px,
@@ -34,6 +35,7 @@ FRAMES = 240
 NAMES = BLAZEPOSE_33
 PERM = flip_permutation(NAMES)
 GROUPS = flip_groups(NAMES)
+BONES = flip_bones(NAMES)
 J = {name: i for i, name in enumerate(NAMES)}
 
 # ---------------------------------------------------------------------------------------------
@@ -284,10 +286,11 @@ def test_flip_groups_cover_every_sided_joint_once():
     assert [g.tolist() for g in flip_groups(coco)] == [[1, 2], [3, 4], [5, 6]]
 
 
-def test_fix_flips_finds_exactly_the_flipped_frames(bout):
+@pytest.mark.parametrize("bones", [(), BONES], ids=["no-veto", "veto"])
+def test_fix_flips_finds_exactly_the_flipped_frames(bout, bones):
     truth, kp, conf, _ = bout
     plan = Corruption()
-    fixed, fixed_conf, count = fix_flips(kp, conf, PERM, groups=GROUPS)
+    fixed, fixed_conf, count = fix_flips(kp, conf, PERM, groups=GROUPS, bones=bones)
     assert _changed_frames(kp, fixed) == set(plan.body_flips) | set(plan.leg_flips)
     assert count == len(plan.body_flips) + len(plan.leg_flips)
     # Leg-only flips touch only the legs; body flips every sided joint.
@@ -326,6 +329,53 @@ def test_fix_flips_repairs_a_flipped_first_frame():
     fixed, _, count = fix_flips(kp, np.ones(kp.shape[:2]), PERM, groups=GROUPS)
     assert count == 1
     np.testing.assert_allclose(fixed, truth)
+
+
+def _standing(frames: int) -> np.ndarray:
+    """(frames, 33, 2) a person facing the camera, still: each joint's left and right copies
+    mirror about x = 0, the knees and feet 20 px apart, the hips 30, the shoulders 40."""
+    half = {"hip": 15.0, "knee": 10.0, "ankle": 10.0, "heel": 10.0, "foot_index": 10.0}
+    half |= {"shoulder": 20.0, "elbow": 25.0, "wrist": 28.0, "pinky": 30.0, "index": 30.0}
+    half |= {"thumb": 29.0, "eye_inner": 2.0, "eye": 4.0, "eye_outer": 6.0, "ear": 9.0}
+    half |= {"mouth": 3.0}
+    height = {"hip": 100.0, "knee": 150.0, "ankle": 200.0, "heel": 205.0, "foot_index": 210.0}
+    height |= {"shoulder": 0.0, "elbow": 50.0, "wrist": 95.0, "pinky": 105.0, "index": 106.0}
+    height |= {"thumb": 100.0, "eye_inner": -40.0, "eye": -40.0, "eye_outer": -40.0}
+    height |= {"ear": -38.0, "mouth": -25.0}
+    pose = np.zeros((33, 2))
+    for name, i in J.items():
+        side, _, base = name.partition("_")
+        if side in ("left", "right"):
+            pose[i] = [half[base] * (1 if side == "left" else -1), height[base]]
+        else:
+            pose[i] = [0.0, -35.0]  # the nose
+    return np.repeat(pose[None], frames, axis=0)
+
+
+def test_a_swap_never_crosses_the_thighs_the_model_left_apart():
+    """The model labels every frame right; in frames 8-31 the fighter stands with his legs
+    crossed (each knee and foot on the other side of the body, the hips apart). The repair
+    takes the crossing for a flip and swaps frames 8-31, the chain's majority then inverts
+    that: the frames before and after, where the thighs are apart, came out crossed in an X
+    (the issue saw 24 such frames on real footage). With the veto no frame is crossed that
+    the model gave uncrossed, and a real flip of the legs alone is still repaired."""
+    truth = _standing(40)
+    legs = next(g for g in GROUPS if J["left_knee"] in g)
+    truth[8:32, legs, 0] *= -1.0
+
+    def crossed(kp: np.ndarray) -> np.ndarray:  # the left hip is at x = +15, the right at -15
+        return kp[:, J["left_knee"], 0] < 0
+
+    conf = np.ones(truth.shape[:2])
+    repaired, _, count = fix_flips(truth, conf, PERM, groups=GROUPS)
+    assert count == 16 and (crossed(repaired) & ~crossed(truth)).sum() == 16
+    repaired, _, _ = fix_flips(truth, conf, PERM, groups=GROUPS, bones=BONES)
+    assert not (crossed(repaired) & ~crossed(truth)).any()
+    flipped = truth.copy()
+    flipped[36][legs] = truth[36][PERM[legs]]
+    repaired, _, _ = fix_flips(flipped, conf, PERM, groups=GROUPS, bones=BONES)
+    assert not (crossed(repaired) & ~crossed(truth)).any()
+    np.testing.assert_array_equal(repaired[32:], truth[32:])
 
 
 def test_fix_flips_whole_body_group_by_default():

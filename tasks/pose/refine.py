@@ -33,6 +33,10 @@ FLIP_GROUPS: Mapping[str, tuple[str, ...]] = {
     "legs": ("knee", "ankle", "heel", "foot_index"),
 }
 
+# Upper arms and thighs (base names, parent first): a swap of the group holding the child may not
+# make the two bones cross where the model's labels left them apart (see fix_flips).
+FLIP_BONES: tuple[tuple[str, str], ...] = (("shoulder", "elbow"), ("hip", "knee"))
+
 _SIDES = {"left": "right", "right": "left"}
 
 # Weight floor for a finite point whose confidence is 0, so a window holding only such points
@@ -161,6 +165,46 @@ def flip_groups(names: Sequence[str]) -> tuple[np.ndarray, ...]:
     return tuple(groups)
 
 
+def flip_bones(names: Sequence[str]) -> tuple[tuple[int, int], ...]:
+    """(parent, child) indices of the left side's bones of :data:`FLIP_BONES` in ``names``, for
+    :func:`fix_flips`'s ``bones``."""
+    index = {name: i for i, name in enumerate(names)}
+    return tuple(
+        (index[f"left_{parent}"], index[f"left_{child}"])
+        for parent, child in FLIP_BONES
+        if f"left_{parent}" in index and f"left_{child}" in index
+    )
+
+
+def _crossed(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
+    """(T,) whether 2D segments a0-a1 and b0-b1 (each (T, 2)) cross; False where any is NaN."""
+
+    def side(p, q, r):
+        return np.sign(
+            (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+        )
+
+    with np.errstate(invalid="ignore"):
+        return (side(a0, a1, b0) * side(a0, a1, b1) < 0) & (side(b0, b1, a0) * side(b0, b1, a1) < 0)
+
+
+def _invents_cross(
+    kp: np.ndarray, parents: np.ndarray, perm: np.ndarray, joints: np.ndarray, bones
+) -> np.ndarray:
+    """(T,) frames where swapping ``joints``' labels would make a bone of ``bones`` cross its
+    mirror while the labels as given leave them apart. ``parents`` (T, J, 2) holds the parent
+    joints as already decided (their own group may have been swapped)."""
+    vetoed = np.zeros(len(kp), dtype=bool)
+    for parent, child in bones:
+        if child not in joints or parent in joints:
+            continue
+        left, right = parents[:, parent], parents[:, perm[parent]]
+        as_is = _crossed(left, kp[:, child], right, kp[:, perm[child]])
+        swapped = _crossed(left, kp[:, perm[child]], right, kp[:, child])
+        vetoed |= swapped & ~as_is
+    return vetoed
+
+
 def _group_swaps(
     kp: np.ndarray,
     conf: np.ndarray,
@@ -170,8 +214,10 @@ def _group_swaps(
     min_confidence: float,
     ratio: float,
     max_age: int,
+    vetoed: np.ndarray,
 ) -> np.ndarray:
-    """(T,) bool frames where ``joints``' left/right labels are to be swapped (see fix_flips)."""
+    """(T,) bool frames where ``joints``' left/right labels are to be swapped (see fix_flips);
+    never a frame of ``vetoed``."""
     num_frames = kp.shape[0]
     mirror = perm[joints]
     ref = np.full((len(joints), 2), np.nan)  # last accepted position of each label in the group
@@ -194,7 +240,7 @@ def _group_swaps(
             w = np.maximum(weight[use], _MIN_WEIGHT)
             as_is = np.sum(w * np.linalg.norm(cur[use] - ref[use], axis=1))
             mirrored = np.sum(w * np.linalg.norm(cur[use] - ref[mirror_k[use]], axis=1))
-            swap[t] = mirrored < ratio * as_is
+            swap[t] = mirrored < ratio * as_is and not vetoed[t]
         else:
             current += 1  # no usable reference: a new chain starts, its parity unknown
         segment[t] = current
@@ -206,7 +252,9 @@ def _group_swaps(
     # exception, so a chain where most frames were swapped started flipped and is inverted.
     for s in range(current + 1):
         in_segment = segment == s
-        if 2 * swap[in_segment].sum() > in_segment.sum():
+        inverted = in_segment & ~swap
+        # An inversion that would cross bones the model left apart is not the better reading.
+        if 2 * swap[in_segment].sum() > in_segment.sum() and not (inverted & vetoed).any():
             swap[in_segment] = ~swap[in_segment]
     return swap
 
@@ -217,6 +265,7 @@ def fix_flips(
     perm: np.ndarray,
     *,
     groups: Sequence[np.ndarray] | None = None,
+    bones: Sequence[tuple[int, int]] = (),
     min_confidence: float = 0.3,
     ratio: float = 0.5,
     max_age: int = 10,
@@ -234,12 +283,19 @@ def fix_flips(
     Each unbroken chain of references is then checked as a whole: if most of its frames were
     swapped, its first frame was the flipped one and the chain's decisions are inverted.
 
+    A swap never makes a bone of ``bones`` (a thigh, an upper arm) cross its mirror where the
+    labels as given leave the two apart, and a chain is not inverted when that would do so:
+    legs really crossed for a while (a crossover step) read as a flip, the chain's majority
+    was inverted, and the thighs of the frames around it came out crossed in an X.
+
     Args:
         keypoints: (T, J, 2) pixels, NaN where missing.
         confidence: (T, J) in [0, 1]; joints below ``min_confidence`` neither vote nor become a
             reference (they are still swapped with their group).
         perm: (J,) mirror of each joint, from :func:`flip_permutation`.
-        groups: disjoint joint-index arrays, each closed under ``perm``.
+        groups: disjoint joint-index arrays, each closed under ``perm``; a group holding the
+            parents of ``bones`` comes before the group of their children.
+        bones: (parent, child) of left-side bones, e.g. :func:`flip_bones`.
 
     Returns:
         keypoints (T, J, 2) and confidence (T, J) with the swaps applied, and the number of frames
@@ -255,7 +311,14 @@ def fix_flips(
     any_swap = np.zeros(kp.shape[0], dtype=bool)
     for joints in checked:
         swap = _group_swaps(
-            kp, conf, perm, joints, min_confidence=min_confidence, ratio=ratio, max_age=max_age
+            kp,
+            conf,
+            perm,
+            joints,
+            min_confidence=min_confidence,
+            ratio=ratio,
+            max_age=max_age,
+            vetoed=_invents_cross(kp, out_kp, perm, joints, bones),
         )
         frames = np.flatnonzero(swap)
         out_kp[np.ix_(frames, joints)] = kp[np.ix_(frames, perm[joints])]
@@ -911,6 +974,7 @@ def refine(
     perm: np.ndarray,
     *,
     groups: Sequence[np.ndarray] | None = None,
+    bones: Sequence[tuple[int, int]] = (),
 ) -> RefineResult:
     """Fix left/right flips, fill short gaps and smooth one fighter's keypoints.
 
@@ -922,6 +986,7 @@ def refine(
         perm: (J,) mirror of each joint, from :func:`flip_permutation`.
         groups: limb groups deciding flips separately; pass ``flip_groups(BLAZEPOSE_33)`` for
             BlazePose, whose leg-only swaps a single whole-body group (the default) cannot see.
+        bones: bones a swap may not cross (`fix_flips`); ``flip_bones(BLAZEPOSE_33)``.
     """
     kp, conf = _checked(keypoints, confidence)
     _check_positive("fps", fps)
@@ -930,6 +995,7 @@ def refine(
         conf,
         perm,
         groups=groups,
+        bones=bones,
         min_confidence=config.min_confidence,
         ratio=config.flip_ratio,
         max_age=config.flip_max_age,

@@ -37,7 +37,7 @@ from tasks.pose.fighters import (
 from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, VideoTracks, merge_chunks, summaries
 from tasks.pose.overlay import H264Writer, draw_people, overlay_size
-from tasks.pose.refine import flip_groups, flip_permutation, refine
+from tasks.pose.refine import flip_bones, flip_groups, flip_permutation, refine
 from tasks.pose.tracking import colour_distance
 from tasks.runner import StageOutput
 
@@ -378,6 +378,7 @@ def gather_fighter(
         config.refine,
         flip_permutation(BLAZEPOSE_33),
         groups=flip_groups(BLAZEPOSE_33),
+        bones=flip_bones(BLAZEPOSE_33),
     )
     return Fighter(
         role,
