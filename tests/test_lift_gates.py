@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from models.humanoid.boxer import BoneLengths
 from tasks.lift.camera import write_calibration
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.gates import (
@@ -20,7 +21,8 @@ from tasks.lift.gates import (
     too_fast,
 )
 from tasks.lift.metrics import HIPS
-from tasks.lift.stage import FighterTrack, lift_video
+from tasks.lift.motion import resample
+from tasks.lift.stage import FighterTrack, _motion_columns, lift_video
 from tasks.lift.synthetic import evaluate_lift, make_case
 
 GATES = GateConfig()
@@ -131,3 +133,20 @@ def test_one_person_tracked_as_both_fighters_is_refused(assets, tmp_path):
     steps = output.rows["lift_motion"]["step"][output.rows["lift_motion"]["role"] == "adversary"]
     assert not set(range(10, 26)) & set(steps.tolist())
     assert any("dropped as implausible: one_person" in note for note in output.notes)
+
+
+def test_a_fighter_whose_every_frame_was_dropped_leaves_no_rows():
+    """The cleanup's gates can drop every frame of a fitted fighter (a small fighter's track on
+    the other fighter's body, then floating): the lift failed with "cannot reshape array of
+    size 0" where that fighter simply has no motion rows."""
+    qpos = np.full((20, 35), np.nan)
+    none = resample(
+        qpos,
+        np.full((20, 33, 3), np.nan),
+        np.zeros((20, 2), bool),
+        fps=60.0,
+        rate=30.0,
+        bones=BoneLengths(),
+    )
+    columns = _motion_columns({"opponent": none})
+    assert columns["joints"].shape == (0, 99) and len(columns["step"]) == 0
