@@ -635,23 +635,38 @@ def _check(args, data_root: Path) -> int:
     import duckdb
     from tqdm import tqdm
 
-    from storage.check import repair, scan
+    from flows.serve import prefect_database
+    from storage.check import Problem, repair, scan, set_aside, sqlite_problem
     from storage.db import error_line
     from storage.paths import data_paths
 
     paths = data_paths(data_root)
+    prefect_db = prefect_database()
+
+    def prefect_problems() -> list[Problem]:
+        problem = None if prefect_db is None else sqlite_problem(prefect_db)
+        if problem is None:
+            return []
+        what = f"Prefect's database {prefect_db} is damaged ({problem}); it holds run history only"
+        return [Problem("prefect", None, None, what)]
+
     if not paths.db.exists():
         print(f"{paths.db}: no database yet; nothing to check")
         return 0
     with tqdm(desc="check", unit=" tables", disable=args.json or not sys.stderr.isatty()) as bar:
         problems = scan(paths.db, paths.artifacts, progress=lambda _: bar.update(1))
+    problems += prefect_problems()
     done = []
     if args.repair and problems:
+        if any(p.stage == "prefect" for p in problems):
+            aside = set_aside(prefect_db)
+            done.append(f"set Prefect's database aside as {aside}; the next command starts anew")
+        ours = [p for p in problems if p.stage != "prefect"]
         try:
-            done = repair(paths.db, paths.artifacts, problems)
+            done += repair(paths.db, paths.artifacts, ours) if ours else []
         except duckdb.Error as error:
-            done = [f"failed: {error_line(error)}"]
-        left = scan(paths.db, paths.artifacts)
+            done.append(f"failed: {error_line(error)}")
+        left = scan(paths.db, paths.artifacts) + prefect_problems()
     else:
         left = problems
     if args.json:
@@ -669,7 +684,7 @@ def _check(args, data_root: Path) -> int:
         _print_problems(problems)
         for line in done:
             print(f"repair: {line}")
-        if done and not left:
+        if done and not left and any(p.stage != "prefect" for p in problems):
             print("repaired: `ringside process` (or `rerun`) computes the removed outputs again")
         elif left and args.repair:
             print(
@@ -1260,7 +1275,13 @@ def _command(raw: list[str]) -> int:
     command = next((word for word in rest if not word.startswith("-")), None)
     if "-h" in rest or "--help" in rest:
         command = None  # help needs no server
-    prepare_environment(data_root, verbose=known.verbose, command=command)
+    from flows.serve import ServerError
+
+    try:
+        prepare_environment(data_root, verbose=known.verbose, command=command)
+    except ServerError as error:
+        print(f"ringside: error: {error}", file=sys.stderr)
+        return EXIT_FAILED
     with _prefect_settings_of_this_command():
         return _dispatch(raw, data_root)
 

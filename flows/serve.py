@@ -205,8 +205,10 @@ def private_server(data_root: str | Path) -> str:
     # failed ("duplicate column name"). Starting one at a time on a lock avoids it.
     home = data_paths(data_root).prefect_home
     home.mkdir(parents=True, exist_ok=True)
+    log = home / SERVER_LOG
     with (home / "server-start.lock").open("a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
+        written = log.stat().st_size if log.exists() else 0  # this start's lines follow
         server = start_server(data_root, port)
         # Stopped on the way out from here on: a SIGTERM while it migrates its database once
         # left it running after the command had gone.
@@ -214,12 +216,43 @@ def private_server(data_root: str | Path) -> str:
         _private.append(server)
         up = wait_until_up(api_url, server, timeout_s)
     if not up:
+        exited = server.poll() is not None
         stop_private_servers()
-        raise RuntimeError(
-            f"Prefect's server did not start within {timeout_s:g} s; its log: "
-            f"{data_paths(data_root).prefect_home / SERVER_LOG}"
+        with log.open("rb") as lines:
+            lines.seek(written)
+            said = lines.read().decode(errors="replace").splitlines()
+        damaged = next(
+            (
+                line.split("DatabaseError)", 1)[-1].strip()
+                for line in reversed(said)
+                if "sqlite3.DatabaseError" in line
+            ),
+            None,
         )
+        if damaged is not None:
+            raise ServerError(
+                f"Prefect's database {prefect_database()} is damaged ({damaged}): "
+                "`ringside check --repair` sets it aside (it holds Prefect's run history "
+                "only; Ringside's results are in the data directory's ringside.duckdb)"
+            )
+        when = "stopped as it started" if exited else f"did not start within {timeout_s:g} s"
+        raise ServerError(f"Prefect's server {when}; its log: {log}")
     return api_url
+
+
+class ServerError(RuntimeError):
+    """Prefect's server could not be started for a command; the message says why in a line."""
+
+
+def prefect_database() -> Path | None:
+    """Prefect's own SQLite database (its flow runs), as PREFECT_HOME places it; None where
+    PREFECT_API_DATABASE_CONNECTION_URL puts it elsewhere (PostgreSQL)."""
+    url = os.environ.get("PREFECT_API_DATABASE_CONNECTION_URL")
+    if url and not url.startswith("sqlite"):
+        return None
+    if url:
+        return Path(url.split(":///", 1)[1]).expanduser()
+    return Path(os.environ.get("PREFECT_HOME", "~/.prefect")).expanduser() / "prefect.db"
 
 
 def stop_private_servers() -> None:

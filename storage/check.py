@@ -12,6 +12,8 @@ registers its videos again. Run it while no other command uses the data director
 
 from __future__ import annotations
 
+import contextlib
+import sqlite3
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -36,7 +38,8 @@ STALE_TEMP_S = 600.0
 @dataclass(frozen=True)
 class Problem:
     """One thing damaged: a stage output (``stage``, ``video_id``, ``key``), or, with ``stage``
-    "database" or "artifacts", something no rerun recomputes."""
+    "database", "artifacts" or "prefect" (Prefect's own database), something no rerun
+    recomputes."""
 
     stage: str
     video_id: str | None
@@ -185,6 +188,31 @@ def _table_problems(
         if problem is not None:
             found.append(Problem(stage, video_id, key, f"{table}: {problem}"))
     return found
+
+
+def sqlite_problem(path: Path) -> str | None:
+    """What is wrong with the SQLite database at ``path`` (SQLite's own quick check, read
+    only), or None when it is sound or absent."""
+    if not path.exists():
+        return None
+    try:
+        with contextlib.closing(sqlite3.connect(f"{path.as_uri()}?mode=ro", uri=True)) as con:
+            found = [row[0] for row in con.execute("PRAGMA quick_check").fetchall()]
+    except sqlite3.DatabaseError as error:
+        return str(error)
+    return None if found == ["ok"] else "; ".join(found[:3])
+
+
+def set_aside(path: Path) -> Path:
+    """Rename a damaged SQLite database (and its -wal and -shm files) to
+    ``<name>.damaged-<time>``, so that its owner starts a new one; returns the new name."""
+    aside = path.with_name(f"{path.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}")
+    for suffix in ("-wal", "-shm"):
+        companion = path.with_name(path.name + suffix)
+        if companion.exists():
+            companion.rename(aside.with_name(aside.name + suffix))
+    path.rename(aside)
+    return aside
 
 
 def repair(db: Path, artifacts: Path, problems: Iterable[Problem]) -> list[str]:

@@ -192,3 +192,35 @@ def test_a_temporary_file_is_stale_once_its_writer_is_gone(tmp_path):
     for path in (mine, dead):
         path.write_bytes(b"half")
     assert stale_temporaries(tmp_path / "artifacts") == [dead]
+
+
+def test_a_damaged_prefect_database_is_one_line_named_by_check_and_set_aside(
+    two_shot_video, tmp_path, capsys, monkeypatch
+):
+    """Prefect's own database (its run history) damaged (here overwritten; 64-byte flips gave
+    "database disk image is malformed" the same way): every flow command printed a 20-line
+    traceback ending in "did not start within 120 s" after its server died in 4 s.
+    Now the command says so in one line, `check` names the file, `--repair` sets it aside and
+    the next command starts Prefect anew."""
+    home = tmp_path / "prefect-home"
+    home.mkdir()
+    prefect_db = home / "prefect.db"  # overwritten: SQLite's "file is not a database"
+    prefect_db.write_bytes(bytes(range(256)) * 256)
+    monkeypatch.setenv("PREFECT_HOME", str(home))
+    data = tmp_path / "data"
+    code, out, err = run_cli(capsys, *process_argv(data, two_shot_video, until="ingest"))
+    assert code == 1 and out == ""
+    assert err.count("\n") == 1 and f"Prefect's database {prefect_db} is damaged" in err, err
+    assert "`ringside check --repair` sets it aside" in err
+    data.mkdir(exist_ok=True)
+    with connect(data / "ringside.duckdb"):  # a database of ours, sound
+        pass
+    code, out, _ = run_cli(capsys, "--data", str(data), "check")
+    assert code == 1 and f"prefect: Prefect's database {prefect_db} is damaged" in out
+    code, out, _ = run_cli(capsys, "--data", str(data), "check", "--repair")
+    assert code == 0 and "set Prefect's database aside as" in out
+    assert not prefect_db.exists() and list(home.glob("prefect.db.damaged-*"))
+    code, _, err = run_cli(capsys, *process_argv(data, two_shot_video, until="ingest"))
+    assert code == 0, err
+    code, out, _ = run_cli(capsys, "--data", str(data), "check")
+    assert code == 0 and "no damage found" in out
