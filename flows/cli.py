@@ -636,37 +636,24 @@ def _check(args, data_root: Path) -> int:
     from tqdm import tqdm
 
     from flows.serve import prefect_database
-    from storage.check import Problem, repair, scan, set_aside, sqlite_problem
+    from storage.check import repair, scan
     from storage.db import error_line
     from storage.paths import data_paths
 
     paths = data_paths(data_root)
     prefect_db = prefect_database()
-
-    def prefect_problems() -> list[Problem]:
-        problem = None if prefect_db is None else sqlite_problem(prefect_db)
-        if problem is None:
-            return []
-        what = f"Prefect's database {prefect_db} is damaged ({problem}); it holds run history only"
-        return [Problem("prefect", None, None, what)]
-
     if not paths.db.exists():
         print(f"{paths.db}: no database yet; nothing to check")
         return 0
     with tqdm(desc="check", unit=" tables", disable=args.json or not sys.stderr.isatty()) as bar:
-        problems = scan(paths.db, paths.artifacts, progress=lambda _: bar.update(1))
-    problems += prefect_problems()
+        problems = scan(paths.db, paths.artifacts, lambda _: bar.update(1), prefect_db)
     done = []
     if args.repair and problems:
-        if any(p.stage == "prefect" for p in problems):
-            aside = set_aside(prefect_db)
-            done.append(f"set Prefect's database aside as {aside}; the next command starts anew")
-        ours = [p for p in problems if p.stage != "prefect"]
         try:
-            done += repair(paths.db, paths.artifacts, ours) if ours else []
+            done = repair(paths.db, paths.artifacts, problems, prefect_db)
         except duckdb.Error as error:
-            done.append(f"failed: {error_line(error)}")
-        left = scan(paths.db, paths.artifacts) + prefect_problems()
+            done = [f"failed: {error_line(error)}"]
+        left = scan(paths.db, paths.artifacts, prefect_db=prefect_db)
     else:
         left = problems
     if args.json:

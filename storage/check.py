@@ -134,14 +134,19 @@ def remove_stale_temporaries(artifacts: Path) -> list[Path]:
 
 
 def scan(
-    db: Path, artifacts: Path | None, progress: Callable[[str], None] | None = None
+    db: Path,
+    artifacts: Path | None,
+    progress: Callable[[str], None] | None = None,
+    prefect_db: Path | None = None,
 ) -> list[Problem]:
-    """Everything damaged in the database at ``db`` and the artifact store at ``artifacts``
-    (None: the database alone, its tables read back but no file looked for).
+    """Everything damaged in the database at ``db``, the artifact store at ``artifacts`` (None:
+    the database alone, its tables read back but no file looked for) and Prefect's own SQLite
+    database ``prefect_db`` (its run history; None: not looked at).
 
     ``progress(table)`` is called as each table is read.
     """
     problems: list[Problem] = []
+    prefect = _prefect_problems(prefect_db)
     try:
         with connect(db, read_only=True) as con:
             for table, columns in _tables(con).items():
@@ -149,13 +154,14 @@ def scan(
                     progress(table)
                 problems += _table_problems(con, artifacts, table, columns)
     except duckdb.Error as error:
-        return [Problem("database", None, None, f"{db} cannot be opened: {error_line(error)}")]
+        what = f"{db} cannot be opened: {error_line(error)}"
+        return [Problem("database", None, None, what), *prefect]
     if artifacts is not None:
         problems += [
             Problem("artifacts", None, None, f"{path} is left over from an interrupted write")
             for path in stale_temporaries(artifacts)
         ]
-    return problems
+    return problems + prefect
 
 
 def _table_problems(
@@ -190,24 +196,27 @@ def _table_problems(
     return found
 
 
-def sqlite_problem(path: Path) -> str | None:
-    """What is wrong with the SQLite database at ``path`` (SQLite's own quick check, read
-    only), or None when it is sound or absent."""
-    if not path.exists():
-        return None
+def _prefect_problems(path: Path | None) -> list[Problem]:
+    """Prefect's SQLite database at ``path`` as SQLite's own quick check (read only) finds it:
+    [] when it is sound, absent or not looked at."""
+    if path is None or not path.exists():
+        return []
     try:
         with contextlib.closing(sqlite3.connect(f"{path.as_uri()}?mode=ro", uri=True)) as con:
             found = [row[0] for row in con.execute("PRAGMA quick_check").fetchall()]
     except sqlite3.DatabaseError as error:
-        return str(error)
-    return None if found == ["ok"] else "; ".join(found[:3])
+        found = [str(error)]
+    if found == ["ok"]:
+        return []
+    what = f"Prefect's database {path} is damaged ({'; '.join(found[:3])})"
+    return [Problem("prefect", None, None, f"{what}; it holds run history only")]
 
 
-def set_aside(path: Path) -> Path:
-    """Rename a damaged SQLite database (and its -wal and -shm files) to
+def _set_aside(path: Path, companions: tuple[str, ...]) -> Path:
+    """Rename a damaged database file and its ``companions`` (suffixes: a WAL) to
     ``<name>.damaged-<time>``, so that its owner starts a new one; returns the new name."""
     aside = path.with_name(f"{path.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}")
-    for suffix in ("-wal", "-shm"):
+    for suffix in companions:
         companion = path.with_name(path.name + suffix)
         if companion.exists():
             companion.rename(aside.with_name(aside.name + suffix))
@@ -215,10 +224,13 @@ def set_aside(path: Path) -> Path:
     return aside
 
 
-def repair(db: Path, artifacts: Path, problems: Iterable[Problem]) -> list[str]:
+def repair(
+    db: Path, artifacts: Path, problems: Iterable[Problem], prefect_db: Path | None = None
+) -> list[str]:
     """A new database file holding every row that reads back, but for the damaged outputs among
     ``problems``; the damaged file is kept beside it (``<name>.damaged-<time>``). Stale
-    temporary files go too. One line per thing done.
+    temporary files go too. A damaged Prefect database (``prefect_db``) is set aside the same
+    way, and Prefect starts a new one. One line per thing done.
 
     The rows are copied rather than the damaged file written to: DuckDB stops with a fatal
     error when a write touches a damaged block (seen on a file with 19 flipped blocks). A
@@ -226,28 +238,31 @@ def repair(db: Path, artifacts: Path, problems: Iterable[Problem]) -> list[str]:
     record runs, in halving ranges of rows, so that a damaged block loses only the rows it
     holds.
     """
+    problems = list(problems)
+    done = []
+    if prefect_db is not None and any(p.stage == "prefect" for p in problems):
+        aside = _set_aside(prefect_db, ("-wal", "-shm"))
+        done.append(f"set Prefect's database aside as {aside}; the next command starts anew")
+    if all(p.stage == "prefect" for p in problems):
+        return done
     damaged = {p.output for p in problems if p.output is not None}
     fresh = db.with_name(db.name + ".repairing")
     _unlink_with_wal(fresh)
     try:
         with connect(fresh) as con:  # migrated: every table, empty
             con.execute(f"ATTACH '{_quoted(db)}' AS old (READ_ONLY)")
-            done = _copy(con, damaged)
+            done += _copy(con, damaged)
             con.execute("DETACH old")
             con.execute("CHECKPOINT")
     except duckdb.Error as error:  # not even the catalogue reads back
         _unlink_with_wal(fresh)
         with connect(fresh):
             pass
-        done = [
+        done.append(
             f"{db} cannot be read at all ({error_line(error)}): a new, empty database "
             "replaces it and the next `ringside process` computes everything again"
-        ]
-    aside = db.with_name(f"{db.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}")
-    db.rename(aside)
-    wal = db.with_name(db.name + ".wal")
-    if wal.exists():
-        wal.rename(aside.with_name(aside.name + ".wal"))
+        )
+    aside = _set_aside(db, (".wal",))
     fresh.rename(db)
     done.append(f"kept the damaged file as {aside}")
     done += [f"removed {path}" for path in remove_stale_temporaries(artifacts)]
