@@ -1113,14 +1113,14 @@ def _serve(args, data_root: Path) -> int:
     with _sigterm_as_ctrl_c():
         try:
             if own_server:
+                written = served.server_log_size(data_root)
                 server = served.start_server(data_root, args.port)
                 if not served.wait_until_up(api, server):
                     print(served.log_tail(data_root), file=sys.stderr)
-                    log = served.served_file(data_root).with_name(served.SERVER_LOG)
-                    print(
-                        f"ringside: error: Prefect's server did not start; see {log}",
-                        file=sys.stderr,
+                    why = served.startup_failure(
+                        data_root, written, server.poll() is not None, served.SERVER_START_S
                     )
+                    print(f"ringside: error: {why}", file=sys.stderr)
                     return EXIT_FAILED
             ui = api.removesuffix("/api")
             served.write_served(data_root, served.Served(api, ui, os.getpid()))

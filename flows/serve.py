@@ -56,6 +56,8 @@ SERVER_SETTINGS = {
     "PREFECT_SERVER_SERVICES_SCHEDULER_RECENT_DEPLOYMENTS_LOOP_SECONDS": "2",
 }
 RUNNER_SETTINGS = {"PREFECT_RUNNER_POLL_FREQUENCY": "2"}
+# How long `ringside serve` waits for its server (the first start migrates its database).
+SERVER_START_S = 180.0
 # Workers likewise: Prefect's ask every 10 s, so two runs scheduled together often ran one after
 # the other on two idle workers.
 WORKER_SETTINGS = {"PREFECT_WORKER_QUERY_SECONDS": "2"}
@@ -205,10 +207,9 @@ def private_server(data_root: str | Path) -> str:
     # failed ("duplicate column name"). Starting one at a time on a lock avoids it.
     home = data_paths(data_root).prefect_home
     home.mkdir(parents=True, exist_ok=True)
-    log = home / SERVER_LOG
     with (home / "server-start.lock").open("a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        written = log.stat().st_size if log.exists() else 0  # this start's lines follow
+        written = server_log_size(data_root)
         server = start_server(data_root, port)
         # Stopped on the way out from here on: a SIGTERM while it migrates its database once
         # left it running after the command had gone.
@@ -218,30 +219,43 @@ def private_server(data_root: str | Path) -> str:
     if not up:
         exited = server.poll() is not None
         stop_private_servers()
-        with log.open("rb") as lines:
-            lines.seek(written)
-            said = lines.read().decode(errors="replace").splitlines()
-        damaged = next(
-            (
-                line.split("DatabaseError)", 1)[-1].strip()
-                for line in reversed(said)
-                if "sqlite3.DatabaseError" in line
-            ),
-            None,
-        )
-        if damaged is not None:
-            raise ServerError(
-                f"Prefect's database {prefect_database()} is damaged ({damaged}): "
-                "`ringside check --repair` sets it aside (it holds Prefect's run history "
-                "only; Ringside's results are in the data directory's ringside.duckdb)"
-            )
-        when = "stopped as it started" if exited else f"did not start within {timeout_s:g} s"
-        raise ServerError(f"Prefect's server {when}; its log: {log}")
+        raise ServerError(startup_failure(data_root, written, exited, timeout_s))
     return api_url
 
 
 class ServerError(RuntimeError):
     """Prefect's server could not be started for a command; the message says why in a line."""
+
+
+def server_log_size(data_root: str | Path) -> int:
+    """Bytes in the server log now: a start's own lines follow (`startup_failure`)."""
+    log = data_paths(data_root).prefect_home / SERVER_LOG
+    return log.stat().st_size if log.exists() else 0
+
+
+def startup_failure(data_root: str | Path, written: int, exited: bool, timeout_s: float) -> str:
+    """Why a server started when its log held ``written`` bytes did not come up, in a line:
+    its database damaged (from what it logged), it stopped, or it took too long."""
+    log = data_paths(data_root).prefect_home / SERVER_LOG
+    with log.open("rb") as lines:
+        lines.seek(written)
+        said = lines.read().decode(errors="replace").splitlines()
+    damaged = next(
+        (
+            line.split("DatabaseError)", 1)[-1].strip()
+            for line in reversed(said)
+            if "sqlite3.DatabaseError" in line
+        ),
+        None,
+    )
+    if damaged is not None:
+        return (
+            f"Prefect's database {prefect_database()} is damaged ({damaged}): "
+            "`ringside check --repair` sets it aside (it holds Prefect's run history "
+            "only; Ringside's results are in the data directory's ringside.duckdb)"
+        )
+    when = "stopped as it started" if exited else f"did not start within {timeout_s:g} s"
+    return f"Prefect's server {when}; its log: {log}"
 
 
 def prefect_database() -> Path | None:
@@ -344,7 +358,9 @@ def _wait_until_ended(run_ids: set[str], timeout_s: float) -> None:
             time.sleep(0.2)
 
 
-def wait_until_up(api_url: str, server: subprocess.Popen, timeout_s: float = 180.0) -> bool:
+def wait_until_up(
+    api_url: str, server: subprocess.Popen, timeout_s: float = SERVER_START_S
+) -> bool:
     """Whether the server answers before ``timeout_s`` (its first start migrates its database)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline and server.poll() is None:
