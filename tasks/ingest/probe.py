@@ -164,10 +164,13 @@ def find_cuts(distances: np.ndarray, threshold: float, min_shot_frames: int) -> 
     return [i for i in range(1, len(distances)) if detector.update(i, float(distances[i]))]
 
 
-def retime(times_s: np.ndarray, spread: float) -> tuple[float, np.ndarray] | None:
+def retime(
+    times_s: np.ndarray, spread: float
+) -> tuple[float, np.ndarray, tuple[float, float]] | None:
     """For decoded frames shown at ``times_s``: ``None`` when their intervals are even (within
     ``spread`` of the median, 5th to 95th percentile), else the grid rate (the fastest
-    interval's) and, per grid frame, the decoded frame on screen at that moment."""
+    interval's), per grid frame the decoded frame on screen at that moment, and the slowest and
+    fastest rates the intervals give."""
     times_s = np.asarray(times_s, dtype=np.float64)
     intervals = np.diff(times_s)
     # Timestamps that do not increase (a container without them) say nothing: keep the frames.
@@ -183,7 +186,7 @@ def retime(times_s: np.ndarray, spread: float) -> tuple[float, np.ndarray] | Non
     # The frame on screen at t is the last one shown at or before it (a tolerance of a
     # thousandth of an interval absorbs the timestamps' millisecond rounding).
     shown = np.searchsorted(times_s, grid + 1e-3 * low, side="right") - 1
-    return rate, shown.clip(0, len(times_s) - 1)
+    return rate, shown.clip(0, len(times_s) - 1), (1.0 / intervals.max(), 1.0 / intervals.min())
 
 
 def plan_chunks(shots: list[Shot], chunk_frames: int) -> list[Chunk]:
@@ -296,10 +299,8 @@ def scan_video(path: Path, config: IngestConfig) -> Scan:
     frames, source, fps_range = decoded, None, None
     retimed = retime(np.asarray(times_ms) / 1000.0, config.frame_interval_spread)
     if retimed is not None:
-        fps, source = retimed
+        fps, source, fps_range = retimed
         frames = len(source)
-        intervals = np.diff(times_ms) / 1000.0
-        fps_range = (float(1.0 / intervals.max()), float(1.0 / intervals.min()))
         # A cut opens the shot at the first grid frame showing the frame after it.
         cuts = [(int(np.searchsorted(source, start)), d, png) for start, d, png in cuts]
     ends = [start for start, _, _ in cuts[1:]] + [frames]

@@ -1801,8 +1801,7 @@ def cleanup_pair(
 def _over(qpos: np.ndarray, span: tuple[int, int], frames: tuple[int, int]) -> np.ndarray:
     """A fighter's ``qpos`` over ``span`` of a timeline, given over ``frames`` of it: where it
     is absent, it stands 1 km away (nothing can touch it), in its nearest pose."""
-    (a, b), (start, end) = span, frames
-    nearest = np.clip(np.arange(start, end), a, b - 1) - a
-    out = qpos[nearest].copy()
-    out[(np.arange(start, end) < a) | (np.arange(start, end) >= b), 0] += 1000.0
+    (a, b), frame = span, np.arange(*frames)
+    out = qpos[np.clip(frame, a, b - 1) - a].copy()
+    out[(frame < a) | (frame >= b), 0] += 1000.0
     return out

@@ -411,8 +411,10 @@ def _motion_columns(motion: Mapping[str, FighterMotion]) -> dict[str, np.ndarray
             "time_s": m.step / RATE,
             "qpos": m.qpos.astype(np.float32),
             "qvel": m.qvel.astype(np.float32),
-            # (T, 99): spelled out, as a fighter with no believed frame has T = 0.
-            "joints": m.joints.reshape(len(m.step), -1 if len(m.step) else 99).astype(np.float32),
+            # Not reshape(T, -1): a fighter with no believed frame has T = 0.
+            "joints": m.joints.reshape(len(m.step), math.prod(m.joints.shape[1:])).astype(
+                np.float32
+            ),
             "contact_left": m.contacts[:, 0],
             "contact_right": m.contacts[:, 1],
         }
