@@ -18,9 +18,12 @@ from tasks.pose.stage import assemble, model_files, plan_spans, process_chunk
 FPS, FRAMES, SIZE = 60.0, 100, (1088, 1920)
 
 
-def sample_fighters(video: Path, assets: Path, artifacts: Path) -> dict[str, FighterTrack]:
-    """Both fighters of a sample video as the pose stage's own functions see them."""
-    config = PoseConfig()
+def sample_fighters(
+    video: Path, assets: Path, artifacts: Path, pose_model: Path | None = None
+) -> dict[str, FighterTrack]:
+    """Both fighters of a sample video as the pose stage's own functions see them (with the
+    default landmark model, or the one `pose_model` names)."""
+    config = PoseConfig(pose_model=str(pose_model) if pose_model else "")
     spans = plan_spans([(0, 0, 0, FRAMES)], config.overlap_frames)
     chunks = [process_chunk(video, s, FPS, config, model_files(config, assets)) for s in spans]
     out = assemble(

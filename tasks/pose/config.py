@@ -25,7 +25,11 @@ class PoseConfig:
         "", "Detector model file; empty takes the backend's default (BlazePose: the pulled asset)."
     )
     pose_model: str = setting(
-        "", "Pose model file; empty takes the backend's default (BlazePose: the pulled asset)."
+        "",
+        "Pose model file; empty takes the backend's default (BlazePose: the pulled "
+        "pose_landmark_full.tflite). The pulled pose_landmark_heavy.tflite is about 3x slower "
+        "per person and frame; on the sample's multi-view benchmark it lifted the man 3 mm "
+        "closer to the reference and the woman 6 mm further (benchmarks/lift_multiview.py).",
     )
     detect_every: int = setting(
         3,
