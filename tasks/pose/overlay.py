@@ -103,7 +103,9 @@ class H264Writer:
                 "-movflags",
                 "+faststart",
             ],
-            ffmpeg_log_level="error",
+            # ffmpeg shares our terminal: at "error" a command stopped mid-frame (Ctrl-C) printed
+            # ffmpeg's complaint about the cut frame above its one line. A fatal error still shows.
+            ffmpeg_log_level="fatal",
         )
         self._writer.send(None)
 
