@@ -202,12 +202,14 @@ def test_frames_without_the_fighter_are_bridged(assets, tmp_path):
 
 
 def _walking_speeds(data: Path, video_id: str) -> dict[str, tuple[float, float]]:
-    """Per fighter, the pelvis's mean horizontal speed (m/s) before and after 50/60 s."""
+    """Per fighter, the pelvis's mean horizontal speed (m/s) before and after 50/60 s, in the
+    video's newest lift (a shared data directory may hold reruns)."""
     rows = query(
         data,
-        "SELECT role, time_s, qpos[1], qpos[2] FROM lift_motion WHERE video_id = ? "
-        "ORDER BY role, step",
-        [video_id],
+        "SELECT role, time_s, qpos[1], qpos[2] FROM lift_motion WHERE video_id = ? AND key = "
+        "(SELECT key FROM stage_outputs WHERE stage = 'lift' AND video_id = ? "
+        "ORDER BY created_at DESC LIMIT 1) ORDER BY role, step",
+        [video_id, video_id],
     )
     speeds = {}
     for role in ("adversary", "opponent"):
