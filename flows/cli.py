@@ -24,11 +24,7 @@ EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 
 
-# The commands that run Prefect flows, which need Prefect's API.
-FLOW_COMMANDS = frozenset({"process", "rerun", "pick", "train", "evaluate", "demo"})
-
-
-def prepare_environment(data_root: Path, *, verbose: bool, command: str | None = None) -> None:
+def prepare_environment(data_root: Path, *, verbose: bool) -> None:
     """Prefect settings Ringside needs, unless the user has set them: its home (ephemeral
     server database, cached results) inside the data directory, no telemetry, a quiet console."""
     os.environ["RINGSIDE_DATA"] = str(data_root)
@@ -53,15 +49,27 @@ def prepare_environment(data_root: Path, *, verbose: bool, command: str | None =
         from flows.serve import served_api
 
         # While `ringside serve` runs on this data directory, every run reports to its server
-        # and shows in its UI; otherwise Prefect starts an ephemeral server per command.
+        # and shows in its UI; otherwise a flow command starts a server of its own
+        # (`_flow_server`).
         api = served_api(data_root)
-        if api is None and command in FLOW_COMMANDS:
-            from flows.serve import private_server
-
-            # Not Prefect's temporary server: a killed command would leave that one running.
-            api = private_server(data_root)
         if api is not None:
             os.environ["PREFECT_API_URL"] = api
+
+
+@contextlib.contextmanager
+def _flow_server(data_root: Path):
+    """Where a command's flows report: `ringside serve`'s server or the user's
+    (PREFECT_API_URL), else a private server started here, once the command has checked its
+    input (it takes seconds to start: a mistyped path waited for it). Then the runs a killed
+    command left RUNNING are marked crashed."""
+    if "PREFECT_API_URL" not in os.environ:
+        from flows.serve import private_server
+
+        # Not Prefect's temporary server: a killed command would leave that one running.
+        os.environ["PREFECT_API_URL"] = private_server(data_root)
+    with _prefect_settings_of_this_command():
+        _crash_stale_flow_runs(data_root)
+        yield
 
 
 def _config_flags(parser: argparse.ArgumentParser) -> None:
@@ -433,7 +441,8 @@ def _process(
         rerun=rerun,
     )
     try:
-        summaries = video_to_opponent(**parameters)
+        with _flow_server(data_root):
+            summaries = video_to_opponent(**parameters)
     except PipelineFailed as failed:
         if failed.summaries:
             _print_summary(failed.summaries, data_root, args.json)
@@ -582,10 +591,12 @@ def _metrics(args, data_root: Path) -> int:
 
 def _train(args, data_root: Path) -> int:
     from flows.config import load_config
-    from flows.train import train_flow
+    from flows.train import resolve_dataset, train_flow
 
     config = load_config(args.config, _overrides(args))
-    summary = train_flow(str(data_root), args.dataset, config.as_dict(), args.rerun)
+    resolve_dataset(data_root, args.dataset)  # fail fast, before Prefect starts
+    with _flow_server(data_root):
+        summary = train_flow(str(data_root), args.dataset, config.as_dict(), args.rerun)
     _print_summary([summary], data_root, args.json)
     return 0
 
@@ -642,9 +653,6 @@ def _check(args, data_root: Path) -> int:
 
     paths = data_paths(data_root)
     prefect_db = prefect_database()
-    if not paths.db.exists():
-        print(f"{paths.db}: no database yet; nothing to check")
-        return 0
     with tqdm(desc="check", unit=" tables", disable=args.json or not sys.stderr.isatty()) as bar:
         problems = scan(paths.db, paths.artifacts, lambda _: bar.update(1), prefect_db)
     done = []
@@ -667,6 +675,8 @@ def _check(args, data_root: Path) -> int:
                 }
             )
         )
+    elif not paths.db.exists() and not problems:
+        print(f"{paths.db}: no database yet; nothing to check")
     else:
         _print_problems(problems)
         for line in done:
@@ -852,7 +862,8 @@ def _evaluate(args, data_root: Path) -> int:
         resolve_run(con, args.run)
     from flows.evaluate import evaluate_flow
 
-    summary = evaluate_flow(str(data_root), args.run, config.as_dict(), args.rerun)
+    with _flow_server(data_root):
+        summary = evaluate_flow(str(data_root), args.run, config.as_dict(), args.rerun)
     with connect(db, read_only=True) as con:
         tables = evaluation_tables(con, summary.key, summary.video_id)
         metrics = output_metrics(con, "evaluate", summary.video_id, summary.key)
@@ -1259,16 +1270,7 @@ def _command(raw: list[str]) -> int:
     from storage.paths import data_paths
 
     data_root = data_paths(known.data).root
-    command = next((word for word in rest if not word.startswith("-")), None)
-    if "-h" in rest or "--help" in rest:
-        command = None  # help needs no server
-    from flows.serve import ServerError
-
-    try:
-        prepare_environment(data_root, verbose=known.verbose, command=command)
-    except ServerError as error:
-        print(f"ringside: error: {error}", file=sys.stderr)
-        return EXIT_FAILED
+    prepare_environment(data_root, verbose=known.verbose)
     with _prefect_settings_of_this_command():
         return _dispatch(raw, data_root)
 
@@ -1290,10 +1292,9 @@ def _prefect_settings_of_this_command():
 
 def _dispatch(raw: list[str], data_root: Path) -> int:
     args = build_parser().parse_args(raw)
-    if args.command in FLOW_COMMANDS:
-        _crash_stale_flow_runs(data_root)
     import duckdb
 
+    from flows.serve import ServerError
     from storage.assets import AssetError
     from storage.db import DatabaseBusy, damaged_database, error_line
     from storage.paths import data_paths
@@ -1355,7 +1356,7 @@ def _dispatch(raw: list[str], data_root: Path) -> int:
     except (BadInput, ValueError, FileNotFoundError) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except (AssetError, DatabaseBusy) as error:
+    except (AssetError, DatabaseBusy, ServerError) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
         return EXIT_FAILED
     except duckdb.Error as error:

@@ -2,18 +2,33 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from prefect import flow
 
 from flows.config import from_tables
 from flows.runs import StageSummary, reuse_or_run
 from storage.db import connect
 from storage.paths import data_paths
-from tasks.dataset.store import UnknownDataset, dataset_info
+from tasks.dataset.store import DatasetInfo, UnknownDataset, dataset_info
 from tasks.errors import BadInput
 from tasks.runner import StageResult
 from tasks.train.run import STAGE
 from tasks.train.store import warm_start_source
 from tasks.train.task import train_key, train_task
+
+
+def resolve_dataset(data_root: str | Path, dataset_key: str) -> DatasetInfo:
+    """The dataset ``dataset_key`` (or a prefix of its key) names; BadInput naming what is
+    wrong when there is none."""
+    db = data_paths(data_root).db
+    if not db.exists():
+        raise BadInput(str(db), "no database yet: process some footage first")
+    with connect(db) as con:  # writable: brings an older database's schema up to date
+        try:
+            return dataset_info(con, dataset_key)
+        except UnknownDataset as error:
+            raise BadInput(f"--dataset {dataset_key}", str(error)) from None
 
 
 @flow(name="train", flow_run_name="train-{dataset_key:.12}")
@@ -28,14 +43,8 @@ def train_flow(
     (`warm_start_source`).
     """
     settings = from_tables(config or {}).train
-    db = data_paths(data_root).db
-    if not db.exists():
-        raise BadInput(str(db), "no database yet: process some footage first")
-    with connect(db) as con:  # writable: brings an older database's schema up to date
-        try:
-            info = dataset_info(con, dataset_key)
-        except UnknownDataset as error:
-            raise BadInput(f"--dataset {dataset_key}", str(error)) from None
+    info = resolve_dataset(data_root, dataset_key)
+    with connect(data_paths(data_root).db) as con:
         warm = warm_start_source(con, info.dataset_key, settings)
     dataset_key = info.dataset_key  # the whole key, where a prefix was given
     key = train_key(settings, dataset_key, warm)

@@ -147,6 +147,8 @@ def scan(
     """
     problems: list[Problem] = []
     prefect = _prefect_problems(prefect_db)
+    if not db.exists():  # nothing of ours yet, but Prefect's history may be there
+        return prefect
     try:
         with connect(db, read_only=True) as con:
             for table, columns in _tables(con).items():

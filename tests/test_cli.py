@@ -32,6 +32,7 @@ from conftest import (
 
 import tasks.ingest.stage
 from flows.cli import build_parser, main
+from flows.serve import server_log_size
 from models.humanoid.kinematics import BODY_NAMES, Y_UP_TO_Z_UP
 from storage.db import connect
 
@@ -322,6 +323,7 @@ def test_bad_input_is_one_clear_line_and_changes_nothing(
     path, problem = bad_input(kind, tmp_path, sample_video)
     db = populated / "ringside.duckdb"
     before = db_snapshot(db)
+    log = server_log_size(populated)
     code, out, err = run_cli(
         capsys, "--data", str(populated), "process", str(path), "--adversary", "A"
     )
@@ -330,6 +332,8 @@ def test_bad_input_is_one_clear_line_and_changes_nothing(
     assert len(lines) == 1, err
     assert str(path) in lines[0] and problem in lines[0]
     assert db_snapshot(db) == before
+    if kind in ("missing", "directory", "empty"):  # found without decoding: no server waited for
+        assert server_log_size(populated) == log, "a Prefect server was started for it"
 
 
 def test_two_processes_at_once_register_one_video(tmp_path, two_shot_video):
