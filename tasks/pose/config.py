@@ -27,9 +27,9 @@ class PoseConfig:
     pose_model: str = setting(
         "",
         "Pose model file; empty takes the backend's default (BlazePose: the pulled "
-        "pose_landmark_full.tflite). The pulled pose_landmark_heavy.tflite is about 3x slower "
-        "per person and frame; on the sample's multi-view benchmark it lifted the man 3 mm "
-        "closer to the reference and the woman 6 mm further (benchmarks/lift_multiview.py).",
+        "pose_landmark_full.tflite). The pulled pose_landmark_heavy.tflite is slower "
+        "(benchmarks/pose_speed.py); on the sample's multi-view benchmark it lifted the man "
+        "3 mm closer to the reference and the woman 6 mm further (benchmarks/lift_multiview.py).",
     )
     detect_every: int = setting(
         3,
