@@ -66,33 +66,28 @@ def labelled_reference(tracks: list, cams: list) -> tuple[dict, dict, float]:
     """Each fighter triangulated from every view (which fighter is which in each view: the
     labelling that triangulates best), where each point's views agree, and the median
     reprojection error per person."""
+
+    def views(order: list, person: int) -> tuple[np.ndarray, np.ndarray]:
+        """One person's keypoints in every view (V, F, 33, 2) and their weights (V, F, 33)."""
+        seen = [t[o[person]] for t, o in zip(tracks, order, strict=True)]
+        return (
+            np.stack([s.keypoints for s in seen]),
+            np.stack([(s.confidence > 0.5).astype(float) for s in seen]),
+        )
+
     best = None
     for swaps in itertools.product((False, True), repeat=len(cams) - 1):
         order = [ROLES] + [ROLES[::-1] if s else ROLES for s in swaps]
         error = 0.0
         for person in range(2):
-            pts = np.stack(
-                [t[o[person]].keypoints[:, BODY] for t, o in zip(tracks, order, strict=True)]
-            )
-            w = np.stack(
-                [
-                    (t[o[person]].confidence[:, BODY] > 0.5).astype(float)
-                    for t, o in zip(tracks, order, strict=True)
-                ]
-            )
-            error += reprojection_px(pts, w, cams)
+            pts, w = views(order, person)
+            error += reprojection_px(pts[:, :, BODY], w[:, :, BODY], cams)
         if best is None or error < best[0]:
             best = (error, order)
     error, order = best
     reference, agree = {}, {}
     for person, role in enumerate(ROLES):
-        pts = np.stack([t[o[person]].keypoints for t, o in zip(tracks, order, strict=True)])
-        w = np.stack(
-            [
-                (t[o[person]].confidence > 0.5).astype(float)
-                for t, o in zip(tracks, order, strict=True)
-            ]
-        )
+        pts, w = views(order, person)
         reference[role] = triangulate(pts, w, cams)
         errors = np.where(w > 0, view_errors_px(reference[role], pts, cams), 0.0)
         agree[role] = errors.max(axis=0) < AGREE_PX

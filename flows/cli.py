@@ -1266,7 +1266,7 @@ def _command(raw: list[str]) -> int:
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--data", type=Path)
     pre.add_argument("--verbose", action="store_true")
-    known, rest = pre.parse_known_args(raw)
+    known, _ = pre.parse_known_args(raw)
     from storage.paths import data_paths
 
     data_root = data_paths(known.data).root

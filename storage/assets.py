@@ -14,7 +14,6 @@ import subprocess
 import sys
 import tarfile
 import tempfile
-import urllib.error
 import urllib.request
 import zipfile
 from dataclasses import dataclass, replace
@@ -255,7 +254,7 @@ def _download_npm(requirement: str, folder: Path) -> Path:
         with urllib.request.urlopen(url, timeout=30) as response, path.open("wb") as out:
             while chunk := response.read(1 << 20):
                 out.write(chunk)
-    except (urllib.error.URLError, OSError) as error:
+    except OSError as error:  # urllib's URLError and HTTPError are OSErrors
         reason = getattr(error, "reason", error)
         raise AssetError(
             f"could not download {requirement} from the npm registry: {reason}"
