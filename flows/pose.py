@@ -16,6 +16,7 @@ from storage.db import connect
 from storage.files import sha256_file
 from storage.paths import data_paths
 from tasks.ingest.outputs import IngestOutput, load_ingest
+from tasks.pose.chunk import STOP
 from tasks.pose.config import PoseConfig
 from tasks.pose.merge import ChunkSpan
 from tasks.pose.stage import STAGE, chunk_key, model_files, plan_spans, pose_key
@@ -68,18 +69,25 @@ def _track_chunks(
         key = chunk_key(settings, ingest.video_id, span, hashes)
         return data_root, ingest.path, span, ingest.fps, settings, tuple(map(str, models)), key
 
+    STOP.clear()
     futures = [pose_chunk_task.submit(*arguments(span)) for span in spans]
-    # Shown on an interactive terminal only; advances as chunks finish.
-    with tqdm(
-        total=ingest.frames, unit="frame", desc=f"pose {Path(ingest.path).name}", disable=None
-    ) as bar:
-        names = []
-        for span, future in zip(spans, futures, strict=True):
-            name = future.result()
-            if not artifact_path(paths.artifacts, name).exists():
-                # Prefect's cache names a chunk file that is gone (deleted, a lost disk): the
-                # store is the truth, so the chunk is tracked again and cached anew.
-                name = pose_chunk_task.with_options(refresh_cache=True)(*arguments(span))
-            names.append(name)
-            bar.update(span.end - span.start)
+    names = []
+    try:
+        # Shown on an interactive terminal only; advances as chunks finish.
+        with tqdm(
+            total=ingest.frames, unit="frame", desc=f"pose {Path(ingest.path).name}", disable=None
+        ) as bar:
+            for span, future in zip(spans, futures, strict=True):
+                name = future.result()
+                if not artifact_path(paths.artifacts, name).exists():
+                    # Prefect's cache names a chunk file that is gone (deleted, a lost disk):
+                    # the store is the truth, so the chunk is tracked again and cached anew.
+                    name = pose_chunk_task.with_options(refresh_cache=True)(*arguments(span))
+                names.append(name)
+                bar.update(span.end - span.start)
+    except BaseException:
+        # A stop signal (Prefect raises it here, in the main thread) or a failed chunk: the
+        # chunks still at work end at their next frame rather than finishing first.
+        STOP.set()
+        raise
     return spans, names

@@ -11,10 +11,13 @@ import pytest
 from models.pose.blazepose import BlazePoseDetector
 from models.pose.tiling import TiledDetector, tile_origins
 from tasks.errors import BadInput
+from tasks.pose import chunk as chunks
 from tasks.pose.chunk import ChunkTracks
+from tasks.pose.config import PoseConfig
 from tasks.pose.fighters import FighterConfig
+from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, merge_chunks, summaries
-from tasks.pose.stage import assign_roles, plan_spans
+from tasks.pose.stage import BACKENDS, assign_roles, model_files, plan_spans
 from tasks.pose.tracking import DESCRIPTOR_SIZE, appearance
 
 J = 33
@@ -189,3 +192,34 @@ def test_a_fighter_lost_for_a_while_is_still_one_fighter():
         merge_chunks(spans, chunks), shot_frames={0: 50}, colour="#c81e1e", link_gap_frames=5
     )
     assert sorted(unlinked.by_track.values()).count("adversary") == 1
+
+
+def test_a_stopping_flow_ends_its_chunk_at_the_next_frame(assets: Path, sample_video: Path):
+    """A stop signal reaches the main thread only; the chunk at work in its thread stops at the
+    next frame once the flow sets STOP (Prefect waited for it: a stop took 7-8 s on a loaded
+    machine), and a later run's chunks track again."""
+    config = PoseConfig()
+    detector, estimator = BACKENDS[config.backend].build(*model_files(config, assets), config)
+    read: list[int] = []
+
+    def frames(stop_at: int | None):
+        for index, frame in read_frames(sample_video, 0, 30):
+            read.append(index)
+            if index == stop_at:
+                chunks.STOP.set()  # as the flow waiting on this chunk stops
+            yield index, frame
+
+    def track(stop_at: int | None = None) -> ChunkTracks:
+        return chunks.track_chunk(
+            frames(stop_at), start=0, end=30, fps=60.0, detector=detector, estimator=estimator,
+            config=config,
+        )  # fmt: skip
+
+    try:
+        with pytest.raises(chunks.Stopped, match="frames 0-30 stopped at frame 5"):
+            track(stop_at=5)
+        assert read == list(range(6))
+    finally:
+        chunks.STOP.clear()
+    read.clear()
+    assert track().obs_frame.max() == 29 and read == list(range(30))

@@ -10,6 +10,7 @@ becomes an observation for the tracker, which gives identities (motion + clothin
 from __future__ import annotations
 
 import io
+import threading
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -57,6 +58,16 @@ class ChunkTracks:
         return cls(**{k: (v.item() if v.ndim == 0 else v) for k, v in values.items()})
 
 
+# Chunks run in worker threads, which a stop signal never reaches, and Prefect waits for the
+# running ones before a stopped command may exit (7 s on a loaded 2-core machine). The flow
+# waiting on them sets this as it stops (`flows.pose`), and each chunk ends at its next frame.
+STOP = threading.Event()
+
+
+class Stopped(Exception):
+    """A chunk left unfinished because its flow is stopping."""
+
+
 def _clip(box: np.ndarray, width: int, height: int) -> np.ndarray | None:
     clipped = np.clip(box, 0, [width, height, width, height]).astype(np.float64)
     return clipped if clipped[2] - clipped[0] >= 2 and clipped[3] - clipped[1] >= 2 else None
@@ -81,6 +92,8 @@ def track_chunk(
     det_frame, det_box, det_score = [], [], []
     joints = 0
     for index, frame in frames:
+        if STOP.is_set():
+            raise Stopped(f"chunk of frames {start}-{end} stopped at frame {index}")
         height, width = frame.shape[:2]
         poses = [
             p
