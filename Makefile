@@ -44,9 +44,11 @@ assets: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/ringside demo
 
+# Two processes, as CI's two cores: most tests wait on a server or a subprocess part of the
+# time. A file's tests stay on one process, in order, with their fixtures.
 test: $(STAMP) browser postgres lint
 	$(BIN)/ringside assets pull --dev
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadfile
 
 # The tests too long for `make test` and CI: SIGKILL at 20 random moments of a pipeline run
 # (tests/test_kills.py, about 16 minutes) and two pipeline workers (tests/test_workers.py).

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -44,6 +45,28 @@ from storage.paths import data_paths  # noqa: E402
 def pytest_sessionfinish(session, exitstatus) -> None:
     """The suite's Prefect home goes with the session (one was left in /tmp per run)."""
     shutil.rmtree(_PREFECT_HOME, ignore_errors=True)
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """`make test` runs the tests on two processes (`-n 2 --dist loadfile`): a file's tests on
+    one, in order. The files on the shared `sample_run` all go to one process, in the order a
+    single process runs them: they add reruns, picks and trainings to it and count what they
+    find (spread over both, 10 tests failed)."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SampleRunTogether(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            path = nodeid.split("::", 1)[0]
+            return "sample_run" if _uses_sample_run(path) else path
+
+    return SampleRunTogether(config, log)
+
+
+@functools.cache
+def _uses_sample_run(path: str) -> bool:
+    return "sample_run" in (REPO / path).read_text()
 
 
 @pytest.fixture(scope="session")
@@ -89,7 +112,8 @@ def count(db: Path, sql: str) -> int:
 @pytest.fixture(scope="session")
 def sample_run(tmp_path_factory, sample_video: Path) -> Path:
     """A data directory where the sample went through every stage, in chunks of 30 frames (so
-    chunk borders are crossed). Tests may add picks or reruns to it, never remove anything."""
+    chunk borders are crossed). Tests may add picks or reruns to it, never remove anything.
+    Each test process (`make test` runs two) builds its own."""
     from flows.cli import main
 
     data = tmp_path_factory.mktemp("sample_run") / "data"
