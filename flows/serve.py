@@ -366,7 +366,7 @@ def wait_until_up(
     while time.monotonic() < deadline and server.poll() is None:
         if answers(api_url):
             return True
-        time.sleep(0.5)
+        time.sleep(0.1)  # every command waits for its server: a coarser poll added 0.25 s
     return False
 
 
