@@ -1,0 +1,100 @@
+"""How long SIGTERM takes to end `ringside process` in the pose stage, on an idle machine and with
+two busy processes beside it (CI's two cores shared).
+
+Each trial runs the sample in a new data directory, sends SIGTERM 3 s after the database
+appears (the pose stage is at work then) and times the exit. The baseline, in the same run,
+is the same command with the chunks' stop flag disabled: Prefect then waits for the running
+chunk, as before the flag existed.
+
+    python benchmarks/stop_latency.py
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from storage.assets import SAMPLE_VIDEO, pull
+from storage.paths import data_paths
+
+REPO = Path(__file__).resolve().parent.parent
+TRIALS = 3
+# The command as `python -m flows.cli`, or with the flag the pose flow sets made inert.
+COMMAND = "import runpy\nrunpy.run_module('flows.cli', run_name='__main__')"
+NO_FLAG = (
+    "import flows.pose, threading\n"
+    "class Inert(threading.Event):\n"
+    "    def set(self):\n"
+    "        pass\n"
+    "flows.pose.STOP = Inert()\n" + COMMAND
+)
+LINE = "ringside: error: stopped by SIGTERM; the same command picks up where it stopped"
+
+
+def stop_seconds(video: Path, assets: Path, program: str) -> float:
+    """Seconds from SIGTERM to the exit of one `ringside process` of ``video``."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_HOME", "PREFECT_API_URL")}
+    env["RINGSIDE_ASSETS"] = str(assets)
+    with tempfile.TemporaryDirectory(prefix="ringside-bench-stop-") as tmp:
+        data = Path(tmp) / "data"
+        argv = ["--data", str(data), "process", str(video), "--adversary", "A"]
+        command = subprocess.Popen(
+            [sys.executable, "-c", program, *argv],
+            cwd=REPO,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            deadline = time.monotonic() + 180
+            while not (data / "ringside.duckdb").exists() and time.monotonic() < deadline:
+                time.sleep(0.1)
+            time.sleep(3)
+            command.send_signal(signal.SIGTERM)
+            sent = time.monotonic()
+            _, err = command.communicate(timeout=120)
+            seconds = time.monotonic() - sent
+        finally:
+            if command.poll() is None:
+                command.kill()
+                command.wait()
+    if err.strip().splitlines()[-1:] != [LINE]:
+        raise SystemExit(f"the command did not stop as expected:\n{err[-2000:]}")
+    return seconds
+
+
+def busy(count: int) -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+
+
+def main() -> None:
+    assets = data_paths().assets
+    pull(assets, log=lambda _line: None)
+    video = assets / SAMPLE_VIDEO
+    results = {}
+    for load in (0, 2):
+        hogs = busy(load)
+        try:
+            for name, program in (("flag", COMMAND), ("baseline", NO_FLAG)):
+                times = [stop_seconds(video, assets, program) for _ in range(TRIALS)]
+                results[load, name] = statistics.median(times)
+                shown = ", ".join(f"{t:.2f}" for t in times)
+                median = results[load, name]
+                print(f"{load} busy processes, {name:8s}: median {median:.2f} s ({shown})")
+        finally:
+            for hog in hogs:
+                hog.kill()
+                hog.wait()
+    print(f"with two busy processes: {results[2, 'baseline'] / results[2, 'flag']:.1f}x faster")
+    print(f"stop_latency_busy: {results[2, 'flag']:.2f} s")
+
+
+if __name__ == "__main__":
+    main()
