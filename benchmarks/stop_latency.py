@@ -20,10 +20,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from storage.assets import SAMPLE_VIDEO, pull
-from storage.paths import data_paths
-
 REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
+from storage.paths import data_paths  # noqa: E402
+
 TRIALS = 3
 # The command as `python -m flows.cli`, or with the flag the pose flow sets made inert.
 COMMAND = "import runpy\nrunpy.run_module('flows.cli', run_name='__main__')"
@@ -84,9 +86,8 @@ def main() -> None:
         try:
             for name, program in (("flag", COMMAND), ("baseline", NO_FLAG)):
                 times = [stop_seconds(video, assets, program) for _ in range(TRIALS)]
-                results[load, name] = statistics.median(times)
+                median = results[load, name] = statistics.median(times)
                 shown = ", ".join(f"{t:.2f}" for t in times)
-                median = results[load, name]
                 print(f"{load} busy processes, {name:8s}: median {median:.2f} s ({shown})")
         finally:
             for hog in hogs:
