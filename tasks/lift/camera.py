@@ -191,6 +191,17 @@ def calibrate_chessboard(
     return K, dist.ravel()[:5], float(rms)
 
 
+def undistort(points: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """(..., 2) pixels seen through a lens with OpenCV distortion ``dist`` -> the pixels an
+    ideal pinhole camera with intrinsics ``K`` would see; NaN stays NaN."""
+    flat = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    out = np.full_like(flat, np.nan)
+    seen = np.isfinite(flat).all(axis=1)
+    if seen.any():
+        out[seen] = cv2.undistortPoints(flat[seen].reshape(-1, 1, 2), K, dist, P=K).reshape(-1, 2)
+    return out.reshape(np.shape(points))
+
+
 def triangulate(points_2d: np.ndarray, weights: np.ndarray, cameras: list[Camera]) -> np.ndarray:
     """Multi-view linear triangulation (DLT), weighted by confidence.
 
@@ -201,14 +212,7 @@ def triangulate(points_2d: np.ndarray, weights: np.ndarray, cameras: list[Camera
     shape = points_2d.shape[1:-1]
     flat = points_2d.reshape(views, -1, 2)
     w = np.nan_to_num(weights.reshape(views, -1))
-    undistorted = np.stack(
-        [
-            cv2.undistortPoints(
-                flat[v].reshape(-1, 1, 2).astype(np.float64), cam.K, cam.dist, P=cam.K
-            ).reshape(-1, 2)
-            for v, cam in enumerate(cameras)
-        ]
-    )
+    undistorted = np.stack([undistort(flat[v], cam.K, cam.dist) for v, cam in enumerate(cameras)])
     projections = np.stack([cam.K @ np.hstack([cam.R, cam.t[:, None]]) for cam in cameras])
     out = np.full((flat.shape[1], 3), np.nan)
     for n in range(flat.shape[1]):

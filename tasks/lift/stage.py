@@ -30,6 +30,7 @@ from tasks.lift.camera import (
     ground_fighters,
     read_calibration,
     root_translations,
+    undistort,
 )
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.gates import (
@@ -118,19 +119,27 @@ def _segment(track: FighterTrack, start: int, end: int, min_frames: int) -> tupl
     return start + int(seen[0]), start + int(seen[-1]) + 1
 
 
-def _camera_for_shot(
+def _intrinsics(
     config: LiftStageConfig, size: tuple[int, int], calibration: Path | None
-) -> tuple[np.ndarray, str]:
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """K, the lens distortion (zeros when guessed) and where they came from."""
     if calibration is None:
-        return fov_intrinsics(*size, config.fov_deg), "fov"
-    K, _, calibrated_size = read_calibration(calibration)
+        return fov_intrinsics(*size, config.fov_deg), np.zeros(5), "fov"
+    K, dist, calibrated_size = read_calibration(calibration)
     if calibrated_size != tuple(size):
         raise BadInput(
             str(calibration),
             f"was made for {calibrated_size[0]}x{calibrated_size[1]} "
             f"images, but the video is {size[0]}x{size[1]}",
         )
-    return K, "calibration"
+    return K, dist, "calibration"
+
+
+def _without_distortion(track: FighterTrack, K: np.ndarray, dist: np.ndarray) -> FighterTrack:
+    """The track as a pinhole camera would have seen it: the lift's projection has no lens."""
+    if not np.any(dist):
+        return track
+    return dataclasses.replace(track, keypoints=undistort(track.keypoints, K, dist))
 
 
 def _median_distance(spans: dict[str, tuple[int, int]], roots: list[np.ndarray]) -> float | None:
@@ -259,11 +268,12 @@ def lift_video(
     twice = np.zeros(frames, bool)
     if all(r in fighters for r in ROLES):
         twice = one_person(*(fighters[r].keypoints for r in ROLES), gates)
+    K, dist, source = _intrinsics(config, size, calibration)
+    fighters = {r: _without_distortion(track, K, dist) for r, track in fighters.items()}
     finished = 0  # frames of the shot before, told when the next one starts
     for shot, start, end in shots:
         advance(finished)
         finished = end - start
-        K, source = _camera_for_shot(config, size, calibration)
         gated, refused, spans = {}, {}, {}
         for role, track in fighters.items():
             seen = _segment(track, start, end, config.min_frames)

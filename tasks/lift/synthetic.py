@@ -829,22 +829,25 @@ def make_case(
     )
 
 
-def evaluate_lift(case: SyntheticCase, config, workdir: Path) -> dict[str, float]:
+def evaluate_lift(
+    case: SyntheticCase, config, workdir: Path, *, dist: np.ndarray | None = None
+) -> dict[str, float]:
     """Run the lift stage (:func:`tasks.lift.stage.lift_video`) on one synthetic case and score
     its input and output against the truth.
 
     The stage gets the case's true intrinsics through a calibration file, as an analyst with a
     calibrated camera would; it finds the floor and the camera's pose itself. Its output, in its
     own world, is carried back to the truth's world through the two cameras before scoring.
-    Returns MPJPE / PA-MPJPE (mm) of the noisy 3D input and of the output, and the stage's own
-    metrics.
+    ``dist`` is the lens distortion the calibration file says the keypoints were seen through
+    (none by default). Returns MPJPE / PA-MPJPE (mm) of the noisy 3D input and of the output,
+    the output's median hip-centre placement error (mm), and the stage's own metrics.
     """
     from tasks.lift.camera import write_calibration
     from tasks.lift.metrics import mpjpe_mm, pa_mpjpe_mm
     from tasks.lift.stage import FighterTrack, lift_video
 
     calibration = workdir / "calibration.json"
-    write_calibration(calibration, case.K, np.zeros(5), case.size, 0.0)
+    write_calibration(calibration, case.K, np.zeros(5) if dist is None else dist, case.size, 0.0)
     frames = len(case.points)
     track = FighterTrack(
         case.inputs.keypoints_2d, case.inputs.confidence, case.inputs.world_landmarks
@@ -871,7 +874,11 @@ def evaluate_lift(case: SyntheticCase, config, workdir: Path) -> dict[str, float
     # The noisy input: hip-centred landmarks in camera axes, turned into the world's axes.
     hips = case.points[:, list(HIPS)].mean(axis=1)
     noisy = case.inputs.world_landmarks @ case.R + hips[:, None]
+    placed = np.linalg.norm(
+        in_truth_world[:, list(HIPS)].mean(1) - case.points[:, list(HIPS)].mean(1), axis=-1
+    )
     return {
+        "placement_error_mm": float(np.nanmedian(placed) * 1000),
         "input_mpjpe_mm": mpjpe_mm(noisy, case.points),
         "input_pa_mpjpe_mm": pa_mpjpe_mm(noisy, case.points),
         "output_mpjpe_mm": mpjpe_mm(in_truth_world, case.points),
