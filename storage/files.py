@@ -16,6 +16,17 @@ HASH_BLOCK = 4 << 20
 TEMPORARY = ".tmp-"
 
 
+# How a stage's scratch folders in the system's temporary directory are named: SCRATCH, what
+# they hold, the pid of the process that made them, a dash (`scratch_dir`).
+SCRATCH = "ringside-"
+
+
+def scratch_dir(kind: str) -> tempfile.TemporaryDirectory:
+    """A scratch folder removed when its ``with`` block ends; its name carries this process's
+    pid, so a later command can remove the folder of a process killed inside the block."""
+    return tempfile.TemporaryDirectory(prefix=f"{SCRATCH}{kind}-{os.getpid()}-")
+
+
 def write_atomic(path: Path, data: bytes) -> None:
     """Write ``data`` beside ``path`` and rename it into place: a killed process leaves either
     the old file or the new one, never a partial file."""

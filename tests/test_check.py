@@ -7,12 +7,14 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 from conftest import copy_data, process_argv, query, render_page, run_cli, stage_contents
 
 from storage.artifacts import NotAnArtifact, artifact_path, read_bytes
-from storage.check import stale_temporaries
+from storage.check import remove_stale_temporaries, stale_temporaries
 from storage.db import connect
 from storage.paths import data_paths
 
@@ -192,6 +194,30 @@ def test_a_temporary_file_is_stale_once_its_writer_is_gone(tmp_path):
     for path in (mine, dead):
         path.write_bytes(b"half")
     assert stale_temporaries(tmp_path / "artifacts") == [dead]
+
+
+def test_a_scratch_folder_of_a_killed_process_is_removed_by_the_next_command(tmp_path):
+    """A stage's scratch folder in the system's temporary directory (the lift's video, the
+    overlay's frames) outlives a SIGKILL; the next `process` removes it, not a live one's."""
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    code = (
+        "import sys, time; from storage.files import scratch_dir\n"
+        "with scratch_dir('lift') as tmp:\n    print(tmp, flush=True); time.sleep(60)"
+    )
+    env = {**os.environ, "TMPDIR": str(scratch), "PYTHONPATH": str(Path(__file__).parents[1])}
+    child = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, env=env, text=True
+    )
+    killed = Path(child.stdout.readline().strip())
+    child.kill()
+    child.wait()
+    child.stdout.close()
+    alive = scratch / f"ringside-overlay-{os.getpid()}-abc"
+    alive.mkdir()
+    assert killed.is_dir() and killed.parent == scratch
+    removed = remove_stale_temporaries(tmp_path / "artifacts", scratch_root=scratch)
+    assert removed == [killed] and not killed.exists() and alive.is_dir()
 
 
 def test_a_damaged_prefect_database_is_one_line_named_by_check_and_set_aside(

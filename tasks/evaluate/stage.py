@@ -29,7 +29,6 @@ same tables:
 from __future__ import annotations
 
 import math
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +43,7 @@ from models.maaip.demonstrations import ReferenceMotions
 from models.maaip.networks import Policy, make_networks
 from storage.artifacts import put_bytes
 from storage.db import connect
+from storage.files import scratch_dir
 from storage.records import output_metrics
 from tasks.config import build
 from tasks.dataset.config import DatasetConfig, PunchConfig
@@ -299,7 +299,7 @@ def evaluate(
         )
 
     trained = bouts["trained"]
-    with tempfile.TemporaryDirectory(prefix="ringside-evaluate-") as tmp:
+    with scratch_dir("evaluate") as tmp:
         diff, stored = _export(run, trained, artifacts, Path(tmp) / "opponent")
         video = _video(model, trained, config.video_seconds, artifacts, Path(tmp))
     media = [(*head, name, artifact) for name, artifact in stored]

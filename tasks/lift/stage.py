@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tempfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +21,7 @@ import numpy as np
 from models.humanoid.boxer import BoneLengths, single_scene_mjcf
 from models.humanoid.kinematics import NQ, NV
 from storage.artifacts import put_bytes
+from storage.files import scratch_dir
 from storage.keys import code_version, stage_key
 from tasks.errors import BadInput
 from tasks.lift.camera import (
@@ -376,7 +376,7 @@ def lift_video(
         )
         for role in bones
     }
-    with tempfile.TemporaryDirectory(prefix="ringside-lift-") as tmp:
+    with scratch_dir("lift") as tmp:
         video = Path(tmp) / "lift.mp4"
         render_lift(motion, video)
         video_artifact = put_bytes(artifacts, video.read_bytes(), ".mp4")

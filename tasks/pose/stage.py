@@ -8,7 +8,6 @@ roles, refines each fighter's keypoints over time and measures the result.
 from __future__ import annotations
 
 import dataclasses
-import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -21,6 +20,7 @@ from models.pose.tiling import TiledDetector
 from models.pose.types import BLAZEPOSE_33, BLAZEPOSE_TO_COCO17, COCO_17, Detector, PoseEstimator
 from storage.artifacts import put_bytes
 from storage.db import utcnow
+from storage.files import scratch_dir
 from storage.keys import code_version, digest, stage_key
 from tasks.errors import BadInput
 from tasks.pose.chunk import ChunkTracks, track_chunk
@@ -464,7 +464,7 @@ def render_overlay(
         source = None if source_frames is None else source_frames[first:last]
         return read_frames(video, first, last, source)
 
-    with tempfile.TemporaryDirectory(prefix="ringside-overlay-") as tmp:
+    with scratch_dir("overlay") as tmp:
         path = Path(tmp) / "overlay.mp4"
         with H264Writer(path, out_size, fps) as writer:
             for index, frame in frames_of(start, end):
