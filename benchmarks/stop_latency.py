@@ -7,6 +7,8 @@ is the same command with the chunks' stop flag disabled: Prefect then waits for 
 chunk, as before the flag existed.
 
     python benchmarks/stop_latency.py
+
+Linux only (its child processes are tied to its life with a parent-death signal).
 """
 
 from __future__ import annotations
@@ -16,14 +18,15 @@ import signal
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from flows.serve import die_with_parent  # noqa: E402
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
+from storage.files import scratch_dir  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 
 TRIALS = 3
@@ -43,7 +46,7 @@ def stop_seconds(video: Path, assets: Path, program: str) -> float:
     """Seconds from SIGTERM to the exit of one `ringside process` of ``video``."""
     env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_HOME", "PREFECT_API_URL")}
     env["RINGSIDE_ASSETS"] = str(assets)
-    with tempfile.TemporaryDirectory(prefix="ringside-bench-stop-") as tmp:
+    with scratch_dir("bench") as tmp:
         data = Path(tmp) / "data"
         argv = ["--data", str(data), "process", str(video), "--adversary", "A"]
         command = subprocess.Popen(
@@ -53,6 +56,7 @@ def stop_seconds(video: Path, assets: Path, program: str) -> float:
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,
+            preexec_fn=die_with_parent,
         )
         try:
             deadline = time.monotonic() + 180
@@ -73,10 +77,14 @@ def stop_seconds(video: Path, assets: Path, program: str) -> float:
 
 
 def busy(count: int) -> list[subprocess.Popen]:
-    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    loop = [sys.executable, "-c", "while True: pass"]
+    return [subprocess.Popen(loop, preexec_fn=die_with_parent) for _ in range(count)]
 
 
 def main() -> None:
+    # Stopped, it still ends its busy processes and the command (`finally`); killed, they get
+    # SIGTERM from the kernel as their parent dies.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     assets = data_paths().assets
     pull(assets, log=lambda _line: None)
     video = assets / SAMPLE_VIDEO

@@ -148,9 +148,9 @@ def port_free(port: int) -> bool:
     return True
 
 
-def _die_with_parent() -> None:
-    """In the child before exec (Linux): SIGTERM it when ``ringside serve`` dies, even killed
-    with SIGKILL, so no orphaned server keeps the port."""
+def die_with_parent() -> None:
+    """In the child before exec (Linux): SIGTERM it when its parent dies, even killed with
+    SIGKILL, so no orphaned server keeps the port (nor a benchmark's helper the cores)."""
     import ctypes
 
     pr_set_pdeathsig = 1
@@ -175,7 +175,7 @@ def start_server(data_root: str | Path, port: int) -> subprocess.Popen:
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             start_new_session=True,
-            preexec_fn=_die_with_parent if sys.platform == "linux" else None,
+            preexec_fn=die_with_parent if sys.platform == "linux" else None,
         )
 
 
@@ -194,7 +194,7 @@ def private_server(data_root: str | Path) -> str:
     """Start a Prefect server for this command alone and return its API URL.
 
     Prefect would start a temporary server of its own, which outlives a command killed with
-    SIGKILL (about 257 MB each, measured). This one is started with `_die_with_parent` from the
+    SIGKILL (about 257 MB each, measured). This one is started with `die_with_parent` from the
     main thread, so the kernel stops it with the command however the command ends, an exit
     handler stops it when the command exits, and `stop_private_servers` when a command run
     in-process returns. Its log joins ``ringside serve``'s.
@@ -669,7 +669,7 @@ def start_worker(data_root: str | Path, limit: int = 1) -> subprocess.Popen:
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             start_new_session=True,
-            preexec_fn=_die_with_parent if sys.platform == "linux" else None,
+            preexec_fn=die_with_parent if sys.platform == "linux" else None,
         )
 
 
