@@ -39,8 +39,8 @@ from tasks.dataset.store import (
     record_dataset,
 )
 from tasks.errors import BadInput
+from tasks.lift.lifting import detect_contacts
 from tasks.lift.motion import RATE, velocities
-from tasks.lift.solve import detect_contacts
 from tasks.lift.store import load_motion
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf, single_scene_mjcf
+from models.humanoid.fitting import Skeleton
+from models.humanoid.fitting import fit_humanoid as fit_with
 from models.humanoid.kinematics import (
     BLAZEPOSE_TO_SITE,
     BODY_NAMES,
@@ -29,33 +31,41 @@ from models.humanoid.kinematics import (
 from models.pose.types import BLAZEPOSE_33
 from tasks.config import build
 from tasks.lift.camera import project
+from tasks.lift.cleanup import (
+    Cleaned,
+    cleanup,
+    cleanup_pair,
+    geom_poses,
+    lowest_points,
+    segment_distances,
+)
+from tasks.lift.config import LiftConfig
+from tasks.lift.lifting import (
+    HIPS,
+    Lifted3D,
+    Lifter,
+    OptimisationLifter,
+    detect_contacts,
+    lift_fighter,
+)
 from tasks.lift.metrics import (
     bone_length_std_mm,
     foot_skating_cm_per_frame,
     pa_mpjpe_mm,
     sole_points,
 )
-from tasks.lift.solve import (
-    HIPS,
-    Cleaned,
-    LiftConfig,
-    Lifted3D,
-    Lifter,
-    OptimisationLifter,
-    Skeleton,
-    clean_runs,
-    cleanup,
-    cleanup_pair,
-    detect_contacts,
-    fit_humanoid,
-    gaussian_smooth,
-    geom_poses,
-    lift_fighter,
-    lowest_points,
-    segment_distances,
-)
+from tasks.lift.motion import clean_runs, gaussian_smooth
 
 FPS = 30.0
+
+
+def fit_humanoid(points, bones):
+    """`models.humanoid.fitting.fit_humanoid` with the lift's default IK settings."""
+    c = LiftConfig()
+    ik = {"iterations": c.ik_iterations, "damping": c.ik_damping, "face_weight": c.ik_face_weight}
+    return fit_with(points, bones, **ik)
+
+
 BONES = BoneLengths().scaled(1.03)
 HINGE = {h: 7 + i for i, h in enumerate(h for j in JOINT_LAYOUT for h in j.hinges)}
 BODY = {name: i for i, name in enumerate(BODY_NAMES)}

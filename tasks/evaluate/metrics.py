@@ -5,7 +5,7 @@ Boxing metrics (MSc thesis, Saarland 2021, §6.1.2), per fighter:
 - Punches are labelled on the simulated motion with the dataset stage's own functions
   (`tasks.dataset.labels.label_punches`, `label_steps`, `statistics.fighter_statistics`) on the
   humanoid's BlazePose-33 sites (`keypoint_positions`), the points the lift gives the footage;
-  foot contacts come from `tasks.lift.solve.detect_contacts` on those points, as for footage.
+  foot contacts come from `tasks.lift.lifting.detect_contacts` on those points, as for footage.
 - Punch accuracy (eqs 6.1-6.3) and punch error (eqs 6.4-6.5). The thesis measures the wrist
   against a target point in the air, which a punch meant to reach. Here the target is the
   opponent's body, which a glove touches rather than enters, so both ends are redefined: the
@@ -65,8 +65,8 @@ from tasks.dataset.statistics import (
     fighter_statistics,
 )
 from tasks.evaluate.bouts import Bouts
+from tasks.lift.lifting import detect_contacts
 from tasks.lift.metrics import foot_skating_cm_per_frame, sole_points
-from tasks.lift.solve import detect_contacts
 
 # The boxer's chest capsule (models/humanoid/boxer.py) at the default stature, metres.
 TORSO_RADIUS_M = 0.12

@@ -15,7 +15,7 @@ the gaps), counting it per reason as `frames_rejected_<reason>` metrics:
   faster than `max_root_speed_m_s` (both frames of such a step are dropped: either may be
   the wrong one);
 - ``floating``: the cleanup had to lower the fighter by more than `max_floor_settle_m` to put
-  him on the floor (`tasks.lift.solve.settle_on_floor`): the floor under him is wrong;
+  him on the floor (`tasks.lift.cleanup.settle_on_floor`): the floor under him is wrong;
 - ``shot``: the whole shot, when the camera found for it is higher than
   `max_camera_height_m` or the two fighters are further apart than `max_fighter_distance_m`
   (the floor or the scale is wrong for everyone in it);

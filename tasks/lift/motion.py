@@ -1,4 +1,5 @@
-"""Each fighter's lifted motion on the simulation's 30 Hz grid, as `lift_motion` stores it.
+"""Each fighter's lifted motion on the simulation's 30 Hz grid, as `lift_motion` stores it, and
+the checks and time-series helpers the lift's steps share.
 
 Step k of the grid lies k / 30 s into the video, whatever the video's frame rate. A fighter that
 was not lifted at some steps has no rows there: `FighterMotion.step` has gaps, and
@@ -134,3 +135,78 @@ def velocities(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarra
         a, b = max(frame - 1, 0), min(frame + 1, frames - 1)
         mujoco.mj_differentiatePos(model, qvel[frame], (b - a) * dt, qpos[a], qpos[b])
     return qvel
+
+
+def check_array(name: str, value: np.ndarray, shape: tuple[int | None, ...]) -> np.ndarray:
+    """`value` as float64, or ValueError naming `name` unless its shape matches (None: any)."""
+    array = np.asarray(value, dtype=np.float64)
+    if array.ndim != len(shape) or any(
+        want is not None and got != want for got, want in zip(array.shape, shape, strict=True)
+    ):
+        letters = "(" + ", ".join("T" if s is None else str(s) for s in shape) + ")"
+        raise ValueError(f"{name} must have shape {letters}, got {array.shape}")
+    return array
+
+
+def check_fps(fps: float) -> float:
+    if (
+        isinstance(fps, bool)
+        or not isinstance(fps, int | float)
+        or not (math.isfinite(fps) and fps > 0)
+    ):
+        raise ValueError(f"fps must be a positive frame rate, got {fps!r}")
+    return float(fps)
+
+
+def clean_runs(mask: np.ndarray, min_frames: int) -> np.ndarray:
+    """A boolean sequence with short gaps filled, then short runs dropped, per column.
+
+    Args:
+        mask: (T, ...) bool.
+        min_frames: gaps (False runs between two True runs) and True runs shorter than this
+            are flipped; 0 or 1 leaves `mask` as it is.
+
+    Returns:
+        (T, ...) bool, a new array.
+    """
+    m = np.array(mask, dtype=bool, copy=True)
+    if min_frames <= 1 or m.size == 0:
+        return m
+    flat = m.reshape(len(m), -1)
+    for column in flat.T:
+        for value, fill in ((False, True), (True, False)):
+            for start, stop in runs(column == value):
+                inner = value or (start > 0 and stop < len(column))  # gaps: between runs only
+                if inner and stop - start < min_frames:
+                    column[start:stop] = fill
+    return flat.reshape(m.shape)
+
+
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each run of True in a 1-D bool array."""
+    padded = np.concatenate([[False], mask, [False]])
+    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def horizontal_speed(positions: np.ndarray, fps: float, *, half: int = 2) -> np.ndarray:
+    """Speed (m/s) from the displacement over 2 `half` frames centred on each frame
+    (|x[t + half] - x[t - half]| / (2 half / fps), the window shrunk at the clip's ends),
+    which averages out frame-to-frame noise that a one-frame difference would count.
+
+    Args:
+        positions: (T, ..., 2) or (T, ..., 3) positions; only the first two coordinates count.
+        fps: frames per second.
+
+    Returns:
+        (T, ...) speeds; zeros for a single frame.
+    """
+    p = np.asarray(positions, dtype=np.float64)[..., :2]
+    frames = len(p)
+    if frames < 2:
+        return np.zeros(p.shape[:-1])
+    index = np.arange(frames)
+    ahead = np.minimum(index + half, frames - 1)
+    behind = np.maximum(index - half, 0)
+    span = (ahead - behind).reshape(-1, *([1] * (p.ndim - 2)))
+    return np.linalg.norm(p[ahead] - p[behind], axis=-1) / span * fps

@@ -1,8 +1,8 @@
 """The cleanup's measures step by step: what the dashboard plots over a lifted video.
 
 `cleanup_series` measures a lift output's stored motion (`lift_motion`, the 30 Hz grid) with the
-functions the cleanup's own summary metrics use (`tasks.lift.solve.floor_depth`,
-`tasks.lift.solve.contact_slide`, `fighter_distance`), so each summary metric is an aggregate of
+functions the cleanup's own summary metrics use (`tasks.lift.cleanup.floor_depth`,
+`tasks.lift.cleanup.contact_slide`, `fighter_distance`), so each summary metric is an aggregate of
 a series: ``floor_penetration_max_mm`` its maximum, ``floor_penetration_mean_mm`` its mean,
 ``contact_slide_cm_per_frame`` the mean slide per frame of the feet in contact,
 ``fighter_distance_mean_m`` the mean distance. The summaries are taken at the video's frame
@@ -19,8 +19,9 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import single_scene_mjcf
+from models.humanoid.fitting import Skeleton
+from tasks.lift.cleanup import contact_slide, floor_depth, sole_positions
 from tasks.lift.motion import RATE, FighterMotion, grid_steps
-from tasks.lift.solve import Skeleton, contact_slide, floor_depth, sole_positions
 
 
 def fighter_distance(qpos_a: np.ndarray, qpos_b: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, single_scene_mjcf
+from models.humanoid.fitting import fit_humanoid
 from models.humanoid.kinematics import NQ, NV
 from storage.artifacts import put_bytes
 from storage.files import scratch_dir
@@ -32,6 +33,7 @@ from tasks.lift.camera import (
     root_translations,
     undistort,
 )
+from tasks.lift.cleanup import Cleaned, cleanup, cleanup_pair, floor_depth
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.gates import (
     REASONS,
@@ -44,18 +46,10 @@ from tasks.lift.gates import (
     too_fast,
 )
 from tasks.lift.gates import notes as gate_notes
+from tasks.lift.lifting import Lifted3D, lift_fighter
 from tasks.lift.metrics import HIPS, bone_length_std_mm
 from tasks.lift.motion import RATE, FighterMotion, resample
 from tasks.lift.series import fighter_distance
-from tasks.lift.solve import (
-    Cleaned,
-    Lifted3D,
-    cleanup,
-    cleanup_pair,
-    fit_humanoid,
-    floor_depth,
-    lift_fighter,
-)
 from tasks.lift.video import render_lift
 from tasks.runner import StageOutput
 
@@ -330,7 +324,13 @@ def lift_video(
                 a,
                 b,
                 lifted,
-                fit_humanoid(lifted.points, lifted.bones, config=config.solve),
+                fit_humanoid(
+                    lifted.points,
+                    lifted.bones,
+                    iterations=config.solve.ik_iterations,
+                    damping=config.solve.ik_damping,
+                    face_weight=config.solve.ik_face_weight,
+                ),
             )
             lifted_std[role].append(bone_length_std_mm(lifted.points))
             if role not in bones or b - a > bones[role][0]:
