@@ -14,7 +14,8 @@ import bvhio
 import mujoco
 import numpy as np
 
-from models.humanoid.kinematics import BODY_NAMES, Y_UP_TO_Z_UP, forward_kinematics_batch
+from models.humanoid.compiled import forward_kinematics_batch
+from models.humanoid.kinematics import BODY_NAMES, Y_UP_TO_Z_UP
 
 BLENDER_SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "blender_bvh.py"
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.kinematics import keypoint_positions
+from models.humanoid.compiled import keypoint_positions
 from models.pose.types import BLAZEPOSE_33
 from tasks.dataset.config import THESIS_ARM_M, PunchConfig
 from tasks.dataset.labels import (

@@ -8,6 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from models.humanoid import compiled
 from models.humanoid import kinematics as K
 from models.humanoid.boxer import (
     DEFAULT_GAINS,
@@ -86,7 +87,7 @@ def test_mjcf_compiles_with_the_papers_layout() -> None:
     hands = {K.BODY_NAMES.index("left_hand") + 1, K.BODY_NAMES.index("right_hand") + 1}
     for body in range(1, 16):
         assert (model.body_jntnum[body] == 0) == (body in hands)
-    index = K.humanoid_index(model)
+    index = compiled.humanoid_index(model)
     assert (index.qpos_start, index.qvel_start) == (0, 0)
 
 
@@ -138,7 +139,7 @@ def test_stands_with_soles_on_the_floor_at_qpos0(bones: BoneLengths) -> None:
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     assert data.qpos[2] == pytest.approx(bones.hip_height)
-    sites = K.site_positions(model, data)
+    sites = compiled.site_positions(model, data)
     for side in ("left", "right"):
         assert sites[f"{side}_heel"][2] == pytest.approx(0.0, abs=1e-9)
         assert sites[f"{side}_foot_index"][2] == pytest.approx(0.0, abs=1e-9)
@@ -170,7 +171,7 @@ def test_holds_its_standing_pose_under_pd_control() -> None:
         mujoco.mj_step(model, data)
     assert np.all(np.isfinite(data.qpos))
     assert data.qpos[2] > 0.97 * BoneLengths().hip_height
-    up = data.xmat[K.humanoid_index(model).body_ids[1]].reshape(3, 3)[:, 2]
+    up = data.xmat[compiled.humanoid_index(model).body_ids[1]].reshape(3, 3)[:, 2]
     assert up[2] > math.cos(math.radians(5.0))
     assert np.abs(data.qpos[7:]).max() < math.radians(5.0)
 
@@ -195,10 +196,10 @@ def test_two_fighters_combine_with_prefixes() -> None:
     frame.attach_body(blue.body("pelvis"), "blue/", "")
     model = arena.compile()
     assert (model.nq, model.nu) == (2 * 35, 2 * 28)
-    red, other = K.humanoid_index(model), K.humanoid_index(model, prefix="blue/")
+    red, other = compiled.humanoid_index(model), compiled.humanoid_index(model, prefix="blue/")
     assert (red.qpos, other.qpos) == (slice(0, 35), slice(35, 70))
     data = mujoco.MjData(model)
-    pos, _ = K.forward_kinematics(model, data.qpos, prefix="blue/", data=data)
+    pos, _ = compiled.forward_kinematics(model, data.qpos, prefix="blue/", data=data)
     assert pos[0] == pytest.approx([1.2, 0.0, SMALL.hip_height])
     # Gloves hit the other fighter; a fighter's own geoms never touch each other.
     red_glove, blue_head = model.geom("right_glove"), model.geom("blue/head")
@@ -220,9 +221,9 @@ def test_bad_arguments_are_named() -> None:
     with pytest.raises(ValueError, match="rotation"):
         K.tangent_normal(np.eye(4))
     with pytest.raises(ValueError, match="qpos"):
-        K.forward_kinematics(_model(), np.zeros(10))
+        compiled.forward_kinematics(_model(), np.zeros(10))
     with pytest.raises(ValueError, match="red/pelvis"):
-        K.humanoid_index(_model(), prefix="red/")
+        compiled.humanoid_index(_model(), prefix="red/")
 
 
 # --------------------------------------------------------------------------
@@ -269,7 +270,7 @@ def test_fk_segments_equal_the_bone_lengths(bones: BoneLengths) -> None:
     rng = np.random.default_rng(0)
     # Lengths hold in any pose, not only at qpos0.
     for k, qpos in enumerate([model.qpos0.copy(), *_random_qpos(rng, 3)]):
-        points = K.keypoint_positions(model, qpos)
+        points = compiled.keypoint_positions(model, qpos)
         got = _measured(points)
         if k == 0:  # the abdomen's bend shortens the trunk in other poses
             assert got["trunk"] == pytest.approx(bones.pelvis_to_torso + bones.torso_to_neck)
@@ -300,7 +301,7 @@ def test_from_points_recovers_the_bones(bones: BoneLengths) -> None:
     # A boxer's trunk bends a little, not over the abdomen's whole range.
     abdomen = next(j for j in K.JOINT_LAYOUT if j.name == "abdomen").qpos
     qpos[:, abdomen] = rng.uniform(-0.25, 0.25, (120, 3))
-    points = K.keypoint_positions(model, qpos)
+    points = compiled.keypoint_positions(model, qpos)
     points = points + rng.normal(0.0, 0.004, points.shape)  # 4 mm landmark noise
     points[::10] += rng.normal(0.0, 0.15, points[::10].shape)  # every 10th frame wild
     points[5, BLAZEPOSE_33.index("left_elbow")] = np.nan  # a missing landmark
@@ -330,8 +331,8 @@ def test_keypoint_maps_cover_both_formats() -> None:
     assert K.KEYPOINT_TO_BODY["right_knee"] == "right_shin"
     assert K.KEYPOINT_TO_BODY["nose"] == "head"
     model = _model()
-    coco = K.keypoint_positions(model, model.qpos0, keypoints=COCO_17)
-    blaze = K.keypoint_positions(model, model.qpos0)
+    coco = compiled.keypoint_positions(model, model.qpos0, keypoints=COCO_17)
+    blaze = compiled.keypoint_positions(model, model.qpos0)
     np.testing.assert_allclose(coco, blaze[[BLAZEPOSE_33.index(n) for n in COCO_17]])
     # Left is +y and the nose points +x at rest.
     assert coco[COCO_17.index("left_shoulder"), 1] > 0 > coco[COCO_17.index("right_shoulder"), 1]
@@ -386,14 +387,14 @@ def test_rotation_conversions_round_trip() -> None:
 def test_mujoco_composes_hinges_as_kinematics_says() -> None:
     model = _model()
     qpos = _random_qpos(np.random.default_rng(5), 10)
-    _, rot = K.forward_kinematics_batch(model, qpos)
+    _, rot = compiled.forward_kinematics_batch(model, qpos)
     np.testing.assert_allclose(K.body_rotations(qpos), rot, atol=1e-12)
 
 
 def test_qpos_from_body_rotations_inverts_fk() -> None:
     model = _model()
     qpos = _random_qpos(np.random.default_rng(6), 50)
-    pos, rot = K.forward_kinematics_batch(model, qpos)
+    pos, rot = compiled.forward_kinematics_batch(model, qpos)
     back = K.qpos_from_body_rotations(pos[:, 0], rot)
     # Quaternions are equal up to sign.
     sign = np.sign(np.sum(back[:, 3:7] * qpos[:, 3:7], axis=1, keepdims=True))
@@ -443,8 +444,8 @@ def test_local_observations_ignore_translation_and_yaw() -> None:
         mujoco.mju_quat2Mat(rot, turn)
         frame[:3] = rot.reshape(3, 3) @ frame[:3] + [rng.normal(), rng.normal(), 0.0]
         frame[3:7] = _quat_mul(turn, frame[3:7])
-    pos, rot = K.forward_kinematics_batch(model, qpos)
-    pos2, rot2 = K.forward_kinematics_batch(model, moved)
+    pos, rot = compiled.forward_kinematics_batch(model, qpos)
+    pos2, rot2 = compiled.forward_kinematics_batch(model, moved)
     local = K.local_body_positions(pos, qpos[:, :3], qpos[:, 3:7])
     local2 = K.local_body_positions(pos2, moved[:, :3], moved[:, 3:7])
     np.testing.assert_allclose(local, local2, atol=1e-9)
@@ -456,7 +457,7 @@ def test_local_observations_ignore_translation_and_yaw() -> None:
     # But it does see the root's pitch and roll.
     tilted = qpos.copy()
     tilted[:, 3:7] = [_quat_mul(q, [math.cos(0.2), math.sin(0.2), 0.0, 0.0]) for q in qpos[:, 3:7]]
-    pos3, _ = K.forward_kinematics_batch(model, tilted)
+    pos3, _ = compiled.forward_kinematics_batch(model, tilted)
     local3 = K.local_body_positions(pos3, tilted[:, :3], tilted[:, 3:7])
     assert np.abs(local3 - local).max() > 0.05
 
@@ -464,14 +465,14 @@ def test_local_observations_ignore_translation_and_yaw() -> None:
 def test_forward_kinematics_batch_equals_per_frame() -> None:
     model = _model()
     qpos = _random_qpos(np.random.default_rng(10), 7)
-    pos, rot = K.forward_kinematics_batch(model, qpos)
+    pos, rot = compiled.forward_kinematics_batch(model, qpos)
     assert pos.shape == (7, 15, 3) and rot.shape == (7, 15, 3, 3)
     for t in range(7):
-        p, r = K.forward_kinematics(model, qpos[t])
+        p, r = compiled.forward_kinematics(model, qpos[t])
         np.testing.assert_array_equal(p, pos[t])
         np.testing.assert_array_equal(r, rot[t])
-    points = K.keypoint_positions(model, qpos)
-    np.testing.assert_array_equal(points[3], K.keypoint_positions(model, qpos[3]))
+    points = compiled.keypoint_positions(model, qpos)
+    np.testing.assert_array_equal(points[3], compiled.keypoint_positions(model, qpos[3]))
     # Bodies sit at their sites: the left elbow body at the left elbow site.
     elbow = K.BODY_NAMES.index("left_lower_arm")
     np.testing.assert_allclose(pos[:, elbow], points[:, BLAZEPOSE_33.index("left_elbow")])

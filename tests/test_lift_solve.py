@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf, single_scene_mjcf
+from models.humanoid.compiled import keypoint_positions
 from models.humanoid.fitting import Skeleton
 from models.humanoid.fitting import fit_humanoid as fit_with
 from models.humanoid.kinematics import (
@@ -24,7 +25,6 @@ from models.humanoid.kinematics import (
     JOINT_LAYOUT,
     SITE_NAMES,
     axis_angle_matrix,
-    keypoint_positions,
     qpos_from_body_rotations,
     quat_to_matrix,
 )

@@ -10,11 +10,11 @@ import models.maaip.env as train_env
 import tasks.dataset.stage as dataset_stage
 from models.humanoid import observations as obs
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths, boxer_mjcf
+from models.humanoid.compiled import humanoid_index
 from models.humanoid.kinematics import (
     BODY_NAMES,
     HINGE_NAMES,
     axis_angle_matrix,
-    humanoid_index,
     matrix_to_quat,
     quat_to_matrix,
 )

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.compiled import humanoid_index
 from models.humanoid.kinematics import (
     HINGE_NAMES,
     action_to_joint_targets,
     heading_frame,
-    humanoid_index,
     joint_targets_to_action,
 )
 from models.humanoid.observations import body_state, observation, self_observation

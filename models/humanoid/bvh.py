@@ -28,13 +28,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.compiled import humanoid_index
 from models.humanoid.kinematics import (
     BODY_NAMES,
     NQ,
     PARENTS,
     ROOT_POS,
     Y_UP_TO_Z_UP,
-    humanoid_index,
     joint_local_rotations,
 )
 

@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.compiled import humanoid_index
 from models.humanoid.kinematics import (
     BLAZEPOSE_TO_SITE,
     BODY_NAMES,
@@ -27,7 +28,6 @@ from models.humanoid.kinematics import (
     ROOT_QUAT,
     SITE_NAMES,
     axis_angle_matrix,
-    humanoid_index,
     matrix_to_quat,
     qpos_from_body_rotations,
     quat_to_matrix,

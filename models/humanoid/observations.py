@@ -45,11 +45,11 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from models.humanoid.compiled import HumanoidIndex
 from models.humanoid.kinematics import (
     KEY_BODY_INDEX,
     NUM_BODIES,
     PARENTS,
-    HumanoidIndex,
     heading_frame_of_matrix,
     matrix_to_quat,
     tangent_normal,

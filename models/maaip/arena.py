@@ -34,7 +34,8 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import CONTACT_SOLREF, INTEGRATOR, BoneLengths, boxer_mjcf
-from models.humanoid.kinematics import NUM_ACTUATED, HumanoidIndex, humanoid_index
+from models.humanoid.compiled import HumanoidIndex, humanoid_index
+from models.humanoid.kinematics import NUM_ACTUATED
 
 NUM_AGENTS = 2
 DEFAULT_PREFIXES: tuple[str, str] = ("a0/", "a1/")

@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.compiled import humanoid_index
 from models.humanoid.kinematics import (
     NQ,
     NUM_ACTUATED,
@@ -28,7 +29,6 @@ from models.humanoid.kinematics import (
     ROOT_QUAT,
     axis_angle_matrix,
     heading_frame,
-    humanoid_index,
     matrix_to_quat,
     quat_to_matrix,
 )

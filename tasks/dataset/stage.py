@@ -24,7 +24,8 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.kinematics import heading_frame, humanoid_index
+from models.humanoid.compiled import humanoid_index
+from models.humanoid.kinematics import heading_frame
 from models.humanoid.observations import (
     OPPONENT_DIM,
     BodyState,

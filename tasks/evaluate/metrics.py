@@ -53,7 +53,7 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import DEFAULT_STATURE, BoneLengths
-from models.humanoid.kinematics import keypoint_positions
+from models.humanoid.compiled import keypoint_positions
 from models.maaip.arena import DEFAULT_PREFIXES, arena_index
 from models.pose.types import BLAZEPOSE_33
 from tasks.dataset.config import PunchConfig

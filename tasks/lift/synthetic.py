@@ -42,6 +42,7 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths, boxer_mjcf
+from models.humanoid.compiled import humanoid_index, keypoint_positions
 from models.humanoid.kinematics import (
     BODY_NAMES,
     HINGE_NAMES,
@@ -54,8 +55,6 @@ from models.humanoid.kinematics import (
     axis_angle_matrix,
     body_rotations,
     euler_yxz_to_matrix,
-    humanoid_index,
-    keypoint_positions,
     matrix_to_euler_yxz,
     matrix_to_quat,
     qpos_from_body_rotations,
