@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from tasks.pose.config import FighterConfig, TrackerConfig
 from tasks.pose.fighters import (
-    FighterConfig,
     adversary_by_colour,
     choice_margin,
     colour_template,
@@ -17,14 +17,7 @@ from tasks.pose.fighters import (
     pick_fighters,
     rank_pairs,
 )
-from tasks.pose.tracking import (
-    DESCRIPTOR_SIZE,
-    Observation,
-    Tracker,
-    TrackerConfig,
-    TrackSummary,
-    appearance,
-)
+from tasks.pose.tracking import DESCRIPTOR_SIZE, Observation, Tracker, TrackSummary, appearance
 
 WIDTH, HEIGHT = 640, 360
 SKIN = (120, 160, 215)  # BGR

@@ -21,11 +21,11 @@ from models.humanoid.observations import OBSERVATION_DIM
 from models.humanoid.stance import guard_pose
 from models.maaip.config import (
     DiscriminatorConfig,
+    EnvConfig,
     NetworkConfig,
     PPOConfig,
     TrainConfig,
 )
-from models.maaip.env import EnvConfig
 from models.maaip.networks import Policy, make_networks
 from storage.files import sha256_file
 from tasks.errors import BadInput

@@ -13,8 +13,7 @@ from models.pose.tiling import TiledDetector, tile_origins
 from tasks.errors import BadInput
 from tasks.pose import chunk as chunks
 from tasks.pose.chunk import ChunkTracks
-from tasks.pose.config import PoseConfig
-from tasks.pose.fighters import FighterConfig
+from tasks.pose.config import FighterConfig, PoseConfig
 from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, merge_chunks, summaries
 from tasks.pose.stage import BACKENDS, assign_roles, model_files, plan_spans

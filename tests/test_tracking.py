@@ -11,12 +11,12 @@ import cv2
 import numpy as np
 import pytest
 
+from tasks.pose.config import TrackerConfig
 from tasks.pose.tracking import (
     DESCRIPTOR_SIZE,
     BoxKalman,
     Observation,
     Tracker,
-    TrackerConfig,
     appearance,
     colour_distance,
     count_identity_switches,

@@ -19,13 +19,9 @@ from models.humanoid.kinematics import (
 )
 from models.humanoid.observations import body_state, observation, self_observation
 from models.maaip.arena import DAMAGE_BODIES, arena_index, arena_mjcf
+from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions, facing_reference
-from models.maaip.env import (
-    ArenaEnv,
-    EnvConfig,
-    centred_pair,
-    geom_bottoms,
-)
+from models.maaip.env import ArenaEnv, centred_pair, geom_bottoms
 from tasks.lift.motion import velocities
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 

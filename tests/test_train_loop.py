@@ -12,13 +12,13 @@ from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import heading_yaw
 from models.maaip.config import (
     DiscriminatorConfig,
+    EnvConfig,
     NetworkConfig,
     PPOConfig,
     RewardConfig,
     TrainConfig,
 )
 from models.maaip.demonstrations import Demonstrations
-from models.maaip.env import EnvConfig
 from tasks.train.data import clip_demonstrations
 from tasks.train.mappo import CheckpointMismatch, Trainer
 

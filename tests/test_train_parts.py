@@ -15,12 +15,12 @@ from models.humanoid.kinematics import HINGE_NAMES, joint_targets_to_action
 from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
 from models.maaip.config import (
     DiscriminatorConfig,
+    EnvConfig,
     NetworkConfig,
     PPOConfig,
     RewardConfig,
     TrainConfig,
 )
-from models.maaip.env import EnvConfig
 from models.maaip.losses import (
     PPOBatch,
     combine_rewards,

@@ -14,8 +14,13 @@ import torch
 from conftest import TINY_TRAIN_FLAGS, copy_data, query, run_cli
 
 from dashboards import queries
-from models.maaip.config import DiscriminatorConfig, NetworkConfig, PPOConfig, TrainConfig
-from models.maaip.env import EnvConfig
+from models.maaip.config import (
+    DiscriminatorConfig,
+    EnvConfig,
+    NetworkConfig,
+    PPOConfig,
+    TrainConfig,
+)
 from storage.artifacts import artifact_path, read_bytes
 from storage.db import connect
 from storage.paths import data_paths

@@ -23,8 +23,9 @@ import torch
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NUM_ACTUATED, joint_targets_to_action
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, block_slices
+from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions
-from models.maaip.env import ArenaEnv, EnvConfig
+from models.maaip.env import ArenaEnv
 from models.maaip.losses import heading_reward
 from models.maaip.networks import Policy
 

@@ -25,8 +25,7 @@ from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT, action_to_joint_targets
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
 from models.maaip.arena import arena_mjcf
-from models.maaip.config import TrainConfig
-from models.maaip.env import EnvConfig
+from models.maaip.config import EnvConfig, TrainConfig
 from models.maaip.networks import Policy, action_stds
 from storage.artifacts import read_bytes
 from storage.db import connect

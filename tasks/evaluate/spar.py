@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV, joint_targets_to_action
+from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions
-from models.maaip.env import ArenaEnv, EnvConfig, standing_like
+from models.maaip.env import ArenaEnv, standing_like
 from tasks.evaluate.opponent import Opponent
 from tasks.lift.video import open_video, render_frame
 

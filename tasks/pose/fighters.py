@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from models.settings import setting
+from tasks.pose.config import FighterConfig
 from tasks.pose.tracking import (
     DESCRIPTOR_SIZE,
     HUE_BINS,
@@ -28,61 +28,6 @@ from tasks.pose.tracking import (
     hsv_bins,
     hungarian,
 )
-
-
-@dataclass(frozen=True)
-class FighterConfig:
-    """Weights of the terms that score tracks and pairs of tracks as the two fighters.
-
-    Every term lies in [0, 1]; a track's score is the weighted mean of its terms, a pair's score
-    is the mean of its two track scores plus the weighted mean of the pair terms.
-    """
-
-    presence_weight: float = setting(
-        1.0,
-        "Weight of presence: the share of the span's frames in which the track is observed "
-        "(fighters are in view nearly all the time, passers-by are not).",
-    )
-    size_weight: float = setting(
-        1.0,
-        "Weight of size: the track's mean box height over the tallest track's (the camera "
-        "frames the fighters; the crowd is small and far).",
-    )
-    centre_weight: float = setting(
-        1.0,
-        "Weight of centrality: 1 at the frame's centre, 0 at its edge, from the track's mean "
-        "centre (the crowd sits at the edges).",
-    )
-    similar_size_weight: float = setting(
-        0.5, "Weight of the pair's similarity in size: smaller mean height over larger."
-    )
-    together_weight: float = setting(
-        0.5, "Weight of the share of the span's frames in which both tracks are observed."
-    )
-    near_weight: float = setting(
-        0.5,
-        "Weight of nearness: 1 - (mean centre distance while both are seen) / (near_scale x "
-        "mean height), floored at 0 (fighters stay within reach of each other).",
-    )
-    near_scale: float = setting(
-        2.0, "Distance, in mean box heights, at which the nearness term falls to 0."
-    )
-
-    def __post_init__(self) -> None:
-        for name in (
-            "presence_weight",
-            "size_weight",
-            "centre_weight",
-            "similar_size_weight",
-            "together_weight",
-            "near_weight",
-        ):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"fighters.{name} must be >= 0, got {getattr(self, name)}")
-        if self.presence_weight + self.size_weight + self.centre_weight <= 0:
-            raise ValueError("fighters: presence, size and centre weights must not all be 0")
-        if not self.near_scale > 0:
-            raise ValueError(f"fighters.near_scale must be positive, got {self.near_scale}")
 
 
 def track_scores(

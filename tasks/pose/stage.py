@@ -24,9 +24,8 @@ from storage.files import scratch_dir
 from storage.keys import code_version, digest, stage_key
 from tasks.errors import BadInput
 from tasks.pose.chunk import ChunkTracks, track_chunk
-from tasks.pose.config import PoseConfig
+from tasks.pose.config import FighterConfig, PoseConfig
 from tasks.pose.fighters import (
-    FighterConfig,
     PairScore,
     adversary_by_colour,
     choice_margin,

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from models.pose.types import Detection
-from models.settings import setting
+from tasks.pose.config import TrackerConfig
 
 # ---------------------------------------------------------------------------------------------
 # Optimal assignment
@@ -315,111 +315,6 @@ def colour_distance(a: np.ndarray, b: np.ndarray) -> float:
 
 # ---------------------------------------------------------------------------------------------
 # The tracker
-
-
-@dataclass(frozen=True)
-class TrackerConfig:
-    """How detections are linked into tracks across frames."""
-
-    alpha: float = setting(
-        0.5,
-        "Weight of the position distance d_s against the clothing-colour distance d_c in the "
-        "association cost alpha * d_s + (1 - alpha) * d_c (boxing pose thesis); both lie in "
-        "[0, 1].",
-    )
-    gate_distance: float = setting(
-        0.4,
-        "Largest distance, in heights of the predicted box, between a track's predicted centre "
-        "and an observation's centre for them to be matched; d_s is the distance over this.",
-    )
-    gate_growth_per_s: float = setting(
-        4.0,
-        "How fast the position gate widens while a track coasts unseen, as a share of "
-        "gate_distance per second: a prediction made blind drifts.",
-    )
-    max_colour_distance: float = setting(
-        0.8,
-        "Largest clothing-colour distance (0-1) at which an observation may join a track.",
-    )
-    max_cost: float = setting(
-        0.4,
-        "Largest association cost (0-1) at which an observation may join a track; above it the "
-        "observation is better left to start a new track and the track to coast.",
-    )
-    max_height_ratio: float = setting(
-        2.0,
-        "An observation whose box height differs from the predicted one by more than this "
-        "factor, up or down, cannot join the track (a small spectator is not a fighter).",
-    )
-    max_coast_s: float = setting(
-        1.0,
-        "Seconds a confirmed track may go unseen (occluded, missed) and still keep its id; "
-        "after that it ends.",
-    )
-    min_hits: int = setting(
-        3,
-        "Consecutive frames a new track must be observed before it is confirmed and given an "
-        "id (tracks seen in the first frame of a shot are confirmed at once).",
-    )
-    colour_rate: float = setting(
-        0.1,
-        "Rate of the exponential moving average that updates a track's colour descriptor from "
-        "each clean (unoccluded) observation.",
-    )
-    occlusion_overlap: float = setting(
-        0.3,
-        "An observation whose box is covered by another observation's box over more than this "
-        "share of its area is partly someone else: it does not update the track's colour.",
-    )
-    high_score: float = setting(
-        0.5,
-        "Detections scoring at least this are matched first, to every track (ByteTrack).",
-    )
-    low_score: float = setting(
-        0.1,
-        "Detections scoring in [low_score, high_score) are matched second, only to confirmed "
-        "tracks left over (often a person half hidden); below low_score they are ignored.",
-    )
-    new_track_score: float = setting(
-        0.6, "Least score of an unmatched detection for it to start a new track."
-    )
-    duplicate_iou: float = setting(
-        0.7,
-        "An unmatched detection overlapping an already used one by more than this IoU is a "
-        "duplicate of it and starts no track.",
-    )
-    position_noise: float = setting(
-        1 / 20,
-        "Kalman standard deviation of box position and size, as a share of box size per frame "
-        "(DeepSORT's value).",
-    )
-    velocity_noise: float = setting(
-        1 / 160,
-        "Kalman standard deviation of box velocity, as a share of box size per frame "
-        "(DeepSORT's value).",
-    )
-
-    def __post_init__(self) -> None:
-        unit = ("alpha", "max_colour_distance", "max_cost", "colour_rate", "occlusion_overlap")
-        unit += ("high_score", "low_score", "new_track_score", "duplicate_iou")
-        for name in unit:
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"tracker.{name} must be in [0, 1], got {getattr(self, name)}")
-        for name in ("gate_distance", "position_noise", "velocity_noise"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"tracker.{name} must be positive, got {getattr(self, name)}")
-        for name in ("gate_growth_per_s", "max_coast_s"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"tracker.{name} must be >= 0, got {getattr(self, name)}")
-        if not self.max_height_ratio >= 1.0:
-            raise ValueError(f"tracker.max_height_ratio must be >= 1, got {self.max_height_ratio}")
-        if self.min_hits < 1:
-            raise ValueError(f"tracker.min_hits must be at least 1, got {self.min_hits}")
-        if self.low_score > self.high_score:
-            raise ValueError(
-                f"tracker.low_score ({self.low_score}) must not exceed "
-                f"tracker.high_score ({self.high_score})"
-            )
 
 
 @dataclass(frozen=True, eq=False)
