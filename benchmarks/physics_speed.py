@@ -36,12 +36,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from models.humanoid.boxer import boxer_mjcf  # noqa: E402
+from models.humanoid.compiled import velocities  # noqa: E402
 from models.humanoid.observations import observation  # noqa: E402
 from models.maaip.demonstrations import ReferenceMotions, facing_reference  # noqa: E402
 from models.maaip.env import ArenaEnv, EnvConfig  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
-from tasks.lift.motion import velocities  # noqa: E402
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget  # noqa: E402
 
 NUM_ENVS = 64

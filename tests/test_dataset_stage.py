@@ -11,7 +11,7 @@ import pytest
 from conftest import process_argv, query, run_cli
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.compiled import humanoid_index, keypoint_positions
+from models.humanoid.compiled import humanoid_index, keypoint_positions, velocities
 from models.humanoid.kinematics import axis_angle_matrix, matrix_to_quat, quat_to_matrix
 from models.humanoid.observations import (
     OPPONENT_BLOCKS,
@@ -35,7 +35,7 @@ from tasks.dataset.store import (
 )
 from tasks.errors import BadInput
 from tasks.lift.lifting import detect_contacts
-from tasks.lift.motion import RATE, velocities
+from tasks.lift.motion import RATE
 from tasks.lift.store import load_motion
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 

@@ -21,7 +21,7 @@ from tasks.lift.gates import (
     too_fast,
 )
 from tasks.lift.metrics import HIPS
-from tasks.lift.motion import resample
+from tasks.lift.resample import resample
 from tasks.lift.stage import FighterTrack, _motion_columns, lift_video
 from tasks.lift.synthetic import evaluate_lift, make_case
 

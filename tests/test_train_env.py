@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.compiled import humanoid_index
+from models.humanoid.compiled import humanoid_index, velocities
 from models.humanoid.kinematics import (
     HINGE_NAMES,
     action_to_joint_targets,
@@ -22,7 +22,6 @@ from models.maaip.arena import DAMAGE_BODIES, arena_index, arena_mjcf
 from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions, facing_reference
 from models.maaip.env import ArenaEnv, centred_pair, geom_bottoms
-from tasks.lift.motion import velocities
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 
 SMALL = BoneLengths().scaled(0.9)

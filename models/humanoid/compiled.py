@@ -197,3 +197,17 @@ def keypoint_positions(
         mujoco.mj_kinematics(model, data)
         out[t] = data.site_xpos[ids]
     return out[0] if single else out
+
+
+def velocities(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarray:
+    """qvel (T, nv) by central differences of qpos with `mj_differentiatePos` (one-sided at
+    the ends; zeros for a single frame)."""
+    frames = len(qpos)
+    qvel = np.zeros((frames, model.nv))
+    if frames < 2:
+        return qvel
+    dt = 1.0 / fps
+    for frame in range(frames):
+        a, b = max(frame - 1, 0), min(frame + 1, frames - 1)
+        mujoco.mj_differentiatePos(model, qvel[frame], (b - a) * dt, qpos[a], qpos[b])
+    return qvel

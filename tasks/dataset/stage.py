@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.compiled import humanoid_index
+from models.humanoid.compiled import humanoid_index, velocities
 from models.humanoid.kinematics import heading_frame
 from models.humanoid.observations import (
     OPPONENT_DIM,
@@ -39,7 +39,7 @@ from tasks.dataset.config import DatasetConfig
 from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
 from tasks.errors import BadInput
-from tasks.lift.motion import RATE, FighterMotion, velocities
+from tasks.lift.motion import RATE, FighterMotion
 from tasks.lift.series import fighter_distance
 from tasks.lift.stage import ROLES
 from tasks.lift.synthetic import load_deepmimic, retarget

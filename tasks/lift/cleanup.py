@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 import mujoco
 import numpy as np
 
-from models.humanoid.compiled import HumanoidIndex, humanoid_index, keypoint_positions
+from models.humanoid.compiled import HumanoidIndex, humanoid_index, keypoint_positions, velocities
 from models.humanoid.fitting import Skeleton, qpos_to_pose, solve_ik, wrap_to_ranges
 from models.humanoid.kinematics import JOINT_LAYOUT, NQ, NV, ROOT_POS, ROOT_QUAT, SITE_NAMES
 from tasks.lift.config import LiftConfig
@@ -35,7 +35,6 @@ from tasks.lift.motion import (
     gaussian_smooth,
     horizontal_speed,
     runs,
-    velocities,
 )
 
 

@@ -1,5 +1,5 @@
-"""Each fighter's lifted motion on the simulation's 30 Hz grid, as `lift_motion` stores it, and
-the checks and time-series helpers the lift's steps share.
+"""Each fighter's lifted motion on the simulation's 30 Hz grid and its cleanup measures, as
+`lift_motion` stores them, and the checks and time-series helpers the lift's steps share.
 
 Step k of the grid lies k / 30 s into the video, whatever the video's frame rate. A fighter that
 was not lifted at some steps has no rows there: `FighterMotion.step` has gaps, and
@@ -12,11 +12,9 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
-from models.humanoid.boxer import BoneLengths, single_scene_mjcf
-from models.humanoid.kinematics import NV
+from models.humanoid.boxer import BoneLengths
 
 # The rate every motion is stored at, whatever the video's: the simulation's policy rate.
 RATE = 30.0
@@ -48,51 +46,46 @@ class FighterMotion:
         return out
 
 
+def fighter_distance(qpos_a: np.ndarray, qpos_b: np.ndarray) -> np.ndarray:
+    """Horizontal pelvis-to-pelvis distance of two fighters: (T,) metres from (T, 35) qpos each
+    (the root body is the pelvis; its x, y are qpos[:, :2])."""
+    return np.linalg.norm(np.asarray(qpos_a)[:, :2] - np.asarray(qpos_b)[:, :2], axis=-1)
+
+
+@dataclass(frozen=True, eq=False)
+class FighterSeries:
+    """One fighter's cleanup measures per step; NaN at the steps where it was not lifted.
+
+    Attributes:
+        contact_slide_m_s: (S, 2) foot skating: horizontal speed of the left and right sole
+            (heel-toe midpoint) from the step before, for a foot in contact at both steps;
+            NaN for a foot in the air (it cannot skate) and at step 0.
+        floor_penetration_m: (S,) how deep the deepest geom is below the floor, 0 if none.
+    """
+
+    contact_slide_m_s: np.ndarray
+    floor_penetration_m: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class LiftSeries:
+    """A lift output's cleanup measures over its S steps of the 30 Hz grid (step k at k / 30 s).
+
+    Attributes:
+        time_s: (S,) seconds into the video.
+        fighters: role ("adversary", "opponent") -> its series, for the roles lifted.
+        fighter_distance_m: (S,) horizontal pelvis-to-pelvis distance; NaN where either
+            fighter is missing (all NaN with fewer than two fighters).
+    """
+
+    time_s: np.ndarray
+    fighters: dict[str, FighterSeries]
+    fighter_distance_m: np.ndarray
+
+
 def grid_steps(fighters: Mapping[str, FighterMotion]) -> int:
     """How many 30 Hz steps the fighters span together: one past the last lifted step."""
     return max((int(m.step[-1]) + 1 for m in fighters.values() if len(m.step)), default=0)
-
-
-def resample(
-    qpos: np.ndarray,
-    joints: np.ndarray,
-    contacts: np.ndarray,
-    *,
-    fps: float,
-    rate: float,
-    bones: BoneLengths,
-) -> FighterMotion:
-    """A motion at the video's ``fps`` (F frames, NaN rows where not lifted) on the ``rate`` grid.
-
-    Positions, hinge angles and joints are interpolated linearly and the root quaternion by
-    normalised interpolation, between the two frames around each step; steps without a lifted
-    frame on both sides are left out. Contacts come from the nearer frame; qvel is recomputed
-    on the grid, by central differences within each unbroken run of steps, on a humanoid of
-    ``bones``.
-    """
-    model = mujoco.MjModel.from_xml_string(single_scene_mjcf(bones))
-    frames = len(qpos)
-    last = (frames - 1) / fps
-    step = np.arange(int(math.floor(last * rate + 1e-9)) + 1)
-    at = step / rate * fps
-    lo = np.minimum(np.floor(at).astype(int), frames - 1)
-    hi = np.minimum(lo + 1, frames - 1)
-    w = (at - lo)[:, None]
-    ok = np.isfinite(qpos[lo]).all(1) & np.isfinite(qpos[hi]).all(1)
-    step, lo, hi, w = step[ok], lo[ok], hi[ok], w[ok]
-    q = (1 - w) * qpos[lo] + w * qpos[hi]
-    quat_lo, quat_hi = qpos[lo, 3:7], qpos[hi, 3:7]
-    quat_hi = np.where((np.sum(quat_lo * quat_hi, axis=1) < 0)[:, None], -quat_hi, quat_hi)
-    quat = (1 - w) * quat_lo + w * quat_hi
-    q[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-    j = (1 - w[:, :, None]) * joints[lo] + w[:, :, None] * joints[hi]
-    c = contacts[np.where(w[:, 0] < 0.5, lo, hi)]
-    v = np.zeros((len(step), NV))
-    breaks = np.flatnonzero(np.diff(step) > 1) + 1
-    for run in np.split(np.arange(len(step)), breaks):
-        if len(run):
-            v[run] = velocities(model, q[run], rate)
-    return FighterMotion(step, q, v, j, c, bones)
 
 
 def gaussian_smooth(values: np.ndarray, sigma: float) -> np.ndarray:
@@ -121,20 +114,6 @@ def gaussian_smooth(values: np.ndarray, sigma: float) -> np.ndarray:
     for k, w in enumerate(kernel):
         out += w * padded[k : k + len(x)]
     return out
-
-
-def velocities(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarray:
-    """qvel (T, nv) by central differences of qpos with `mj_differentiatePos` (one-sided at
-    the ends; zeros for a single frame)."""
-    frames = len(qpos)
-    qvel = np.zeros((frames, model.nv))
-    if frames < 2:
-        return qvel
-    dt = 1.0 / fps
-    for frame in range(frames):
-        a, b = max(frame - 1, 0), min(frame + 1, frames - 1)
-        mujoco.mj_differentiatePos(model, qvel[frame], (b - a) * dt, qpos[a], qpos[b])
-    return qvel
 
 
 def check_array(name: str, value: np.ndarray, shape: tuple[int | None, ...]) -> np.ndarray:

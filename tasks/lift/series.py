@@ -1,4 +1,6 @@
-"""The cleanup's measures step by step: what the dashboard plots over a lifted video.
+"""The cleanup's measures step by step: what the dashboard plots over a lifted video. The lift
+stage measures them on its output and stores them with it (`lift_motion`); the dashboard reads
+them back (`tasks.lift.store.lift_series`).
 
 `cleanup_series` measures a lift output's stored motion (`lift_motion`, the 30 Hz grid) with the
 functions the cleanup's own summary metrics use (`tasks.lift.cleanup.floor_depth`,
@@ -13,7 +15,6 @@ resampling changes.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -21,44 +22,14 @@ import numpy as np
 from models.humanoid.boxer import single_scene_mjcf
 from models.humanoid.fitting import Skeleton
 from tasks.lift.cleanup import contact_slide, floor_depth, sole_positions
-from tasks.lift.motion import RATE, FighterMotion, grid_steps
-
-
-def fighter_distance(qpos_a: np.ndarray, qpos_b: np.ndarray) -> np.ndarray:
-    """Horizontal pelvis-to-pelvis distance of two fighters: (T,) metres from (T, 35) qpos each
-    (the root body is the pelvis; its x, y are qpos[:, :2])."""
-    return np.linalg.norm(np.asarray(qpos_a)[:, :2] - np.asarray(qpos_b)[:, :2], axis=-1)
-
-
-@dataclass(frozen=True, eq=False)
-class FighterSeries:
-    """One fighter's cleanup measures per step; NaN at the steps where it was not lifted.
-
-    Attributes:
-        contact_slide_m_s: (S, 2) foot skating: horizontal speed of the left and right sole
-            (heel-toe midpoint) from the step before, for a foot in contact at both steps;
-            NaN for a foot in the air (it cannot skate) and at step 0.
-        floor_penetration_m: (S,) how deep the deepest geom is below the floor, 0 if none.
-    """
-
-    contact_slide_m_s: np.ndarray
-    floor_penetration_m: np.ndarray
-
-
-@dataclass(frozen=True, eq=False)
-class LiftSeries:
-    """A lift output's cleanup measures over its S steps of the 30 Hz grid (step k at k / 30 s).
-
-    Attributes:
-        time_s: (S,) seconds into the video.
-        fighters: role ("adversary", "opponent") -> its series, for the roles lifted.
-        fighter_distance_m: (S,) horizontal pelvis-to-pelvis distance; NaN where either
-            fighter is missing (all NaN with fewer than two fighters).
-    """
-
-    time_s: np.ndarray
-    fighters: dict[str, FighterSeries]
-    fighter_distance_m: np.ndarray
+from tasks.lift.motion import (
+    RATE,
+    FighterMotion,
+    FighterSeries,
+    LiftSeries,
+    fighter_distance,
+    grid_steps,
+)
 
 
 def _fighter_series(motion: FighterMotion, steps: int, rate: float) -> FighterSeries:

@@ -48,8 +48,9 @@ from tasks.lift.gates import (
 from tasks.lift.gates import notes as gate_notes
 from tasks.lift.lifting import Lifted3D, lift_fighter
 from tasks.lift.metrics import HIPS, bone_length_std_mm
-from tasks.lift.motion import RATE, FighterMotion, resample
-from tasks.lift.series import fighter_distance
+from tasks.lift.motion import RATE, FighterMotion, fighter_distance
+from tasks.lift.resample import resample
+from tasks.lift.series import cleanup_series
 from tasks.lift.video import render_lift
 from tasks.runner import StageOutput
 
@@ -413,8 +414,10 @@ def _pitch_deg(camera: Camera) -> float:
 
 
 def _motion_columns(motion: Mapping[str, FighterMotion]) -> dict[str, np.ndarray]:
+    series = cleanup_series(motion)
     parts: dict[str, list[np.ndarray]] = {}
     for role, m in motion.items():
+        measured = series.fighters[role]
         values = {
             "role": np.array([role] * len(m.step)),
             "step": m.step.astype(np.int64),
@@ -427,6 +430,9 @@ def _motion_columns(motion: Mapping[str, FighterMotion]) -> dict[str, np.ndarray
             ),
             "contact_left": m.contacts[:, 0],
             "contact_right": m.contacts[:, 1],
+            "floor_penetration_m": measured.floor_penetration_m[m.step],
+            "slide_left_m_s": measured.contact_slide_m_s[m.step, 0],
+            "slide_right_m_s": measured.contact_slide_m_s[m.step, 1],
         }
         for name, value in values.items():
             parts.setdefault(name, []).append(value)

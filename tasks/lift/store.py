@@ -1,4 +1,4 @@
-"""Reading a lift output back from DuckDB: each fighter's motion, and its cleanup series."""
+"""Reading a lift output back from DuckDB: each fighter's motion, and its cleanup measures."""
 
 from __future__ import annotations
 
@@ -7,8 +7,13 @@ import numpy as np
 
 from models.humanoid.boxer import BoneLengths
 from tasks.errors import BadInput
-from tasks.lift.motion import FighterMotion
-from tasks.lift.series import LiftSeries, cleanup_series
+from tasks.lift.motion import (
+    RATE,
+    FighterMotion,
+    FighterSeries,
+    LiftSeries,
+    fighter_distance,
+)
 
 
 def _bone_rows(
@@ -68,9 +73,40 @@ def load_motion(
 
 
 def lift_series(con: duckdb.DuckDBPyConnection, key: str, video_id: str) -> LiftSeries:
-    """The cleanup series (`cleanup_series`) of lift output ``key`` of video ``video_id``;
-    empty (no steps, no fighters) when the output has no motion."""
-    return cleanup_series(load_motion(con, video_id, key))
+    """The cleanup measures the lift stored with output ``key`` of video ``video_id``
+    (`tasks.lift.series.cleanup_series`) on the 30 Hz grid; empty (no steps, no fighters) when
+    the output has no motion."""
+    rows = con.execute(
+        "SELECT role, step, qpos[1] AS x, qpos[2] AS y, floor_penetration_m, slide_left_m_s, "
+        "slide_right_m_s FROM lift_motion WHERE key = ? AND video_id = ? ORDER BY role, step",
+        [key, video_id],
+    ).fetchnumpy()
+    roles = np.asarray(rows["role"])
+    steps = int(rows["step"].max()) + 1 if len(roles) else 0
+    # On the grid, NaN where a fighter has no row; NULL (an output made before the measures were
+    # stored) reads as NaN too.
+    grid = {}
+    for name in ("x", "y", "floor_penetration_m", "slide_left_m_s", "slide_right_m_s"):
+        for role in np.unique(roles):
+            mine = roles == role
+            values = grid.setdefault(role, {}).setdefault(name, np.full(steps, np.nan))
+            values[rows["step"][mine]] = np.ma.filled(
+                np.ma.asarray(rows[name][mine], float), np.nan
+            )
+    fighters = {
+        role: FighterSeries(
+            contact_slide_m_s=np.stack([g["slide_left_m_s"], g["slide_right_m_s"]], axis=1),
+            floor_penetration_m=g["floor_penetration_m"],
+        )
+        for role, g in grid.items()
+    }
+    distance = np.full(steps, np.nan)
+    if len(grid) == 2:
+        a, b = (np.stack([g["x"], g["y"]], axis=1) for g in grid.values())
+        distance = fighter_distance(a, b)  # NaN where either is missing
+    return LiftSeries(
+        time_s=np.arange(steps) / RATE, fighters=fighters, fighter_distance_m=distance
+    )
 
 
 def newest_lift(con: duckdb.DuckDBPyConnection, video_id: str) -> tuple[str, str] | None:

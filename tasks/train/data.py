@@ -8,12 +8,13 @@ from pathlib import Path
 import mujoco
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.compiled import velocities
 from models.maaip.demonstrations import (
     Demonstrations,
     demonstrations_from_reference,
     facing_reference,
 )
-from tasks.lift.motion import RATE, velocities
+from tasks.lift.motion import RATE
 from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 
 
