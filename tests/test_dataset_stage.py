@@ -11,13 +11,12 @@ import pytest
 from conftest import process_argv, query, run_cli
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.compiled import humanoid_index, keypoint_positions, velocities
+from models.humanoid.compiled import body_states, humanoid_index, keypoint_positions, velocities
 from models.humanoid.kinematics import axis_angle_matrix, matrix_to_quat, quat_to_matrix
 from models.humanoid.observations import (
     OPPONENT_BLOCKS,
     SELF_BLOCKS,
     block_slices,
-    body_states,
     observation,
     self_observation,
 )

@@ -20,6 +20,12 @@ from models.humanoid.kinematics import (
     NV,
     SITE_NAMES,
 )
+from models.humanoid.observations import (
+    FRAME_WIDTH,
+    BodyState,
+    body_state_from_frames,
+    world_frames,
+)
 from models.pose.types import BLAZEPOSE_33
 
 
@@ -211,3 +217,35 @@ def velocities(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarra
         a, b = max(frame - 1, 0), min(frame + 1, frames - 1)
         mujoco.mj_differentiatePos(model, qvel[frame], (b - a) * dt, qpos[a], qpos[b])
     return qvel
+
+
+def body_states(
+    model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, index: HumanoidIndex
+) -> BodyState:
+    """States of one humanoid over T recorded frames.
+
+    Args:
+        model: a compiled model holding the humanoid `index` describes.
+        qpos: (T, nq) model positions.
+        qvel: (T, nv) model velocities.
+        index: from `humanoid_index`.
+
+    Returns:
+        BodyState with leading shape (T,).
+    """
+    qpos = np.asarray(qpos, dtype=np.float64)
+    qvel = np.asarray(qvel, dtype=np.float64)
+    if qpos.ndim != 2 or qpos.shape[1] != model.nq:
+        raise ValueError(f"qpos must have shape (T, {model.nq}), got {qpos.shape}")
+    if qvel.shape != (len(qpos), model.nv):
+        raise ValueError(f"qvel must have shape ({len(qpos)}, {model.nv}), got {qvel.shape}")
+    data = mujoco.MjData(model)
+    frames = np.empty((len(qpos), model.nbody, FRAME_WIDTH))
+    for t in range(len(qpos)):
+        data.qpos[:] = qpos[t]
+        data.qvel[:] = qvel[t]
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        mujoco.mj_comVel(model, data)
+        world_frames(model, data, frames[t])
+    return body_state_from_frames(frames, index.body_ids)

@@ -3,7 +3,8 @@
 The dataset stage computes demonstration transitions with these functions and the training
 environment computes the simulated ones with the same functions, so the discriminators compare
 like with like. Both start from a :class:`BodyState`, read from MuJoCo by :func:`body_state`
-(a running simulation) or :func:`body_states` (a recorded motion's qpos and qvel).
+(a running simulation) or :func:`models.humanoid.compiled.body_states` (a recorded motion's
+qpos and qvel).
 
 Blocks and sizes (the paper gives 274 in all):
 
@@ -41,11 +42,10 @@ Shape letters: T frames (or any leading batch shape), N = 15 bodies.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import mujoco
 import numpy as np
 
-from models.humanoid.compiled import HumanoidIndex
 from models.humanoid.kinematics import (
     KEY_BODY_INDEX,
     NUM_BODIES,
@@ -54,6 +54,11 @@ from models.humanoid.kinematics import (
     matrix_to_quat,
     tangent_normal,
 )
+
+if TYPE_CHECKING:  # annotations only: reading a simulation needs no MuJoCo import here
+    import mujoco
+
+    from models.humanoid.compiled import HumanoidIndex
 
 SELF_BLOCKS: tuple[tuple[str, int], ...] = (
     ("root_height", 1),
@@ -183,38 +188,6 @@ def body_state(model: mujoco.MjModel, data: mujoco.MjData, index: HumanoidIndex)
     """The current state of one humanoid of a simulation (`world_frames` says what `data` must
     hold)."""
     return body_state_from_frames(world_frames(model, data), index.body_ids)
-
-
-def body_states(
-    model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, index: HumanoidIndex
-) -> BodyState:
-    """States of one humanoid over T recorded frames.
-
-    Args:
-        model: a compiled model holding the humanoid `index` describes.
-        qpos: (T, nq) model positions.
-        qvel: (T, nv) model velocities.
-        index: from `humanoid_index`.
-
-    Returns:
-        BodyState with leading shape (T,).
-    """
-    qpos = np.asarray(qpos, dtype=np.float64)
-    qvel = np.asarray(qvel, dtype=np.float64)
-    if qpos.ndim != 2 or qpos.shape[1] != model.nq:
-        raise ValueError(f"qpos must have shape (T, {model.nq}), got {qpos.shape}")
-    if qvel.shape != (len(qpos), model.nv):
-        raise ValueError(f"qvel must have shape ({len(qpos)}, {model.nv}), got {qvel.shape}")
-    data = mujoco.MjData(model)
-    frames = np.empty((len(qpos), model.nbody, FRAME_WIDTH))
-    for t in range(len(qpos)):
-        data.qpos[:] = qpos[t]
-        data.qvel[:] = qvel[t]
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        mujoco.mj_comVel(model, data)
-        world_frames(model, data, frames[t])
-    return body_state_from_frames(frames, index.body_ids)
 
 
 def _in_heading(heading: np.ndarray, vectors: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.compiled import humanoid_index
+from models.humanoid.compiled import body_states, humanoid_index
 from models.humanoid.kinematics import (
     NQ,
     NUM_ACTUATED,
@@ -32,11 +32,7 @@ from models.humanoid.kinematics import (
     matrix_to_quat,
     quat_to_matrix,
 )
-from models.humanoid.observations import (
-    SELF_DIM,
-    body_states,
-    observation,
-)
+from models.humanoid.observations import SELF_DIM, observation
 
 
 @dataclass(frozen=True, eq=False)

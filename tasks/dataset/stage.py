@@ -24,15 +24,9 @@ import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.compiled import humanoid_index, velocities
+from models.humanoid.compiled import body_states, humanoid_index, velocities
 from models.humanoid.kinematics import heading_frame
-from models.humanoid.observations import (
-    OPPONENT_DIM,
-    BodyState,
-    body_states,
-    observation,
-    self_observation,
-)
+from models.humanoid.observations import OPPONENT_DIM, BodyState, observation, self_observation
 from models.pose.types import BLAZEPOSE_33
 from storage.keys import code_version, stage_key
 from tasks.dataset.config import DatasetConfig
