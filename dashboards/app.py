@@ -33,7 +33,7 @@ from storage.paths import data_paths
 from tasks.dataset.labels import HANDS, KINDS
 from tasks.dataset.statistics import DISTRIBUTIONS, SCALARS
 from tasks.errors import BadInput
-from tasks.pose.stage import record_pick
+from tasks.pose.store import record_pick
 
 # A page waits this long for the pipeline to let go of the database, then says so: a writer
 # holds it for seconds at most, and an analyst should not stare at a blank page meanwhile.

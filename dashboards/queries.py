@@ -33,8 +33,8 @@ from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import list_datasets, member_statistics
 from tasks.evaluate.store import evaluation_tables
 from tasks.lift.store import lift_series
-from tasks.pose.stage import newest_pick
-from tasks.train.run import learning_curves
+from tasks.pose.store import newest_pick
+from tasks.train.store import learning_curves
 
 # Every stage, in pipeline order (a stage has its config section once it exists): the ones
 # `ringside metrics --stage` knows. A per-video stage's output belongs to a video; training's

@@ -553,7 +553,7 @@ def _pick(args, data_root: Path) -> int:
     from flows.videos import ingested_video
     from storage.db import connect
     from storage.paths import data_paths
-    from tasks.pose.stage import record_pick
+    from tasks.pose.store import record_pick
 
     video = ingested_video(data_root, args.video)
     with connect(data_paths(data_root).db) as con:
@@ -604,7 +604,7 @@ def _train(args, data_root: Path) -> int:
 def _curves(args, data_root: Path) -> int:
     from storage.db import connect
     from storage.paths import data_paths
-    from tasks.train.run import CURVES, learning_curves
+    from tasks.train.store import CURVES, learning_curves
 
     if args.every < 1:
         raise ValueError(f"--every must be at least 1, got {args.every}")

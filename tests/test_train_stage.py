@@ -26,7 +26,8 @@ from storage.db import connect
 from storage.paths import data_paths
 from tasks.config import build
 from tasks.dataset.config import DatasetConfig
-from tasks.dataset.store import dataset_info, load_demonstrations, record_dataset
+from tasks.dataset.demonstrations import load_demonstrations
+from tasks.dataset.store import dataset_info, record_dataset
 from tasks.evaluate.opponent import load_opponent
 from tasks.train.mappo import Trainer
 from tasks.train.run import train

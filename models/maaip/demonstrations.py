@@ -5,7 +5,7 @@
   single motion clip performed by two fighters facing each other.
 - :class:`Demonstrations`: a dataset ready for training: the motion prior's single-actor
   transitions, each interaction prior's transitions, the reference frames and the two
-  fighters' bones (`tasks.dataset.store.load_demonstrations` reads one from DuckDB;
+  fighters' bones (`tasks.dataset.demonstrations.load_demonstrations` reads one from DuckDB;
   :func:`demonstrations_from_reference` computes one from arrays).
 
 Shape letters: M frames.

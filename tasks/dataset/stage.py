@@ -32,15 +32,13 @@ from storage.keys import code_version, stage_key
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
+from tasks.dataset.store import STAGE
 from tasks.errors import BadInput
-from tasks.lift.motion import RATE, FighterMotion
-from tasks.lift.series import fighter_distance
-from tasks.lift.stage import ROLES
+from tasks.lift.motion import RATE, FighterMotion, fighter_distance
 from tasks.lift.synthetic import load_deepmimic, retarget
+from tasks.roles import AGENTS, ROLES
 from tasks.runner import StageOutput
 
-STAGE = "dataset"
-AGENTS: Mapping[str, int] = {"adversary": 0, "opponent": 1}
 EXTRA = "extra"  # the role and agent (2) of clips the user adds
 EXTRA_AGENT = 2
 _ANKLES = [BLAZEPOSE_33.index("left_ankle"), BLAZEPOSE_33.index("right_ankle")]

@@ -17,15 +17,15 @@ import numpy as np
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OPPONENT_DIM, SELF_DIM
-from models.humanoid.stance import guard_pose
-from models.maaip.demonstrations import Demonstrations, ReferenceMotions
 from storage.db import transaction, utcnow
 from storage.keys import digest, stable_json
 from tasks.dataset.config import DatasetConfig
-from tasks.dataset.stage import AGENTS, ROLES, STAGE
 from tasks.dataset.statistics import FighterStatistics, combine_videos
 from tasks.errors import BadInput
 from tasks.lift.store import load_bones, load_motion
+from tasks.roles import AGENTS, ROLES
+
+STAGE = "dataset"
 
 
 class UnknownDataset(KeyError):
@@ -335,7 +335,20 @@ def training_bones(
     return bones[ROLES[0]], bones[ROLES[1]]
 
 
-def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Demonstrations:
+@dataclass(frozen=True, eq=False)
+class TrainingData:
+    """What a training run reads from a dataset (its train split): the discriminators'
+    transitions, the frames episodes start from (qpos and qvel of adversary and opponent at the
+    same steps) and the two humanoids (`training_bones`)."""
+
+    motion: np.ndarray
+    interaction: tuple[np.ndarray, np.ndarray]
+    qpos: tuple[np.ndarray, np.ndarray]
+    qvel: tuple[np.ndarray, np.ndarray]
+    bones: tuple[BoneLengths, BoneLengths]
+
+
+def training_data(con: duckdb.DuckDBPyConnection, dataset_key: str) -> TrainingData:
     """Everything training needs from dataset ``dataset_key`` (its train split).
 
     Raises:
@@ -361,16 +374,4 @@ def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Dem
             "or to start episodes in (lower dataset.min_clip_s or add footage)",
         )
     q0, v0, q1, v1 = (np.concatenate([f[i] for f in frames]) for i in range(4))
-    return Demonstrations(
-        dataset_key=dataset_key,
-        motion=motion,
-        interaction=interaction,
-        reference=ReferenceMotions(
-            qpos0=q0,
-            qvel0=v0,
-            qpos1=q1,
-            qvel1=v1,
-            stance=np.stack([guard_pose(bones[0], q0), guard_pose(bones[1], q1)]),
-        ),
-        bones=bones,
-    )
+    return TrainingData(motion, interaction, (q0, q1), (v0, v1), bones)

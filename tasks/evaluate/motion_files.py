@@ -24,6 +24,7 @@ from models.humanoid.bvh import bvh_text
 from models.humanoid.kinematics import NQ
 from tasks.dataset.stage import cut_clips, shot_of
 from tasks.lift.motion import RATE, FighterMotion
+from tasks.roles import ROLES
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,7 +46,6 @@ def _bvh(bones: BoneLengths, qpos: np.ndarray) -> BvhFile:
 
 # The evaluate stage's artifact holding its trained bouts (`bouts_npz`).
 BOUTS = "bouts.npz"
-ROLES = ("adversary", "opponent")
 
 
 def bouts_npz(qpos: np.ndarray, frames: np.ndarray, bones: Sequence[BoneLengths]) -> bytes:

@@ -47,8 +47,9 @@ from storage.files import scratch_dir
 from storage.records import output_metrics
 from tasks.config import build
 from tasks.dataset.config import DatasetConfig, PunchConfig
+from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.statistics import FighterStatistics
-from tasks.dataset.store import dataset_info, load_demonstrations
+from tasks.dataset.store import dataset_info
 from tasks.evaluate.bouts import Actor, Bouts, HeadingTask, simulate, still_actor, torch_actor
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.export import (

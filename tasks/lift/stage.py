@@ -52,10 +52,10 @@ from tasks.lift.motion import RATE, FighterMotion, fighter_distance
 from tasks.lift.resample import resample
 from tasks.lift.series import cleanup_series
 from tasks.lift.video import render_lift
+from tasks.roles import ROLES
 from tasks.runner import StageOutput
 
 STAGE = "lift"
-ROLES = ("adversary", "opponent")
 
 
 def lift_code() -> str:

@@ -26,10 +26,9 @@ from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ
 from models.maaip.arena import arena_mjcf
 from tasks.lift.motion import RATE, FighterMotion, gaussian_smooth, grid_steps
+from tasks.roles import ROLES
 
 VIDEO_SIZE = (640, 360)
-# Agent 0 and agent 1 of the arena, as the dataset and training number the fighters.
-ARENA_ROLES = ("adversary", "opponent")
 # How far a fighter missing at a step is moved away, metres: out of view, and out of the light.
 PARKED_M = 1000.0
 
@@ -182,17 +181,17 @@ def render_lift(
     Returns:
         The frames written: one past the last step of either fighter.
     """
-    unknown = set(fighters) - set(ARENA_ROLES)
+    unknown = set(fighters) - set(ROLES)
     if unknown:
-        raise ValueError(f"fighters must be keyed by {ARENA_ROLES}, got {sorted(unknown)}")
+        raise ValueError(f"fighters must be keyed by {ROLES}, got {sorted(unknown)}")
     steps = grid_steps(fighters)
     if steps == 0:
         raise ValueError("fighters must hold at least one lifted step")
-    bones = tuple(fighters[r].bones if r in fighters else BoneLengths() for r in ARENA_ROLES)
+    bones = tuple(fighters[r].bones if r in fighters else BoneLengths() for r in ROLES)
     model = mujoco.MjModel.from_xml_string(arena_mjcf(bones))
     qpos = np.repeat(model.qpos0[None], steps, axis=0)
     pelvis = []
-    for agent, role in enumerate(ARENA_ROLES):
+    for agent, role in enumerate(ROLES):
         mine = slice(agent * NQ, (agent + 1) * NQ)
         q = np.full((steps, NQ), np.nan)
         if role in fighters:

@@ -13,13 +13,11 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import duckdb
 import numpy as np
 
 from models.pose.tiling import TiledDetector
 from models.pose.types import BLAZEPOSE_33, BLAZEPOSE_TO_COCO17, COCO_17, Detector, PoseEstimator
 from storage.artifacts import put_bytes
-from storage.db import utcnow
 from storage.files import scratch_dir
 from storage.keys import code_version, digest, stage_key
 from tasks.errors import BadInput
@@ -38,11 +36,11 @@ from tasks.pose.merge import ChunkSpan, VideoTracks, merge_chunks, summaries
 from tasks.pose.overlay import H264Writer, draw_people, overlay_size
 from tasks.pose.refine import flip_bones, flip_groups, flip_permutation, refine
 from tasks.pose.tracking import colour_distance
+from tasks.roles import ROLES
 from tasks.runner import StageOutput
 
 STAGE = "pose"
 JOINTS = len(BLAZEPOSE_33)
-ROLES = ("adversary", "opponent")
 # Settings that change what happens after the chunks, not inside them.
 NOT_IN_CHUNKS = (
     "refine",
@@ -62,32 +60,6 @@ def pose_code() -> str:
 
 def pose_upstream(ingest_key: str, pick: int | None) -> dict:
     return {"ingest": ingest_key, "pick": pick}
-
-
-def newest_pick(con: duckdb.DuckDBPyConnection, video_id: str) -> int | None:
-    """The analyst's newest choice of adversary track for ``video_id`` (`ringside pick`, the
-    dashboard's Pose page), if any: an input of the pose stage."""
-    row = con.execute(
-        "SELECT track FROM pose_picks WHERE video_id = ? ORDER BY picked_at DESC LIMIT 1",
-        [video_id],
-    ).fetchone()
-    return None if row is None else int(row[0])
-
-
-def record_pick(con: duckdb.DuckDBPyConnection, video_id: str, track: int) -> None:
-    """Store the analyst's choice of ``track`` as the adversary of ``video_id`` (read back by
-    `newest_pick`); BadInput when the video has no such track."""
-    tracks = sorted(
-        row[0]
-        for row in con.execute(
-            "SELECT DISTINCT track FROM pose_tracks WHERE video_id = ?", [video_id]
-        ).fetchall()
-    )
-    if track not in tracks:
-        raise BadInput(
-            f"--track {track}", f"video {video_id[:12]} has no such track; tracks: {tracks}"
-        )
-    con.execute("INSERT INTO pose_picks VALUES (?, ?, ?)", [video_id, track, utcnow()])
 
 
 def pose_key(config: PoseConfig, ingest_key: str, pick: int | None) -> str:

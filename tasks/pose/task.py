@@ -18,11 +18,11 @@ from tasks.pose.merge import ChunkSpan
 from tasks.pose.stage import (
     STAGE,
     assemble,
-    newest_pick,
     pose_code,
     pose_upstream,
     process_chunk,
 )
+from tasks.pose.store import newest_pick
 from tasks.runner import StageResult, run_stage
 from tasks.stage_task import stage_task
 

@@ -1,5 +1,5 @@
 """Demonstrations made from a DeepMimic sample clip, for training without footage (tests and
-benchmarks); a dataset's own are read by `tasks.dataset.store.load_demonstrations`."""
+benchmarks); a dataset's own are read by `tasks.dataset.demonstrations.load_demonstrations`."""
 
 from __future__ import annotations
 

@@ -19,7 +19,6 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import duckdb
 import numpy as np
 from tqdm import tqdm
 
@@ -27,8 +26,7 @@ from models.maaip.config import TrainConfig
 from storage.artifacts import artifact_path, put_bytes, read_bytes
 from storage.db import connect, transaction, utcnow
 from storage.records import insert_columns
-from tasks.dataset.store import load_demonstrations
-from tasks.errors import BadInput
+from tasks.dataset.demonstrations import load_demonstrations
 from tasks.runner import StageOutput
 from tasks.train.mappo import Trainer
 from tasks.train.store import WarmStart
@@ -46,47 +44,6 @@ SUMMARY = (
     "env_steps_per_s",
 )
 SUMMARY_WINDOW = 10
-
-
-CURVES = (
-    "episode_length_s",
-    "falls_per_min",
-    "reward_motion",
-    "reward_interaction",
-    "reward_total",
-    "motion_accuracy_fake",
-    "interaction0_accuracy_fake",
-)
-
-
-def learning_curves(
-    con: duckdb.DuckDBPyConnection, key: str, *, every: int = 100, names=CURVES
-) -> list[dict]:
-    """Means of the run's per-iteration metrics over blocks of ``every`` iterations, one row per
-    block: {"iterations": "0-99", name: mean, ...} (the newest block names only the iterations
-    it holds). ``key`` may be a prefix of the run key."""
-    found = con.execute(
-        "SELECT DISTINCT key FROM train_iterations WHERE key LIKE ? || '%'", [key]
-    ).fetchall()
-    if len(found) != 1:
-        problem = "matches no training run" if not found else "matches several runs"
-        raise BadInput(f"--run {key}", f"{problem}; see `ringside metrics --stage train`")
-    rows = con.execute(
-        "SELECT iteration // ? AS block, name, avg(value) FROM train_iterations "
-        "WHERE key = ? AND list_contains(?, name) GROUP BY ALL ORDER BY ALL",
-        [every, found[0][0], list(names)],
-    ).fetchall()
-    # The iterations each block holds: the newest may not be full yet.
-    spans = con.execute(
-        "SELECT iteration // ? AS block, min(iteration), max(iteration) FROM train_iterations "
-        "WHERE key = ? GROUP BY ALL",
-        [every, found[0][0]],
-    ).fetchall()
-    held = {block: f"{first}-{last}" for block, first, last in spans}
-    blocks: dict[int, dict] = {}
-    for block, name, value in rows:
-        blocks.setdefault(block, {"iterations": held[block]})[name] = value
-    return list(blocks.values())
 
 
 def _newest_checkpoint(db: Path, key: str, dataset_key: str) -> tuple[int, str] | None:

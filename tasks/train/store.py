@@ -1,4 +1,5 @@
-"""What the train stage reads from the database before it trains: the run to warm-start from."""
+"""The train stage's reads of the database: the run to warm-start from, and a run's learning
+curves."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import duckdb
 from models.maaip.config import TrainConfig
 from tasks.config import build
 from tasks.dataset.store import training_bones
+from tasks.errors import BadInput
 
 
 @dataclass(frozen=True)
@@ -61,3 +63,44 @@ def warm_start_source(
         if _fits(stored, config) and training_bones(con, their_dataset) == bones:
             return WarmStart(run_key, their_dataset, iteration, artifact)
     return None
+
+
+CURVES = (
+    "episode_length_s",
+    "falls_per_min",
+    "reward_motion",
+    "reward_interaction",
+    "reward_total",
+    "motion_accuracy_fake",
+    "interaction0_accuracy_fake",
+)
+
+
+def learning_curves(
+    con: duckdb.DuckDBPyConnection, key: str, *, every: int = 100, names=CURVES
+) -> list[dict]:
+    """Means of the run's per-iteration metrics over blocks of ``every`` iterations, one row per
+    block: {"iterations": "0-99", name: mean, ...} (the newest block names only the iterations
+    it holds). ``key`` may be a prefix of the run key."""
+    found = con.execute(
+        "SELECT DISTINCT key FROM train_iterations WHERE key LIKE ? || '%'", [key]
+    ).fetchall()
+    if len(found) != 1:
+        problem = "matches no training run" if not found else "matches several runs"
+        raise BadInput(f"--run {key}", f"{problem}; see `ringside metrics --stage train`")
+    rows = con.execute(
+        "SELECT iteration // ? AS block, name, avg(value) FROM train_iterations "
+        "WHERE key = ? AND list_contains(?, name) GROUP BY ALL ORDER BY ALL",
+        [every, found[0][0], list(names)],
+    ).fetchall()
+    # The iterations each block holds: the newest may not be full yet.
+    spans = con.execute(
+        "SELECT iteration // ? AS block, min(iteration), max(iteration) FROM train_iterations "
+        "WHERE key = ? GROUP BY ALL",
+        [every, found[0][0]],
+    ).fetchall()
+    held = {block: f"{first}-{last}" for block, first, last in spans}
+    blocks: dict[int, dict] = {}
+    for block, name, value in rows:
+        blocks.setdefault(block, {"iterations": held[block]})[name] = value
+    return list(blocks.values())
