@@ -8,6 +8,7 @@ import pytest
 
 import models.maaip.env as train_env
 import tasks.dataset.stage as dataset_stage
+from models.humanoid import compiled
 from models.humanoid import observations as obs
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths, boxer_mjcf
 from models.humanoid.compiled import humanoid_index
@@ -32,7 +33,7 @@ def _yaw_quat(yaw: float) -> np.ndarray:
 
 
 def _state(model, qpos, qvel) -> obs.BodyState:
-    return obs.body_states(model, qpos[None], qvel[None], humanoid_index(model))[0]
+    return compiled.body_states(model, qpos[None], qvel[None], humanoid_index(model))[0]
 
 
 def _standing(model, position, yaw) -> np.ndarray:
@@ -55,7 +56,7 @@ def test_the_training_environment_shares_the_dataset_features():
     # The dataset stage and the training environment call these very functions (not copies).
     assert dataset_stage.observation is obs.observation
     assert dataset_stage.self_observation is obs.self_observation
-    assert dataset_stage.body_states is obs.body_states
+    assert dataset_stage.body_states is compiled.body_states
     assert train_env.observation is obs.observation
     assert train_env.body_state_from_frames is obs.body_state_from_frames
     assert train_env.world_frames is obs.world_frames
@@ -183,7 +184,7 @@ def test_batched_features_equal_one_at_a_time(model):
     poses = [_random_pose(model, rng) for _ in range(4)]
     q = np.stack([p[0] for p in poses])
     v = np.stack([p[1] for p in poses])
-    states = obs.body_states(model, q, v, humanoid_index(model))
+    states = compiled.body_states(model, q, v, humanoid_index(model))
     batch = obs.observation(states, states[::-1])
     for t in range(4):
         np.testing.assert_allclose(batch[t], obs.observation(states[t], states[3 - t]))
@@ -191,6 +192,6 @@ def test_batched_features_equal_one_at_a_time(model):
 
 def test_bad_shapes_are_named(model):
     with pytest.raises(ValueError, match="qvel must have shape"):
-        obs.body_states(model, model.qpos0[None], np.zeros((1, 3)), humanoid_index(model))
+        compiled.body_states(model, model.qpos0[None], np.zeros((1, 3)), humanoid_index(model))
     with pytest.raises(ValueError, match="BodyState.rot"):
         obs.BodyState(np.zeros((15, 3)), np.zeros((15, 3)), np.zeros((15, 3)), np.zeros((15, 3)))
