@@ -11,7 +11,9 @@ and the error of each fighter's placement and of the distance
 between them. Two yardsticks beside it: BlazePose's own 3D (its world landmarks, which the lift
 starts from) against the same reference, and both errors on the reference points whose views
 agree (each view used within ``AGREE_PX`` of the triangulated point): where the views disagree
-by a hundred pixels or more, the reference is not a truth.
+by a hundred pixels or more, the reference is not a truth. What limits the lift is printed with
+them: each view's keypoints against the triangulation of the other three (camera 1's are the
+lift's only input) and each fighter's worst joints.
 
 Why the heavy model for the reference: a reference triangulated from the lift's own detector
 inherits that detector's mistakes, and the full model puts the man's raised elbows and wrists
@@ -35,6 +37,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering, as `ringside` 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._common import FPS, FRAMES, SIZE, sample_fighters  # noqa: E402
+from models.pose.types import BLAZEPOSE_33  # noqa: E402
 from storage.assets import HEAVY_LANDMARKER, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.lift.camera import read_qca, triangulate, write_calibration  # noqa: E402
@@ -43,6 +46,7 @@ from tasks.lift.metrics import HIPS, mpjpe_mm, pa_mpjpe_mm, procrustes_align  # 
 from tasks.lift.stage import lift_video  # noqa: E402
 
 BODY = [0, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28]
+NAMES = [BLAZEPOSE_33[j] for j in BODY]
 ROLES = ("adversary", "opponent")
 AGREE_PX = 30.0
 
@@ -85,13 +89,21 @@ def labelled_reference(tracks: list, cams: list) -> tuple[dict, dict, float]:
         if best is None or error < best[0]:
             best = (error, order)
     error, order = best
-    reference, agree = {}, {}
+    reference, agree, left_out = {}, {}, {}
     for person, role in enumerate(ROLES):
         pts, w = views(order, person)
         reference[role] = triangulate(pts, w, cams)
         errors = np.where(w > 0, view_errors_px(reference[role], pts, cams), 0.0)
         agree[role] = errors.max(axis=0) < AGREE_PX
-    return reference, agree, error / 2
+        left_out[role] = []
+        for view in range(len(cams)):
+            others = [v for v in range(len(cams)) if v != view]
+            X = triangulate(
+                pts[others][:, :, BODY], w[others][:, :, BODY], [cams[v] for v in others]
+            )
+            off = view_errors_px(X, pts[:, :, BODY], cams)[view][w[view][:, BODY] > 0]
+            left_out[role].append(float(np.nanmedian(off)))
+    return reference, agree, error / 2, left_out
 
 
 def lift(tracks: dict, cam1, tmp: Path) -> tuple[dict, np.ndarray, np.ndarray, float]:
@@ -135,8 +147,8 @@ def main() -> None:
         views = [folder / f"{name}.mp4" for name, _ in cameras]
         heavy = [sample_fighters(v, assets, tmp, assets / HEAVY_LANDMARKER) for v in views]
         full = [sample_fighters(v, assets, tmp) for v in views]
-        reference, agree, error = labelled_reference(heavy, cams)
-        full_reference, full_agree, full_error = labelled_reference(full, cams)
+        reference, agree, error, left_out = labelled_reference(heavy, cams)
+        full_reference, full_agree, full_error, _ = labelled_reference(full, cams)
         motion, R_est, t_est, height = lift(full[0], cam1, tmp)
         heavy_motion, heavy_R, heavy_t, heavy_height = lift(heavy[0], cam1, tmp)
 
@@ -148,6 +160,12 @@ def main() -> None:
         f"per person, views within {AGREE_PX:g} px of it on {shares(agree)} of the points "
         f"(the full model: {full_error:.1f} px, {shares(full_agree)})"
     )
+    for role in ROLES:
+        shown = ", ".join(f"{px:.0f}" for px in left_out[role])
+        print(
+            f"{role}: each view's keypoints from the other three views' triangulation, median "
+            f"px (views 1-4): {shown}"
+        )
     print(f"camera 1 height: lift {height:.2f} m, calibration {cam1.centre[2]:.2f} m")
     results, hips = [], {}
     for role in ROLES:
@@ -172,6 +190,11 @@ def main() -> None:
             for points in (ours_cam, world)
         )
         lift_good, world_good = np.nanmean(lift_error[good]), np.nanmean(world_error[good])
+        worst = np.argsort(np.nanmean(lift_error, axis=0))[::-1][:3]
+        print(
+            f"{'':9s} worst joints (lift, mm): "
+            + ", ".join(f"{NAMES[j]} {np.nanmean(lift_error[:, j]):.0f}" for j in worst)
+        )
         print(
             f"{'':9s} BlazePose's own 3D PA-MPJPE {np.nanmean(world_error):6.1f} mm; where the "
             f"views agree within {AGREE_PX:g} px ({good.mean():.0%} of the points): lift "
