@@ -38,7 +38,7 @@ from tiny import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS  # noqa: E402
 
 from dashboards.app import PAGES, READ_AT  # noqa: E402
 from dashboards.queries import METRIC_STAGES  # noqa: E402
-from flows.cli import wait_until_serving  # noqa: E402
+from flows.cli.servers import wait_until_serving  # noqa: E402
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.db import connect  # noqa: E402
 from storage.paths import data_paths  # noqa: E402

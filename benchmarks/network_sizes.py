@@ -24,7 +24,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as `ringside` sets it (flows/cli.py)
+os.environ.setdefault(
+    "OMP_WAIT_POLICY", "PASSIVE"
+)  # as `ringside` sets it (flows/cli/environment.py)
 
 from models.maaip.config import PRESETS, NetworkConfig, TrainConfig  # noqa: E402
 from storage.assets import pull  # noqa: E402

@@ -47,7 +47,8 @@ from dashboards.app import (
     sample_size,
     video_labels,
 )
-from flows.cli import build_parser, main, wait_until_serving
+from flows.cli import build_parser, main
+from flows.cli.servers import wait_until_serving
 from flows.config import STAGES
 from flows.serve import run_progress, served_api
 from storage.db import connect

@@ -1,0 +1,5 @@
+"""`python -m flows.cli`: the `ringside` command."""
+
+from flows.cli import run
+
+run()

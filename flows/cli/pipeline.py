@@ -1,0 +1,200 @@
+"""Commands that run and inspect the per-video pipeline: process, status, rerun, pick, metrics,
+datasets, demo."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from flows.cli.environment import EXIT_BAD_INPUT, flow_server
+from flows.cli.parser import overrides
+from flows.cli.tables import print_opponent, print_summary, print_table
+from flows.cli.upkeep import pull_assets
+
+
+def run_pipeline(
+    args,
+    data_root: Path,
+    videos: list[str],
+    adversary: str,
+    colour,
+    notes,
+    rerun: list[str] | None = None,
+) -> int:
+    from flows.config import load_config
+    from flows.pipeline import PipelineFailed, video_to_opponent
+    from flows.serve import run_parameters
+    from storage.check import remove_stale_temporaries
+    from storage.paths import data_paths
+    from tasks.ingest.probe import check_file
+
+    # Cheap checks before Prefect starts, so a mistyped path fails in milliseconds.
+    for video in videos:
+        check_file(Path(video))
+    config = load_config(args.config, overrides(args))
+    # Half-written files of a process killed mid-write (`storage.files.write_atomic`).
+    remove_stale_temporaries(data_paths(data_root).artifacts)
+    parameters = run_parameters(
+        data_root,
+        videos,
+        adversary,
+        colour,
+        notes,
+        config.as_dict(),
+        until=getattr(args, "until", None),
+        rerun=rerun,
+    )
+    try:
+        with flow_server(data_root):
+            summaries = video_to_opponent(**parameters)
+    except PipelineFailed as failed:
+        if failed.summaries:
+            print_summary(failed.summaries, data_root, args.json)
+        for line in failed.failures:
+            print(f"ringside: error: {line}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    print_summary(summaries, data_root, args.json)
+    evaluated = [s for s in summaries if s.stage == "evaluate"]
+    if evaluated and not args.json:
+        print_opponent(data_root, evaluated[-1])
+    return 0
+
+
+def process_command(args, data_root: Path) -> int:
+    return run_pipeline(
+        args, data_root, args.videos, args.adversary, args.adversary_colour, args.notes
+    )
+
+
+def status_command(args, data_root: Path) -> int:
+    from flows.config import STAGES
+    from storage.db import connect
+    from storage.paths import data_paths
+    from storage.records import opponent_states, stage_states
+    from tasks.dataset.store import list_datasets
+
+    db = data_paths(data_root).db
+    videos: list[dict[str, Any]] = []
+    opponents: list[dict[str, Any]] = []
+    # The JSON's documented fields; the dashboard shows the timings too.
+    fields = ("video_id", "stage", "key", "state", "error")
+    if db.exists():
+        with connect(db, read_only=True) as con:
+            videos = [{f: r[f] for f in fields} for r in stage_states(con, STAGES)]
+            datasets = [d["dataset_key"] for d in reversed(list_datasets(con))]
+            opponents = [{f: r[f] for f in fields} for r in opponent_states(con, datasets)]
+    if args.json:
+        print(json.dumps(videos + opponents))
+        return 0
+
+    def short(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [{**r, "video_id": r["video_id"][:12], "key": (r["key"] or "")[:12]} for r in rows]
+
+    print_table(short(videos), ["video_id", "stage", "state", "key", "error"])
+    if opponents:
+        # Training runs on a dataset (all of an adversary's videos), evaluation on a run.
+        print()
+        print_table(
+            [{**r, "of": r["video_id"]} for r in short(opponents)],
+            ["of", "stage", "state", "key", "error"],
+        )
+    return 0
+
+
+def rerun_command(args, data_root: Path) -> int:
+    from flows.videos import ingested_video
+
+    video = ingested_video(data_root, args.video)
+    return run_pipeline(
+        args,
+        data_root,
+        [video.path],
+        video.adversary,
+        video.colour,
+        video.notes,
+        rerun=[args.stage],
+    )
+
+
+def pick_command(args, data_root: Path) -> int:
+    from flows.videos import ingested_video
+    from storage.db import connect
+    from storage.paths import data_paths
+    from tasks.pose.store import record_pick
+
+    video = ingested_video(data_root, args.video)
+    with connect(data_paths(data_root).db) as con:
+        record_pick(con, video.video_id, args.track)
+    return run_pipeline(args, data_root, [video.path], video.adversary, video.colour, video.notes)
+
+
+def metrics_command(args, data_root: Path) -> int:
+    from storage.db import connect
+    from storage.paths import data_paths
+    from storage.records import latest_metrics
+
+    db = data_paths(data_root).db
+    rows = []
+    if db.exists():
+        with connect(db, read_only=True) as con:
+            rows = latest_metrics(con, args.stage)
+    if args.json:
+        print(json.dumps(rows))
+    else:
+        print_table(
+            [
+                {
+                    **r,
+                    "video_id": r["video_id"][:12],
+                    "key": r["key"][:12],
+                    "value": f"{r['value']:.6g}",
+                }
+                for r in rows
+            ],
+            ["video_id", "stage", "name", "value", "key"],
+        )
+    return 0
+
+
+def datasets_command(args, data_root: Path) -> int:
+    from storage.db import connect
+    from storage.paths import data_paths
+    from tasks.dataset.store import list_datasets
+
+    db = data_paths(data_root).db
+    rows = []
+    if db.exists():
+        with connect(db, read_only=True) as con:
+            rows = list_datasets(con)
+    rows = [{**r, "created_at": str(r["created_at"])} for r in rows]
+    if args.json:
+        print(json.dumps(rows))
+    else:
+        print_table(rows, ["dataset_key", "adversary", "videos", "transitions", "created_at"])
+    return 0
+
+
+def demo_command(args, data_root: Path) -> int:
+    from flows.config import DEMO_SETTINGS
+    from storage.assets import BOXING_CLIPS, SAMPLE_VIDEO
+    from storage.paths import data_paths
+
+    pull_assets(data_root)
+    assets = data_paths(data_root).assets
+    sample = assets / SAMPLE_VIDEO
+    args.config, args.until = None, None
+    # The sample is two people walking: DeepMimic's punch, retargeted onto both fighters, joins
+    # the motion prior's data so that the demo opponent has punches to learn.
+    args.cfg__dataset__extra_clips = str(assets / BOXING_CLIPS)
+    for name, value in DEMO_SETTINGS.items():
+        setattr(args, "cfg__" + name.replace(".", "__"), value)
+    return run_pipeline(
+        args,
+        data_root,
+        [str(sample)],
+        "demo adversary",
+        None,
+        "bundled two-person sample (Pose2Sim demo, camera 1)",
+    )

@@ -1,0 +1,116 @@
+"""What commands print: tables, run summaries, the opponent, damage found."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+
+def print_table(rows: list[dict[str, Any]], columns: list[str]) -> None:
+    if not rows:
+        print("(nothing yet)")
+        return
+    text = [[("" if r[c] is None else str(r[c])) for c in columns] for r in rows]
+    widths = [max(len(c), *(len(t[i]) for t in text)) for i, c in enumerate(columns)]
+    print("  ".join(c.ljust(w) for c, w in zip(columns, widths, strict=True)))
+    for t in text:
+        print("  ".join(v.ljust(w) for v, w in zip(t, widths, strict=True)))
+
+
+def print_summary(summaries: list, data_root: Path, as_json: bool) -> None:
+    from storage.paths import data_paths
+
+    rows = [dataclasses.asdict(s) for s in summaries]
+    if as_json:
+        print(json.dumps(rows))
+        return
+    shown = [
+        {
+            **r,
+            "video_id": r["video_id"][:12],
+            "key": r["key"][:12],
+            "seconds": f"{r['seconds']:.2f}",
+        }
+        for r in rows
+    ]
+    print_table(shown, ["video_id", "stage", "state", "key", "seconds", "path"])
+    for row in rows:
+        where = " ".join(filter(None, (row["stage"], row["video_id"][:12])))
+        for note in row["notes"]:
+            print(f"note: {where}: {note}")
+    paths = data_paths(data_root)
+    print(f"\nresults: {paths.db}\nartifacts: {paths.artifacts}")
+    print("see them with: ringside status | ringside metrics")
+
+
+def print_opponent(data_root: Path, evaluated) -> None:
+    """Where the pipeline's opponent is (the folder its evaluation exported, written where
+    `ringside export` writes it), its bout and its headline numbers against the evaluation's
+    baselines."""
+    from storage.artifacts import artifact_path
+    from storage.db import connect
+    from storage.paths import data_paths
+    from storage.records import output_metrics
+    from tasks.evaluate.export import stored_opponent
+    from tasks.evaluate.opponent import MANIFEST
+    from tasks.evaluate.store import evaluation_artifacts
+
+    paths = data_paths(data_root)
+    run_key = evaluated.video_id
+    with connect(paths.db, read_only=True) as con:
+        metrics = output_metrics(con, "evaluate", run_key, evaluated.key)
+        media = evaluation_artifacts(con, evaluated.key, run_key)
+    out = data_root / "opponents" / f"{run_key[:12]}-adversary"
+    folder = stored_opponent(paths.artifacts, media, out)
+    iteration = json.loads((folder / MANIFEST).read_text())["iteration"]
+
+    def number(name: str) -> str:
+        value = metrics.get(name)
+        return "n/a" if value is None else f"{value:.3g}"
+
+    print(f"\nopponent of {evaluated.path}: run {run_key[:12]} at iteration {iteration}")
+    print(f"  folder: {folder}   (spar with it: ringside spar {folder})")
+    if "bout.mp4" in media:
+        print(f"  bout:   {artifact_path(paths.artifacts, media['bout.mp4'])}")
+    print(
+        f"  bouts ended by a fall, per simulated minute: {number('falls_per_min')} "
+        f"(untrained {number('falls_per_min_untrained')}, "
+        f"standing still in its guard {number('falls_per_min_still')})"
+    )
+    print(
+        f"  style score, 0 = the footage's statistics, lower is closer: {number('style_score')} "
+        f"(untrained {number('style_score_untrained')}, standing still "
+        f"{number('style_score_still')})"
+    )
+    print(f"  motion as BVH: ringside export-motion --run {run_key[:12]}")
+    print(f"  all of it: ringside evaluate --run {run_key[:12]}   or   ringside dashboard")
+
+
+def print_problems(problems) -> None:
+    """A line per damaged output (its problems counted), then the rest one by one."""
+    if not problems:
+        print("no damage found: every table reads back and every artifact matches its name")
+        return
+    by_output: dict = {}
+    for problem in problems:
+        by_output.setdefault(problem.output or problem, []).append(problem)
+    for found in by_output.values():
+        first = found[0]
+        if first.output is None:
+            print(f"{first.stage}: {first.what}")
+            continue
+        more = f" (and {len(found) - 1} more)" if len(found) > 1 else ""
+        print(
+            f"{first.stage} of {first.video_id[:12]}, output {first.key[:12]}: {first.what}{more}"
+        )
+
+
+def pivot(rows: list[dict], row_key: str, column_key: str, cell) -> list[dict]:
+    """Long rows as one row per ``row_key`` with a column per ``column_key``, in first-seen
+    order; ``cell(row)`` is what a cell shows."""
+    out: dict[str, dict] = {}
+    for r in rows:
+        out.setdefault(r[row_key], {row_key: r[row_key]})[r[column_key]] = cell(r)
+    return list(out.values())

@@ -1,0 +1,144 @@
+"""Commands that look after the data directory and its inputs: check, backup, restore, assets,
+calibrate."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from flows.cli.environment import EXIT_FAILED
+from flows.cli.tables import print_problems
+
+
+def check_command(args, data_root: Path) -> int:
+    import duckdb
+    from tqdm import tqdm
+
+    from flows.serve import prefect_database
+    from storage.check import repair, scan
+    from storage.db import error_line
+    from storage.paths import data_paths
+
+    paths = data_paths(data_root)
+    prefect_db = prefect_database()
+    with tqdm(desc="check", unit=" tables", disable=args.json or not sys.stderr.isatty()) as bar:
+        problems = scan(paths.db, paths.artifacts, lambda _: bar.update(1), prefect_db)
+    done = []
+    if args.repair and problems:
+        try:
+            done = repair(paths.db, paths.artifacts, problems, prefect_db)
+        except duckdb.Error as error:
+            done = [f"failed: {error_line(error)}"]
+        left = scan(paths.db, paths.artifacts, prefect_db=prefect_db)
+    else:
+        left = problems
+    if args.json:
+        fields = ("stage", "video_id", "key", "what")
+        print(
+            json.dumps(
+                {
+                    "problems": [{f: getattr(p, f) for f in fields} for p in problems],
+                    "repaired": done,
+                    "left": [{f: getattr(p, f) for f in fields} for p in left],
+                }
+            )
+        )
+    elif not paths.db.exists() and not problems:
+        print(f"{paths.db}: no database yet; nothing to check")
+    else:
+        print_problems(problems)
+        for line in done:
+            print(f"repair: {line}")
+        if done and not left and any(p.stage != "prefect" for p in problems):
+            print("repaired: `ringside process` (or `rerun`) computes the removed outputs again")
+        elif left and args.repair:
+            print(
+                f"{len(left)} problem(s) a rerun cannot give back: restore the database from a "
+                "backup"
+            )
+    return EXIT_FAILED if left else 0
+
+
+def backup_command(args, data_root: Path) -> int:
+    from storage.backup import DATABASE, backup
+    from storage.paths import data_paths
+
+    db = data_paths(data_root).db
+    if not db.exists():
+        raise FileNotFoundError(f"{db}: no database yet; nothing to back up")
+    manifest = backup(db, args.folder)
+    rows = sum(manifest["rows"].values())
+    print(
+        f"backed up {db} ({manifest['bytes'] / 1e6:.1f} MB, {rows} rows in "
+        f"{len(manifest['rows'])} tables) to {args.folder / DATABASE}; the artifacts stay in "
+        f"{data_paths(data_root).artifacts}"
+    )
+    return 0
+
+
+def restore_command(args, data_root: Path) -> int:
+    from storage.backup import restore
+    from storage.paths import data_paths
+
+    paths = data_paths(data_root)
+    aside, problems = restore(paths.db, paths.artifacts, args.folder)
+    kept = f"; the database it replaced is kept as {aside}" if aside else ""
+    print(f"restored {paths.db} from {args.folder}{kept}")
+    if problems:
+        print_problems(problems)
+        print("`ringside check --repair` removes what is damaged; `process` computes it again")
+        return EXIT_FAILED
+    return 0
+
+
+def pull_assets(data_root: Path, *, dev: bool = False) -> list[Path]:
+    from storage.assets import pull
+    from storage.paths import data_paths
+
+    root = data_paths(data_root).assets
+    files = pull(root, dev=dev, log=lambda line: print(line, file=sys.stderr))
+    print(f"assets ready in {root} ({len(files)} files)", file=sys.stderr)
+    return files
+
+
+def assets_command(args, data_root: Path) -> int:
+    pull_assets(data_root, dev=args.dev)
+    return 0
+
+
+def config_command(_args, _data_root: Path) -> int:
+    from flows.config import defaults_text
+
+    print(defaults_text(), end="")
+    return 0
+
+
+def calibrate_command(args, _data_root: Path) -> int:
+    import cv2
+
+    from tasks.errors import BadInput
+    from tasks.lift.camera import calibrate_chessboard, write_calibration
+
+    try:
+        board = tuple(int(v) for v in args.board.lower().split("x"))
+    except ValueError:
+        board = ()
+    if len(board) != 2 or min(board) < 2:
+        raise BadInput("--board", f"must look like 9x6 (inner corners), got {args.board!r}")
+    images = []
+    for path in args.images:
+        image = cv2.imread(str(path))
+        if image is None:
+            raise BadInput(str(path), "is not an image OpenCV can read")
+        images.append(image)
+    sizes = {image.shape[1::-1] for image in images}
+    if len(sizes) != 1:
+        raise BadInput("IMAGE", f"all photos must have one size, got {sorted(sizes)}")
+    K, dist, rms = calibrate_chessboard(images, board=board, square_m=args.square)
+    write_calibration(args.output, K, dist, sizes.pop(), rms)
+    print(
+        f"fx={K[0, 0]:.1f} fy={K[1, 1]:.1f} cx={K[0, 2]:.1f} cy={K[1, 2]:.1f} "
+        f"rms={rms:.3f} px -> {args.output}"
+    )
+    return 0
