@@ -16,16 +16,18 @@ from models.pose.types import BLAZEPOSE_33
 from tasks.pose.refine import (
     SMOOTHERS,
     RefineConfig,
-    adaptive_window,
-    confidence_weighted,
     fill_gaps,
     fix_flips,
     flip_bones,
     flip_groups,
     flip_permutation,
     jitter_px,
-    one_euro,
     refine,
+)
+from tasks.pose.smoothing import (
+    adaptive_window,
+    confidence_weighted,
+    one_euro,
     savgol_coefficients,
     savitzky_golay,
 )
