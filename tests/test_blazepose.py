@@ -22,13 +22,10 @@ from models.pose.blazepose import (
     BlazePoseDetector,
     BlazePoseLandmarker,
     Roi,
-    box_iou,
     crop_to_image,
     decode_detections,
     decode_landmarks,
     image_to_crop,
-    letterbox,
-    nms,
     person_box,
     roi_from_alignment,
     roi_from_box,
@@ -37,6 +34,7 @@ from models.pose.blazepose import (
     warp_crop,
     weighted_nms,
 )
+from models.pose.boxes import box_iou, letterbox, nms
 from models.pose.types import BLAZEPOSE_33, COCO_17, Detection, Pose
 
 DETECTOR_FILE = "pose_detection.tflite"

@@ -17,22 +17,24 @@ import cv2
 import numpy as np
 import pytest
 
-from models.pose.blazepose import letterbox
-from models.pose.onnx_backend import (
-    DETECTOR_NORMALIZATIONS,
+from models.pose.boxes import letterbox
+from models.pose.decoders import (
     HEATMAP_DECODER,
     POSE_DECODERS,
+    RTMPOSE_DECODER,
+    decode_heatmap,
+    decode_simcc,
+)
+from models.pose.onnx_backend import (
+    DETECTOR_NORMALIZATIONS,
     POSE_NORMALIZATION,
     RTMDET_NORMALIZATION,
-    RTMPOSE_DECODER,
     YOLOX_NORMALIZATION,
     OnnxDetector,
     OnnxPoseEstimator,
     apply_affine,
     box_to_center_scale,
     crop_affine,
-    decode_heatmap,
-    decode_simcc,
     decode_yolox,
     fill_letterbox_padding,
     invert_affine,

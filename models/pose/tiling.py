@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.pose.blazepose import nms
+from models.pose.boxes import nms
 from models.pose.types import Detection, Detector
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.pose.blazepose import box_iou
+from models.pose.boxes import box_iou
 from models.pose.types import Detector, Pose, PoseEstimator
 from tasks.pose.config import PoseConfig
 from tasks.pose.tracking import DESCRIPTOR_SIZE, Observation, Tracker, appearance

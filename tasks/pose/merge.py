@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.pose.blazepose import box_iou
+from models.pose.boxes import box_iou
 from tasks.pose.chunk import ChunkTracks
 from tasks.pose.tracking import TrackSummary, box_to_cxcywh, hungarian
 
