@@ -33,10 +33,10 @@ from tasks.dataset.store import (
     record_dataset,
 )
 from tasks.errors import BadInput
+from tasks.lift.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.lift.lifting import detect_contacts
 from tasks.lift.motion import RATE
 from tasks.lift.store import load_motion
-from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 
 BONES = BoneLengths()
 

@@ -34,8 +34,8 @@ from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
 from tasks.dataset.store import STAGE
 from tasks.errors import BadInput
+from tasks.lift.deepmimic import load_deepmimic, retarget
 from tasks.lift.motion import RATE, FighterMotion, fighter_distance
-from tasks.lift.synthetic import load_deepmimic, retarget
 from tasks.roles import AGENTS, ROLES
 from tasks.runner import StageOutput
 
@@ -432,7 +432,7 @@ def extra_clip_output(
     folder: Path, bones: Sequence[BoneLengths], *, key: str, video_id: str
 ) -> StageOutput:
     """Single-actor clips (agent 2) from the DeepMimic-format motion files in ``folder``, each
-    retargeted (`tasks.lift.synthetic.retarget`, 30 Hz) onto every body in ``bones`` (the
+    retargeted (`tasks.lift.deepmimic.retarget`, 30 Hz) onto every body in ``bones`` (the
     dataset's fighters), so that the motion prior sees them on the humanoids it judges; the
     default body when ``bones`` is empty.
     """

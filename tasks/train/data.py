@@ -14,8 +14,8 @@ from models.maaip.demonstrations import (
     demonstrations_from_reference,
     facing_reference,
 )
+from tasks.lift.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.lift.motion import RATE
-from tasks.lift.synthetic import clip_path, load_deepmimic, retarget
 
 
 def clip_demonstrations(
