@@ -21,10 +21,10 @@ from tasks.dataset.labels import (
     label_steps,
 )
 from tasks.dataset.statistics import DISTRIBUTIONS, FighterStatistics, combine, fighter_statistics
-from tasks.lift import synthetic as syn
+from tasks.lift import deepmimic
 
 J = {name: i for i, name in enumerate(BLAZEPOSE_33)}
-RATE = syn.FPS  # 30 Hz, the retargeted clips' rate
+RATE = deepmimic.FPS  # 30 Hz, the retargeted clips' rate
 ARM = 0.33 + 0.26  # default BoneLengths: upper arm plus forearm
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -39,7 +39,7 @@ def motions(assets: Path, model) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Clip name -> (qpos (T, 35), BlazePose keypoints (T, 33, 3)) of the retargeted clips."""
     out = {}
     for name in ("punch", "walk", "run"):
-        qpos = syn.retarget(syn.load_deepmimic(syn.clip_path(assets, name)))
+        qpos = deepmimic.retarget(deepmimic.load_deepmimic(deepmimic.clip_path(assets, name)))
         out[name] = (qpos, keypoint_positions(model, qpos))
     return out
 

@@ -14,7 +14,7 @@ from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import HINGE_NAMES, axis_angle_matrix, body_rotations
 from models.pose.types import BLAZEPOSE_33
 from tasks.errors import BadInput
-from tasks.lift import metrics
+from tasks.lift import deepmimic, metrics
 from tasks.lift import synthetic as syn
 from tasks.lift.camera import look_at, project
 
@@ -31,13 +31,16 @@ def model() -> mujoco.MjModel:
 
 
 @pytest.fixture(scope="module")
-def clips(assets: Path) -> dict[str, syn.DeepMimicClip]:
-    return {name: syn.load_deepmimic(syn.clip_path(assets, name)) for name in syn.CLIPS}
+def clips(assets: Path) -> dict[str, deepmimic.DeepMimicClip]:
+    return {
+        name: deepmimic.load_deepmimic(deepmimic.clip_path(assets, name))
+        for name in deepmimic.CLIPS
+    }
 
 
 @pytest.fixture(scope="module")
-def retargeted(clips) -> dict[str, syn.Retargeted]:
-    return {name: syn.retarget_report(clip) for name, clip in clips.items()}
+def retargeted(clips) -> dict[str, deepmimic.Retargeted]:
+    return {name: deepmimic.retarget_report(clip) for name, clip in clips.items()}
 
 
 # --------------------------------------------------------------------------
@@ -47,7 +50,7 @@ def retargeted(clips) -> dict[str, syn.Retargeted]:
 
 def test_clips_load_as_documented(clips):
     for name, clip in clips.items():
-        assert clip.frames.shape[1] == syn.FRAME_WIDTH == 44, name
+        assert clip.frames.shape[1] == deepmimic.FRAME_WIDTH == 44, name
         assert np.allclose(clip.dt[:-1], 1 / 30, atol=1e-5) and clip.dt[-1] == 0, name
         assert np.allclose(np.linalg.norm(clip.root_quat, axis=1), 1.0), name
         # y up: the pelvis stands 0.7-0.95 m above DeepMimic's floor.
@@ -63,17 +66,17 @@ def test_clips_load_as_documented(clips):
 def test_bad_files_are_named(tmp_path: Path):
     missing = tmp_path / "nope.txt"
     with pytest.raises(BadInput, match="nope.txt"):
-        syn.load_deepmimic(missing)
+        deepmimic.load_deepmimic(missing)
     garbled = tmp_path / "garbled.txt"
     garbled.write_text("{not json")
     with pytest.raises(BadInput, match="garbled.txt.*JSON"):
-        syn.load_deepmimic(garbled)
+        deepmimic.load_deepmimic(garbled)
     short = tmp_path / "short.txt"
     short.write_text(json.dumps({"Loop": "none", "Frames": [[0.03] * 40, [0.0] * 40]}))
     with pytest.raises(BadInput, match="short.txt.*44"):
-        syn.load_deepmimic(short)
+        deepmimic.load_deepmimic(short)
     with pytest.raises(ValueError, match="clip_name"):
-        syn.clip_path(tmp_path, "dance")
+        deepmimic.clip_path(tmp_path, "dance")
 
 
 def test_retargets_to_30_hz_feet_on_the_floor(clips, retargeted, model):
@@ -86,7 +89,7 @@ def test_retargets_to_30_hz_feet_on_the_floor(clips, retargeted, model):
         assert points.shape == (len(qpos), 33, 3) and np.isfinite(points).all()
         # The foot boxes (what touches MuJoCo's floor) rest on it; their sole's centre line
         # (heel and toe sites) is within 2 cm, the punch's pivoting foot rolling onto its edge.
-        corners = syn.foot_box_corners(model, qpos)
+        corners = deepmimic.foot_box_corners(model, qpos)
         assert corners[..., 2].min() == pytest.approx(0.0, abs=1e-9), name
         assert 0.0 <= points[:, SOLE_SITES, 2].min() < 0.02, name
         # Standing height of our pelvis is 0.955 m; crouches and jumps stay plausible.
@@ -122,8 +125,8 @@ def test_retarget_faces_forward_and_moves(retargeted, model):
 
 
 def test_resampling_matches_the_clip(clips):
-    full = syn.retarget(clips["kick"])
-    half = syn.retarget(clips["kick"], fps=15.0)
+    full = deepmimic.retarget(clips["kick"])
+    half = deepmimic.retarget(clips["kick"], fps=15.0)
     assert len(half) == (len(full) + 1) // 2
     # Same instants, same pose (the floor shift may differ: compare everything but root z).
     assert np.allclose(half[:, 3:], full[::2, 3:], atol=1e-4)
@@ -131,7 +134,7 @@ def test_resampling_matches_the_clip(clips):
 
 
 def test_y_up_to_z_up_is_a_rotation():
-    c = syn.Y_UP_TO_Z_UP
+    c = deepmimic.Y_UP_TO_Z_UP
     assert np.allclose(c @ c.T, np.eye(3)) and np.linalg.det(c) == pytest.approx(1.0)
     assert np.allclose(c @ [0, 1, 0], [0, 0, 1])  # up stays up
     assert np.allclose(c @ [0, 0, 1], [0, -1, 0])  # DeepMimic's right (+z) is our -y
@@ -221,7 +224,7 @@ def test_make_case_is_seeded(assets: Path):
     assert a.fps == 30.0 and a.qpos.shape[1] == 35 and a.points.shape == (len(a.qpos), 33, 3)
     uv = project(a.points, a.K, a.R, a.t)
     assert (uv >= 0).all() and (uv <= np.array(a.size)).all()
-    for name in syn.CLIPS:
+    for name in deepmimic.CLIPS:
         case = syn.make_case(name, 0, assets)
         error = metrics.mpjpe_mm(case.inputs.world_landmarks, case.world_landmarks_truth)
         assert 50 < error < 70, name

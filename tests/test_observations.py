@@ -171,7 +171,7 @@ def test_body_velocities_match_mujoco(model):
     data = mujoco.MjData(model)
     data.qpos[:], data.qvel[:] = q, v
     mujoco.mj_forward(model, data)
-    state = obs.body_state(model, data, humanoid_index(model))
+    state = compiled.body_state(model, data, humanoid_index(model))
     velocity = np.zeros(6)
     for k, body in enumerate(humanoid_index(model).body_ids):
         mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_XBODY, body, velocity, 0)

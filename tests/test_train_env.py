@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.compiled import humanoid_index, velocities
+from models.humanoid.compiled import body_state, humanoid_index, velocities
 from models.humanoid.kinematics import (
     HINGE_NAMES,
     action_to_joint_targets,
     heading_frame,
     joint_targets_to_action,
 )
-from models.humanoid.observations import body_state, observation, self_observation
+from models.humanoid.observations import observation, self_observation
 from models.maaip.arena import DAMAGE_BODIES, arena_index, arena_mjcf
 from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions, facing_reference

@@ -219,6 +219,12 @@ def velocities(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> np.ndarra
     return qvel
 
 
+def body_state(model: mujoco.MjModel, data: mujoco.MjData, index: HumanoidIndex) -> BodyState:
+    """The current state of one humanoid of a simulation (`world_frames` says what `data` must
+    hold)."""
+    return body_state_from_frames(world_frames(model, data), index.body_ids)
+
+
 def body_states(
     model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray, index: HumanoidIndex
 ) -> BodyState:

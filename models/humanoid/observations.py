@@ -2,9 +2,9 @@
 
 The dataset stage computes demonstration transitions with these functions and the training
 environment computes the simulated ones with the same functions, so the discriminators compare
-like with like. Both start from a :class:`BodyState`, read from MuJoCo by :func:`body_state`
-(a running simulation) or :func:`models.humanoid.compiled.body_states` (a recorded motion's
-qpos and qvel).
+like with like. Both start from a :class:`BodyState`, read from MuJoCo by
+:func:`models.humanoid.compiled.body_state` (a running simulation) or
+:func:`models.humanoid.compiled.body_states` (a recorded motion's qpos and qvel).
 
 Blocks and sizes (the paper gives 274 in all):
 
@@ -58,7 +58,6 @@ from models.humanoid.kinematics import (
 if TYPE_CHECKING:  # annotations only: reading a simulation needs no MuJoCo import here
     import mujoco
 
-    from models.humanoid.compiled import HumanoidIndex
 
 SELF_BLOCKS: tuple[tuple[str, int], ...] = (
     ("root_height", 1),
@@ -182,12 +181,6 @@ def body_state_from_frames(frames: np.ndarray, body_ids: np.ndarray) -> BodyStat
     lin[..., 1] += ang[..., 2] * r[..., 0] - ang[..., 0] * r[..., 2]
     lin[..., 2] += ang[..., 0] * r[..., 1] - ang[..., 1] * r[..., 0]
     return BodyState(pos, rot, lin, ang.copy())
-
-
-def body_state(model: mujoco.MjModel, data: mujoco.MjData, index: HumanoidIndex) -> BodyState:
-    """The current state of one humanoid of a simulation (`world_frames` says what `data` must
-    hold)."""
-    return body_state_from_frames(world_frames(model, data), index.body_ids)
 
 
 def _in_heading(heading: np.ndarray, vectors: np.ndarray) -> np.ndarray:

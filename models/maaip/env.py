@@ -305,8 +305,9 @@ def sensor_contacts(sensordata: np.ndarray, layout: SensorLayout) -> tuple[np.nd
 
 
 def _refresh(model: mujoco.MjModel, data: mujoco.MjData) -> None:
-    """Kinematics and body velocities at the current qpos and qvel (what `body_state` reads),
-    as `observations.body_states` computes them for the demonstrations."""
+    """Kinematics and body velocities at the current qpos and qvel (what
+    `models.humanoid.compiled.body_state` reads), as `body_states` computes them for the
+    demonstrations."""
     mujoco.mj_kinematics(model, data)
     mujoco.mj_comPos(model, data)
     mujoco.mj_comVel(model, data)
