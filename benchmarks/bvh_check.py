@@ -37,7 +37,7 @@ from storage.db import connect  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.evaluate.motion_files import BOUTS, BvhFile, bout_files, lifted_files  # noqa: E402
 from tasks.evaluate.store import evaluation_artifacts  # noqa: E402
-from tasks.ingest.outputs import load_ingest  # noqa: E402
+from tasks.ingest.store import load_ingest  # noqa: E402
 from tasks.lift.store import load_motion, newest_lift  # noqa: E402
 
 

@@ -19,7 +19,7 @@ from tasks.dataset.stage import STAGE, dataset_code, dataset_key
 from tasks.dataset.store import candidate_members, member_bones
 from tasks.dataset.task import assemble_task, dataset_task, extra_clips_task
 from tasks.errors import BadInput
-from tasks.ingest.outputs import load_ingest
+from tasks.ingest.store import load_ingest
 from tasks.runner import StageResult
 
 

@@ -13,7 +13,7 @@ from storage.db import connect
 from storage.files import sha256_file
 from storage.paths import data_paths
 from tasks.errors import BadInput
-from tasks.ingest.outputs import load_ingest
+from tasks.ingest.store import load_ingest
 from tasks.lift.stage import STAGE, lift_key
 from tasks.lift.task import lift_task
 from tasks.runner import StageResult

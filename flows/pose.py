@@ -15,7 +15,7 @@ from storage.artifacts import artifact_path
 from storage.db import connect
 from storage.files import sha256_file
 from storage.paths import data_paths
-from tasks.ingest.outputs import IngestOutput, load_ingest
+from tasks.ingest.store import IngestOutput, load_ingest
 from tasks.pose.chunk import STOP
 from tasks.pose.config import PoseConfig
 from tasks.pose.merge import ChunkSpan

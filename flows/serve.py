@@ -423,9 +423,11 @@ def pipeline_parameters(
     declared, with the settings of ``./ringside.toml``; ``rerun`` names stages to recompute
     whether cached or not (None: only what changed, e.g. after a pick)."""
     from flows.config import load_config
-    from flows.videos import ingested_video
+    from storage.db import connect
+    from tasks.ingest.store import ingested_video
 
-    video = ingested_video(data_root, video_id_prefix)
+    with connect(data_paths(data_root).db, read_only=True) as con:
+        video = ingested_video(con, video_id_prefix)
     return run_parameters(
         data_root,
         [video.path],

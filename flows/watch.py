@@ -17,15 +17,25 @@ from pathlib import Path
 from prefect import flow, get_run_logger
 
 from flows.pipeline import PipelineFailed, video_to_opponent
-from flows.videos import registered_videos
+from storage.db import connect
 from storage.files import sha256_file, write_atomic
 from storage.paths import data_paths
+from tasks.ingest.store import Registered, registered_videos
 
 VIDEO_SUFFIXES = frozenset(
     {".mp4", ".mov", ".m4v", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".ts", ".mts", ".wmv"}
 )
 LEDGER_FILE = "watch-ledger.json"
 DEFAULT_SETTLE_S = 10.0
+
+
+def _registered(data_root: str | Path) -> Registered:
+    """The videos registered in ``data_root``'s database; none before the first one."""
+    db = data_paths(data_root).db
+    if not db.exists():
+        return Registered({}, frozenset())
+    with connect(db, read_only=True) as con:
+        return registered_videos(con)
 
 
 @dataclass(frozen=True)
@@ -120,7 +130,7 @@ def watch_folder(
     logger = get_run_logger()
     files = list_videos(Path(folder))
     ledger = read_ledger(data_root)
-    registered = registered_videos(data_root)
+    registered = _registered(data_root)
     seen = sort_files(
         files,
         registered_sizes=registered.sizes_by_path,
@@ -157,7 +167,7 @@ def watch_folder(
         except PipelineFailed as failed:
             failures = failed.failures
         # What ingest could not register would fail the same way next time, until it changes.
-        registered_now = registered_videos(data_root).sizes_by_path
+        registered_now = _registered(data_root).sizes_by_path
         for f in new:
             if f.path not in registered_now:
                 why = failure_of(f.path, failures)

@@ -104,9 +104,12 @@ def status_command(args, data_root: Path) -> int:
 
 
 def rerun_command(args, data_root: Path) -> int:
-    from flows.videos import ingested_video
+    from storage.db import connect
+    from storage.paths import data_paths
+    from tasks.ingest.store import ingested_video
 
-    video = ingested_video(data_root, args.video)
+    with connect(data_paths(data_root).db, read_only=True) as con:
+        video = ingested_video(con, args.video)
     return run_pipeline(
         args,
         data_root,
@@ -119,13 +122,13 @@ def rerun_command(args, data_root: Path) -> int:
 
 
 def pick_command(args, data_root: Path) -> int:
-    from flows.videos import ingested_video
     from storage.db import connect
     from storage.paths import data_paths
+    from tasks.ingest.store import ingested_video
     from tasks.pose.store import record_pick
 
-    video = ingested_video(data_root, args.video)
     with connect(data_paths(data_root).db) as con:
+        video = ingested_video(con, args.video)
         record_pick(con, video.video_id, args.track)
     return run_pipeline(args, data_root, [video.path], video.adversary, video.colour, video.notes)
 

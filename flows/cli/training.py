@@ -157,7 +157,7 @@ def export_motion_command(args, data_root: Path) -> int:
     from tasks.evaluate.export import write_folder
     from tasks.evaluate.motion_files import BOUTS, bout_files, lifted_files
     from tasks.evaluate.store import evaluation_artifacts, newest_evaluation, resolve_run
-    from tasks.ingest.outputs import load_ingest
+    from tasks.ingest.store import ingested_video, load_ingest
     from tasks.lift.store import load_motion, newest_lift
 
     paths = data_paths(data_root)
@@ -165,9 +165,7 @@ def export_motion_command(args, data_root: Path) -> int:
         raise BadInput(str(paths.db), "no database yet: process a video first")
     with connect(paths.db, read_only=True) as con:
         if args.video is not None:
-            from flows.videos import ingested_video
-
-            video_id = ingested_video(data_root, args.video).video_id
+            video_id = ingested_video(con, args.video).video_id
             found = newest_lift(con, video_id)
             if found is None:
                 raise BadInput(f"--video {args.video}", "has no lift output yet: process it")

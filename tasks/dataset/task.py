@@ -22,7 +22,7 @@ from tasks.dataset.stage import (
 )
 from tasks.dataset.store import candidate_members, record_dataset
 from tasks.errors import BadInput
-from tasks.ingest.outputs import IngestOutput
+from tasks.ingest.store import IngestOutput
 from tasks.lift.store import load_motion
 from tasks.runner import StageResult, run_stage
 from tasks.stage_task import stage_task

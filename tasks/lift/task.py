@@ -9,7 +9,7 @@ from prefect.runtime import flow_run
 from tqdm import tqdm
 
 from storage.paths import data_paths
-from tasks.ingest.outputs import IngestOutput
+from tasks.ingest.store import IngestOutput
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.stage import (
     STAGE,

@@ -11,7 +11,7 @@ from prefect.runtime import flow_run
 from storage.artifacts import put_bytes, read_bytes
 from storage.db import connect
 from storage.paths import data_paths
-from tasks.ingest.outputs import IngestOutput
+from tasks.ingest.store import IngestOutput
 from tasks.pose.chunk import ChunkTracks
 from tasks.pose.config import PoseConfig
 from tasks.pose.merge import ChunkSpan
