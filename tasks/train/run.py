@@ -24,12 +24,17 @@ from tqdm import tqdm
 
 from models.maaip.config import TrainConfig
 from storage.artifacts import artifact_path, put_bytes, read_bytes
-from storage.db import connect, transaction, utcnow
-from storage.records import insert_columns
+from storage.db import connect, transaction
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.runner import StageOutput
 from tasks.train.mappo import Trainer
-from tasks.train.store import WarmStart
+from tasks.train.store import (
+    WarmStart,
+    drop_iterations,
+    iteration_means,
+    newest_checkpoint,
+    record_checkpoint,
+)
 
 STAGE = "train"
 
@@ -46,16 +51,6 @@ SUMMARY = (
 SUMMARY_WINDOW = 10
 
 
-def _newest_checkpoint(db: Path, key: str, dataset_key: str) -> tuple[int, str] | None:
-    with connect(db, read_only=True) as con:
-        row = con.execute(
-            "SELECT iteration, artifact FROM train_checkpoints WHERE key = ? AND video_id = ? "
-            "ORDER BY iteration DESC LIMIT 1",
-            [key, dataset_key],
-        ).fetchone()
-    return None if row is None else (row[0], row[1])
-
-
 def _save(
     db: Path,
     artifacts: Path,
@@ -67,31 +62,15 @@ def _save(
     """Checkpoint the trainer with the metrics of the iterations since the last checkpoint,
     then delete the run's older checkpoints; the new checkpoint's artifact name."""
     name = put_bytes(artifacts, trainer.checkpoint(), ".pt")
-    columns = {
+    metrics = {
         "iteration": np.array([i for i, metrics in pending for _ in metrics], dtype=np.int64),
         "name": np.array([n for _, metrics in pending for n in metrics], dtype=object),
         "value": np.array([float(v) for _, metrics in pending for v in metrics.values()]),
     }
     with connect(db) as con, transaction(con):
-        insert_columns(con, "train_iterations", key, dataset_key, columns)
-        con.execute(
-            "INSERT OR REPLACE INTO train_checkpoints VALUES (?, ?, ?, ?, ?)",
-            [key, dataset_key, trainer.iteration, name, utcnow()],
-        )
-        old = con.execute(
-            "DELETE FROM train_checkpoints WHERE key = ? AND video_id = ? AND iteration < ? "
-            "RETURNING artifact",
-            [key, dataset_key, trainer.iteration],
-        ).fetchall()
-        kept = {
-            row[0]
-            for row in con.execute(
-                "SELECT artifact FROM train_checkpoints UNION SELECT artifact FROM train_policies"
-            ).fetchall()
-        }
-    for (artifact,) in old:
-        if artifact not in kept:
-            artifact_path(artifacts, artifact).unlink(missing_ok=True)
+        unused = record_checkpoint(con, key, dataset_key, trainer.iteration, name, metrics)
+    for artifact in unused:
+        artifact_path(artifacts, artifact).unlink(missing_ok=True)
     return name
 
 
@@ -117,7 +96,8 @@ def train(
     trainer = Trainer(config, demos)
     notes = []
     try:
-        found = _newest_checkpoint(db, key, dataset_key)
+        with connect(db, read_only=True) as con:
+            found = newest_checkpoint(con, key, dataset_key)
         if found is None and warm is not None:
             trainer.warm_start(read_bytes(artifacts, warm.artifact))
         if warm is not None:
@@ -128,11 +108,7 @@ def train(
         if found is not None:
             trainer.restore(read_bytes(artifacts, found[1]))
             with connect(db) as con, transaction(con):
-                con.execute(
-                    "DELETE FROM train_iterations "
-                    "WHERE key = ? AND video_id = ? AND iteration >= ?",
-                    [key, dataset_key, trainer.iteration],
-                )
+                drop_iterations(con, key, dataset_key, since=trainer.iteration)
         total = config.iterations
         bar = tqdm(
             total=total,
@@ -166,12 +142,8 @@ def train(
     finally:
         trainer.close()
     with connect(db, read_only=True) as con:
-        rows = con.execute(
-            "SELECT name, avg(value) FROM train_iterations WHERE key = ? AND video_id = ? "
-            "AND iteration >= ? GROUP BY name",
-            [key, dataset_key, max(0, total - SUMMARY_WINDOW)],
-        ).fetchall()
-    summary = {name: value for name, value in rows if name in SUMMARY}
+        means = iteration_means(con, key, dataset_key, since=max(0, total - SUMMARY_WINDOW))
+    summary = {name: value for name, value in means.items() if name in SUMMARY}
     summary["iterations"] = float(total)
     summary["train_minutes_this_session"] = (time.perf_counter() - start) / 60
     return StageOutput(

@@ -1,5 +1,5 @@
-"""The train stage's reads of the database: the run to warm-start from, and a run's learning
-curves."""
+"""The train stage's SQL: a run's checkpoints and per-iteration metrics, the run to warm-start
+from, and a run's learning curves."""
 
 from __future__ import annotations
 
@@ -9,6 +9,8 @@ from dataclasses import dataclass
 import duckdb
 
 from models.maaip.config import TrainConfig
+from storage.db import utcnow
+from storage.records import Columns, insert_columns
 from tasks.config import build
 from tasks.dataset.store import training_bones
 from tasks.errors import BadInput
@@ -104,3 +106,67 @@ def learning_curves(
     for block, name, value in rows:
         blocks.setdefault(block, {"iterations": held[block]})[name] = value
     return list(blocks.values())
+
+
+def newest_checkpoint(
+    con: duckdb.DuckDBPyConnection, key: str, dataset_key: str
+) -> tuple[int, str] | None:
+    """(iteration, artifact) of run ``key``'s newest checkpoint on ``dataset_key``, if any."""
+    row = con.execute(
+        "SELECT iteration, artifact FROM train_checkpoints WHERE key = ? AND video_id = ? "
+        "ORDER BY iteration DESC LIMIT 1",
+        [key, dataset_key],
+    ).fetchone()
+    return None if row is None else (row[0], row[1])
+
+
+def record_checkpoint(
+    con: duckdb.DuckDBPyConnection,
+    key: str,
+    dataset_key: str,
+    iteration: int,
+    artifact: str,
+    metrics: Columns,
+) -> list[str]:
+    """Record checkpoint ``artifact`` at ``iteration`` with the per-iteration ``metrics``
+    (columns iteration, name, value) since the last one, and forget the run's older
+    checkpoints; the artifacts of those that nothing refers to any more (to delete). Run it in
+    a transaction."""
+    insert_columns(con, "train_iterations", key, dataset_key, metrics)
+    con.execute(
+        "INSERT OR REPLACE INTO train_checkpoints VALUES (?, ?, ?, ?, ?)",
+        [key, dataset_key, iteration, artifact, utcnow()],
+    )
+    old = con.execute(
+        "DELETE FROM train_checkpoints WHERE key = ? AND video_id = ? AND iteration < ? "
+        "RETURNING artifact",
+        [key, dataset_key, iteration],
+    ).fetchall()
+    kept = {
+        row[0]
+        for row in con.execute(
+            "SELECT artifact FROM train_checkpoints UNION SELECT artifact FROM train_policies"
+        ).fetchall()
+    }
+    return [artifact for (artifact,) in old if artifact not in kept]
+
+
+def drop_iterations(con: duckdb.DuckDBPyConnection, key: str, dataset_key: str, *, since: int):
+    """Forget run ``key``'s metrics from iteration ``since`` on (a resumed run recomputes them)."""
+    con.execute(
+        "DELETE FROM train_iterations WHERE key = ? AND video_id = ? AND iteration >= ?",
+        [key, dataset_key, since],
+    )
+
+
+def iteration_means(
+    con: duckdb.DuckDBPyConnection, key: str, dataset_key: str, *, since: int
+) -> dict[str, float]:
+    """Each per-iteration metric of run ``key``, averaged from iteration ``since`` on."""
+    return dict(
+        con.execute(
+            "SELECT name, avg(value) FROM train_iterations WHERE key = ? AND video_id = ? "
+            "AND iteration >= ? GROUP BY name",
+            [key, dataset_key, since],
+        ).fetchall()
+    )
