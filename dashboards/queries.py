@@ -9,7 +9,6 @@ cannot disagree.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -24,16 +23,25 @@ from flows.config import PIPELINE_STAGES, SECTIONS, STAGES
 from models.pose.types import BLAZEPOSE_33
 from storage.records import (
     latest_metrics,
+    newest_output,
     opponent_states,
-    output_metrics,
+    output_history,
     stage_states,
-    worker_alive,
 )
+from storage.records import stages_finished_since as finished_since
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import list_datasets, member_statistics
-from tasks.evaluate.store import evaluation_tables
-from tasks.lift.store import lift_series
-from tasks.pose.store import newest_pick
+from tasks.evaluate.store import evaluation_tables, newest_evaluations
+from tasks.ingest.store import shot_starts, video_list
+from tasks.lift.store import lift_media, lift_series
+from tasks.pose.store import (
+    joint_confidence,
+    newest_pick,
+    pose_media,
+    pose_tracks,
+    track_handovers,
+)
+from tasks.train import store as train_store
 from tasks.train.store import learning_curves
 
 # Every stage, in pipeline order (a stage has its config section once it exists): the ones
@@ -50,24 +58,8 @@ def short(key: str | None) -> str:
 
 
 def videos(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
-    """Every registered video, oldest first: its id, the newest path it was registered from and
-    the adversary its newest ingest output names (None before ingest has finished)."""
-    rows = con.execute(
-        """
-        WITH files AS (
-            SELECT video_id, path FROM video_files
-            QUALIFY row_number() OVER (PARTITION BY video_id ORDER BY registered_at DESC) = 1
-        ), adversaries AS (
-            SELECT a.video_id, a.name FROM ingest_adversaries a
-            JOIN stage_outputs o ON o.stage = 'ingest' AND o.key = a.key AND o.video_id = a.video_id
-            QUALIFY row_number() OVER (PARTITION BY a.video_id ORDER BY o.created_at DESC) = 1
-        )
-        SELECT v.video_id, f.path, a.name
-        FROM videos v LEFT JOIN files f USING (video_id) LEFT JOIN adversaries a USING (video_id)
-        ORDER BY v.registered_at, v.video_id
-        """
-    ).fetchall()
-    return [dict(zip(("video_id", "path", "adversary"), row, strict=True)) for row in rows]
+    """Every registered video, oldest first (`tasks.ingest.store.video_list`)."""
+    return video_list(con)
 
 
 def stage_overview(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
@@ -142,37 +134,8 @@ def dataset_statistics(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Data
 
 
 def training_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
-    """Every training run that has recorded iterations, the newest checkpoint first: its key,
-    dataset key, adversary, iterations so far, when it last saved and its state: ``finished``
-    (committed its policy as the train stage's output), ``running`` (its process is alive) or
-    ``interrupted`` (its process is gone: the same command resumes it from its checkpoint)."""
-    rows = con.execute(
-        """
-        WITH runs AS (
-            SELECT key, video_id, max(iteration) + 1 AS iterations
-            FROM train_iterations GROUP BY ALL
-        ), saved AS (
-            SELECT key, video_id, max(created_at) AS saved_at FROM train_checkpoints GROUP BY ALL
-        ), started AS (
-            SELECT key, video_id, arg_max(worker, created_at) AS worker
-            FROM stage_runs WHERE stage = 'train' AND state = 'running' GROUP BY ALL
-        )
-        SELECT r.key, r.video_id, d.adversary, r.iterations, s.saved_at, o.key IS NOT NULL,
-               w.worker
-        FROM runs r
-        LEFT JOIN saved s USING (key, video_id)
-        LEFT JOIN started w USING (key, video_id)
-        LEFT JOIN datasets d ON d.dataset_key = r.video_id
-        LEFT JOIN stage_outputs o ON o.stage = 'train' AND o.key = r.key AND o.video_id = r.video_id
-        ORDER BY s.saved_at DESC NULLS LAST, r.key
-        """
-    ).fetchall()
-    names = ("key", "dataset_key", "adversary", "iterations", "saved_at")
-    runs = []
-    for *row, finished, worker in rows:
-        state = "finished" if finished else "running" if worker_alive(worker) else "interrupted"
-        runs.append({**dict(zip(names, row, strict=True)), "state": state})
-    return runs
+    """Every training run, the newest checkpoint first (`tasks.train.store.training_runs`)."""
+    return train_store.training_runs(con)
 
 
 def default_every(iterations: int) -> int:
@@ -198,22 +161,9 @@ def curves_frame(rows: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
 
 
 def outputs(con: duckdb.DuckDBPyConnection, stage: str, video_id: str) -> list[dict[str, Any]]:
-    """The committed outputs of ``stage`` for ``video_id`` (a video, or a dataset or run key),
-    newest first: key, created_at, seconds and metrics (name -> value)."""
-    rows = con.execute(
-        "SELECT key, created_at, seconds FROM stage_outputs WHERE stage = ? AND video_id = ? "
-        "ORDER BY created_at DESC",
-        [stage, video_id],
-    ).fetchall()
-    return [
-        {
-            "key": key,
-            "created_at": created_at,
-            "seconds": seconds,
-            "metrics": output_metrics(con, stage, video_id, key),
-        }
-        for key, created_at, seconds in rows
-    ]
+    """The committed outputs of ``stage`` for ``video_id``, newest first
+    (`storage.records.output_history`)."""
+    return output_history(con, stage, video_id)
 
 
 def against_previous(history: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
@@ -262,54 +212,22 @@ class PoseReview:
 
 def pose_review(con: duckdb.DuckDBPyConnection, video_id: str) -> PoseReview | None:
     """The newest pose output of ``video_id`` as the Pose page shows it; None if there is none."""
-    history = con.execute(
-        "SELECT key, upstream FROM stage_outputs WHERE stage = 'pose' AND video_id = ? "
-        "ORDER BY created_at DESC LIMIT 1",
-        [video_id],
-    ).fetchone()
-    if history is None:
+    newest = newest_output(con, "pose", video_id)
+    if newest is None:
         return None
-    key, upstream = history[0], json.loads(history[1])
-    where = [key, video_id]
-    media = con.execute(
-        "SELECT kind, frame, artifact FROM pose_media WHERE key = ? AND video_id = ? "
-        "ORDER BY kind, frame",
-        where,
-    ).fetchall()
-    tracks = con.execute(
-        "SELECT track, shot, role, first_frame, last_frame, frames_observed FROM pose_tracks "
-        "WHERE key = ? AND video_id = ? ORDER BY first_frame, track",
-        where,
-    ).df()
-    cuts = [
-        row[0]
-        for row in con.execute(
-            "SELECT start_frame FROM ingest_shots WHERE key = ? AND video_id = ? AND shot > 0 "
-            "ORDER BY shot",
-            [upstream["ingest"], video_id],
-        ).fetchall()
-    ]
-    handovers = con.execute(
-        """
-        WITH seen AS (
-            SELECT frame, role, track,
-                   lag(track) OVER (PARTITION BY role ORDER BY frame) AS from_track
-            FROM pose_keypoints WHERE key = ? AND video_id = ? AND track >= 0
-        )
-        SELECT frame, role, from_track, track AS to_track FROM seen
-        WHERE from_track IS NOT NULL AND from_track <> track ORDER BY frame, role
-        """,
-        where,
-    ).df()
-    confidence = con.execute(
-        """
-        SELECT role, joint - 1 AS joint, avg(raw_confidence[joint]) AS confidence
-        FROM pose_keypoints, range(1, 34) AS joints(joint)
-        WHERE key = ? AND video_id = ? AND track >= 0 AND isfinite(raw_confidence[joint])
-        GROUP BY ALL ORDER BY role, joint
-        """,
-        where,
-    ).df()
+    key, upstream = newest
+    media = pose_media(con, key, video_id)
+    tracks = pd.DataFrame(
+        pose_tracks(con, key, video_id),
+        columns=["track", "shot", "role", "first_frame", "last_frame", "frames_observed"],
+    )
+    cuts = shot_starts(con, upstream["ingest"], video_id)
+    handovers = pd.DataFrame(
+        track_handovers(con, key, video_id), columns=["frame", "role", "from_track", "to_track"]
+    )
+    confidence = pd.DataFrame(
+        joint_confidence(con, key, video_id), columns=["role", "joint", "confidence"]
+    )
     confidence["joint"] = [BLAZEPOSE_33[i] for i in confidence["joint"]]
     return PoseReview(
         key=key,
@@ -323,58 +241,22 @@ def pose_review(con: duckdb.DuckDBPyConnection, video_id: str) -> PoseReview | N
     )
 
 
-def stages_finished_since(
-    con: duckdb.DuckDBPyConnection, video_id: str, since: datetime
-) -> list[str]:
-    """The stages some run has finished (done or cached) since ``since`` (UTC) for ``video_id``,
-    in pipeline order: its own, training on a dataset it is a member of, and the evaluation of
-    a run trained on one."""
-    found = {
-        row[0]
-        for row in con.execute(
-            """
-            WITH sets AS (SELECT dataset_key FROM dataset_members WHERE video_id = $video),
-            runs AS (
-                SELECT key FROM stage_outputs
-                WHERE stage = 'train' AND video_id IN (SELECT dataset_key FROM sets)
-            )
-            SELECT DISTINCT stage FROM stage_runs
-            WHERE created_at >= $since AND state IN ('done', 'cached') AND (
-                video_id = $video
-                OR (stage = 'train' AND video_id IN (SELECT dataset_key FROM sets))
-                OR (stage = 'evaluate' AND video_id IN (SELECT key FROM runs))
-            )
-            """,
-            {"video": video_id, "since": since},
-        ).fetchall()
-    }
-    return [stage for stage in PIPELINE_STAGES if stage in found]
-
-
-def evaluations(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
-    """The newest evaluation of each evaluated training run, newest first: run_key, key
-    (the evaluation's), created_at and its metrics."""
-    rows = con.execute(
-        """
-        SELECT video_id, key, created_at FROM stage_outputs WHERE stage = 'evaluate'
-        QUALIFY row_number() OVER (PARTITION BY video_id ORDER BY created_at DESC) = 1
-        ORDER BY created_at DESC
-        """
-    ).fetchall()
-    return [
-        {
-            "run_key": run_key,
-            "key": key,
-            "created_at": created_at,
-            "metrics": output_metrics(con, "evaluate", run_key, key),
-        }
-        for run_key, key, created_at in rows
-    ]
-
-
 def evaluation(con: duckdb.DuckDBPyConnection, key: str, run_key: str) -> dict[str, list[dict]]:
     """The evaluation tables `ringside evaluate` prints (`evaluation_tables`)."""
     return evaluation_tables(con, key, run_key)
+
+
+def stages_finished_since(
+    con: duckdb.DuckDBPyConnection, video_id: str, since: datetime
+) -> list[str]:
+    """The pipeline's stages some run has finished for ``video_id`` since ``since`` (UTC)
+    (`storage.records.stages_finished_since`)."""
+    return finished_since(con, video_id, since, PIPELINE_STAGES)
+
+
+def evaluations(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
+    """The newest evaluation of each evaluated run (`tasks.evaluate.store.newest_evaluations`)."""
+    return newest_evaluations(con)
 
 
 # The cleanup measures the Lift page charts (series columns are "MEASURE|FIGHTER").
@@ -427,11 +309,7 @@ def lift_review(con: duckdb.DuckDBPyConnection, video_id: str) -> LiftReview | N
     if not history:
         return None
     key = history[0]["key"]
-    media = dict(
-        con.execute(
-            "SELECT kind, artifact FROM lift_media WHERE key = ? AND video_id = ?", [key, video_id]
-        ).fetchall()
-    )
+    media = lift_media(con, key, video_id)
     measured = lift_series(con, key, video_id)
     columns: dict[tuple[str, str], Any] = {(DISTANCE, "both"): measured.fighter_distance_m}
     for role, fighter in measured.fighters.items():

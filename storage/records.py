@@ -8,6 +8,7 @@ import os
 import socket
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 import duckdb
@@ -44,12 +45,17 @@ def register_video(con: duckdb.DuckDBPyConnection, video_id: str, size_bytes: in
     )
 
 
-def has_output(con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key: str) -> bool:
+def output_run(
+    con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key: str
+) -> tuple[str, float, tuple[str, ...]] | None:
+    """(flow run id, seconds, notes) of the committed output ``key`` of ``stage`` for
+    ``video_id``; None if there is none."""
     row = con.execute(
-        "SELECT 1 FROM stage_outputs WHERE stage = ? AND video_id = ? AND key = ?",
+        "SELECT run_id, seconds, notes FROM stage_outputs "
+        "WHERE stage = ? AND video_id = ? AND key = ?",
         [stage, video_id, key],
     ).fetchone()
-    return row is not None
+    return None if row is None else (row[0], row[1], tuple(row[2]))
 
 
 Columns = Mapping[str, np.ndarray]
@@ -358,3 +364,64 @@ def output_config(con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key
     if row is None:
         raise KeyError(f"no {stage} output {key} for video {video_id}")
     return json.loads(row[0])
+
+
+def output_history(
+    con: duckdb.DuckDBPyConnection, stage: str, video_id: str
+) -> list[dict[str, Any]]:
+    """The committed outputs of ``stage`` for ``video_id`` (a video, or a dataset or run key),
+    newest first: key, created_at, seconds and metrics (name -> value)."""
+    rows = con.execute(
+        "SELECT key, created_at, seconds FROM stage_outputs WHERE stage = ? AND video_id = ? "
+        "ORDER BY created_at DESC",
+        [stage, video_id],
+    ).fetchall()
+    return [
+        {
+            "key": key,
+            "created_at": created_at,
+            "seconds": seconds,
+            "metrics": output_metrics(con, stage, video_id, key),
+        }
+        for key, created_at, seconds in rows
+    ]
+
+
+def stages_finished_since(
+    con: duckdb.DuckDBPyConnection, video_id: str, since: datetime, stages: Sequence[str]
+) -> list[str]:
+    """Which of ``stages`` some run has finished (done or cached) since ``since`` (UTC) for
+    ``video_id``, in their order: its own, training on a dataset it is a member of, and the
+    evaluation of a run trained on one."""
+    found = {
+        row[0]
+        for row in con.execute(
+            """
+            WITH sets AS (SELECT dataset_key FROM dataset_members WHERE video_id = $video),
+            runs AS (
+                SELECT key FROM stage_outputs
+                WHERE stage = 'train' AND video_id IN (SELECT dataset_key FROM sets)
+            )
+            SELECT DISTINCT stage FROM stage_runs
+            WHERE created_at >= $since AND state IN ('done', 'cached') AND (
+                video_id = $video
+                OR (stage = 'train' AND video_id IN (SELECT dataset_key FROM sets))
+                OR (stage = 'evaluate' AND video_id IN (SELECT key FROM runs))
+            )
+            """,
+            {"video": video_id, "since": since},
+        ).fetchall()
+    }
+    return [stage for stage in stages if stage in found]
+
+
+def newest_output(
+    con: duckdb.DuckDBPyConnection, stage: str, video_id: str
+) -> tuple[str, dict[str, Any]] | None:
+    """(key, upstream keys) of the newest committed output of ``stage`` for ``video_id``."""
+    row = con.execute(
+        "SELECT key, upstream FROM stage_outputs WHERE stage = ? AND video_id = ? "
+        "ORDER BY created_at DESC LIMIT 1",
+        [stage, video_id],
+    ).fetchone()
+    return None if row is None else (row[0], json.loads(row[1]))

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from storage.db import connect
-from storage.records import Columns, OutputRecord, output_metrics, write_output
+from storage.records import Columns, OutputRecord, output_metrics, output_run, write_output
 
 
 @dataclass(frozen=True)
@@ -43,15 +43,12 @@ def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | No
     if not db.exists():
         return None
     with connect(db, read_only=True) as con:
-        row = con.execute(
-            "SELECT run_id, seconds, notes FROM stage_outputs "
-            "WHERE stage = ? AND video_id = ? AND key = ?",
-            [stage, video_id, key],
-        ).fetchone()
-        if row is None:
+        found = output_run(con, stage, video_id, key)
+        if found is None:
             return None
         metrics = output_metrics(con, stage, video_id, key)
-    return StageResult(stage, video_id, key, row[0], row[1], metrics, tuple(row[2]))
+    run_id, seconds, notes = found
+    return StageResult(stage, video_id, key, run_id, seconds, metrics, notes)
 
 
 def run_stage(

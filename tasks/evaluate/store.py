@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from typing import Any
 
 import duckdb
 
+from storage.records import output_metrics
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import member_statistics
 from tasks.errors import BadInput
@@ -122,3 +124,24 @@ def evaluation_artifacts(con: duckdb.DuckDBPyConnection, key: str, run_key: str)
             [key, run_key],
         ).fetchall()
     )
+
+
+def newest_evaluations(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
+    """The newest evaluation of each evaluated training run, newest first: run_key, key
+    (the evaluation's), created_at and its metrics."""
+    rows = con.execute(
+        """
+        SELECT video_id, key, created_at FROM stage_outputs WHERE stage = 'evaluate'
+        QUALIFY row_number() OVER (PARTITION BY video_id ORDER BY created_at DESC) = 1
+        ORDER BY created_at DESC
+        """
+    ).fetchall()
+    return [
+        {
+            "run_key": run_key,
+            "key": key,
+            "created_at": created_at,
+            "metrics": output_metrics(con, "evaluate", run_key, key),
+        }
+        for run_key, key, created_at in rows
+    ]

@@ -4,6 +4,7 @@ from it; the videos registered and ingested, for the CLI and the folder watcher.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import duckdb
 
@@ -119,3 +120,36 @@ def registered_videos(con: duckdb.DuckDBPyConnection) -> Registered:
     ).fetchall()
     ids = con.execute("SELECT video_id FROM videos").fetchall()
     return Registered(dict(files), frozenset(row[0] for row in ids))
+
+
+def video_list(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
+    """Every registered video, oldest first: its id, the newest path it was registered from and
+    the adversary its newest ingest output names (None before ingest has finished)."""
+    rows = con.execute(
+        """
+        WITH files AS (
+            SELECT video_id, path FROM video_files
+            QUALIFY row_number() OVER (PARTITION BY video_id ORDER BY registered_at DESC) = 1
+        ), adversaries AS (
+            SELECT a.video_id, a.name FROM ingest_adversaries a
+            JOIN stage_outputs o ON o.stage = 'ingest' AND o.key = a.key AND o.video_id = a.video_id
+            QUALIFY row_number() OVER (PARTITION BY a.video_id ORDER BY o.created_at DESC) = 1
+        )
+        SELECT v.video_id, f.path, a.name
+        FROM videos v LEFT JOIN files f USING (video_id) LEFT JOIN adversaries a USING (video_id)
+        ORDER BY v.registered_at, v.video_id
+        """
+    ).fetchall()
+    return [dict(zip(("video_id", "path", "adversary"), row, strict=True)) for row in rows]
+
+
+def shot_starts(con: duckdb.DuckDBPyConnection, key: str, video_id: str) -> list[int]:
+    """The frames where a new shot starts (after the first) in ingest output ``key``."""
+    return [
+        row[0]
+        for row in con.execute(
+            "SELECT start_frame FROM ingest_shots WHERE key = ? AND video_id = ? AND shot > 0 "
+            "ORDER BY shot",
+            [key, video_id],
+        ).fetchall()
+    ]

@@ -124,3 +124,12 @@ def newest_lift(con: duckdb.DuckDBPyConnection, video_id: str) -> tuple[str, str
         """,
         [video_id],
     ).fetchone()
+
+
+def lift_media(con: duckdb.DuckDBPyConnection, key: str, video_id: str) -> dict[str, str]:
+    """Kind -> artifact of lift output ``key``'s review media (kind 'video': both humanoids)."""
+    return dict(
+        con.execute(
+            "SELECT kind, artifact FROM lift_media WHERE key = ? AND video_id = ?", [key, video_id]
+        ).fetchall()
+    )

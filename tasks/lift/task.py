@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import duckdb
 from prefect.runtime import flow_run
 from tqdm import tqdm
 
@@ -13,26 +12,14 @@ from tasks.ingest.store import IngestOutput
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.stage import (
     STAGE,
-    FighterTrack,
     fighter_tracks,
     lift_code,
     lift_upstream,
     lift_video,
 )
+from tasks.pose.store import fighter_keypoints
 from tasks.runner import StageResult, run_stage
 from tasks.stage_task import stage_task
-
-
-def load_fighters(
-    con: duckdb.DuckDBPyConnection, video_id: str, pose_key: str, frames: int
-) -> dict[str, FighterTrack]:
-    """Each fighter's refined 2D keypoints and world landmarks from pose output ``pose_key``."""
-    columns = con.execute(
-        "SELECT role, frame, x, y, confidence, world, track FROM pose_keypoints "
-        "WHERE key = ? AND video_id = ? ORDER BY role, frame",
-        [pose_key, video_id],
-    ).fetchnumpy()
-    return fighter_tracks(columns, frames)
 
 
 @stage_task("lift", "lift-{ingest.video_id:.12}")
@@ -52,7 +39,9 @@ def lift_task(
 
     def compute():
         with connect(paths.db, read_only=True) as con:
-            fighters = load_fighters(con, ingest.video_id, pose_key, ingest.frames)
+            fighters = fighter_tracks(
+                fighter_keypoints(con, ingest.video_id, pose_key), ingest.frames
+            )
         # Shown on an interactive terminal only, as pose's.
         with tqdm(
             total=ingest.frames, unit="frame", desc=f"lift {Path(ingest.path).name}", disable=None

@@ -1,8 +1,10 @@
-"""The pose stage's own rows besides its outputs: the analyst's choice of adversary track."""
+"""The pose stage's SQL: the analyst's choice of adversary track, and the fighters' keypoints the
+lift starts from."""
 
 from __future__ import annotations
 
 import duckdb
+import numpy as np
 
 from storage.db import utcnow
 from tasks.errors import BadInput
@@ -32,3 +34,64 @@ def record_pick(con: duckdb.DuckDBPyConnection, video_id: str, track: int) -> No
             f"--track {track}", f"video {video_id[:12]} has no such track; tracks: {tracks}"
         )
     con.execute("INSERT INTO pose_picks VALUES (?, ?, ?)", [video_id, track, utcnow()])
+
+
+def fighter_keypoints(
+    con: duckdb.DuckDBPyConnection, video_id: str, pose_key: str
+) -> dict[str, np.ndarray]:
+    """Both fighters' refined keypoints of pose output ``pose_key``, as columns (role, frame,
+    x, y, confidence, world, track), by role then frame."""
+    return con.execute(
+        "SELECT role, frame, x, y, confidence, world, track FROM pose_keypoints "
+        "WHERE key = ? AND video_id = ? ORDER BY role, frame",
+        [pose_key, video_id],
+    ).fetchnumpy()
+
+
+def pose_media(con: duckdb.DuckDBPyConnection, key: str, video_id: str) -> list[tuple]:
+    """(kind, frame, artifact) of pose output ``key``'s review media: its overlay and stills."""
+    return con.execute(
+        "SELECT kind, frame, artifact FROM pose_media WHERE key = ? AND video_id = ? "
+        "ORDER BY kind, frame",
+        [key, video_id],
+    ).fetchall()
+
+
+def pose_tracks(con: duckdb.DuckDBPyConnection, key: str, video_id: str) -> list[tuple]:
+    """(track, shot, role, first_frame, last_frame, frames_observed) of every track of pose
+    output ``key``, by first frame."""
+    return con.execute(
+        "SELECT track, shot, role, first_frame, last_frame, frames_observed FROM pose_tracks "
+        "WHERE key = ? AND video_id = ? ORDER BY first_frame, track",
+        [key, video_id],
+    ).fetchall()
+
+
+def track_handovers(con: duckdb.DuckDBPyConnection, key: str, video_id: str) -> list[tuple]:
+    """(frame, role, from_track, to_track) where a fighter's keypoints move to another track."""
+    return con.execute(
+        """
+        WITH seen AS (
+            SELECT frame, role, track,
+                   lag(track) OVER (PARTITION BY role ORDER BY frame) AS from_track
+            FROM pose_keypoints WHERE key = ? AND video_id = ? AND track >= 0
+        )
+        SELECT frame, role, from_track, track AS to_track FROM seen
+        WHERE from_track IS NOT NULL AND from_track <> track ORDER BY frame, role
+        """,
+        [key, video_id],
+    ).fetchall()
+
+
+def joint_confidence(con: duckdb.DuckDBPyConnection, key: str, video_id: str) -> list[tuple]:
+    """(role, joint index, mean estimator confidence over the tracked frames) of each fighter's
+    joints in pose output ``key``."""
+    return con.execute(
+        """
+        SELECT role, joint - 1 AS joint, avg(raw_confidence[joint]) AS confidence
+        FROM pose_keypoints, range(1, 34) AS joints(joint)
+        WHERE key = ? AND video_id = ? AND track >= 0 AND isfinite(raw_confidence[joint])
+        GROUP BY ALL ORDER BY role, joint
+        """,
+        [key, video_id],
+    ).fetchall()

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from typing import Any
 
 import duckdb
 
 from models.maaip.config import TrainConfig
 from storage.db import utcnow
-from storage.records import Columns, insert_columns
+from storage.records import Columns, insert_columns, worker_alive
 from tasks.config import build
 from tasks.dataset.store import training_bones
 from tasks.errors import BadInput
@@ -170,3 +171,37 @@ def iteration_means(
             [key, dataset_key, since],
         ).fetchall()
     )
+
+
+def training_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
+    """Every training run that has recorded iterations, the newest checkpoint first: its key,
+    dataset key, adversary, iterations so far, when it last saved and its state: ``finished``
+    (committed its policy as the train stage's output), ``running`` (its process is alive) or
+    ``interrupted`` (its process is gone: the same command resumes it from its checkpoint)."""
+    rows = con.execute(
+        """
+        WITH runs AS (
+            SELECT key, video_id, max(iteration) + 1 AS iterations
+            FROM train_iterations GROUP BY ALL
+        ), saved AS (
+            SELECT key, video_id, max(created_at) AS saved_at FROM train_checkpoints GROUP BY ALL
+        ), started AS (
+            SELECT key, video_id, arg_max(worker, created_at) AS worker
+            FROM stage_runs WHERE stage = 'train' AND state = 'running' GROUP BY ALL
+        )
+        SELECT r.key, r.video_id, d.adversary, r.iterations, s.saved_at, o.key IS NOT NULL,
+               w.worker
+        FROM runs r
+        LEFT JOIN saved s USING (key, video_id)
+        LEFT JOIN started w USING (key, video_id)
+        LEFT JOIN datasets d ON d.dataset_key = r.video_id
+        LEFT JOIN stage_outputs o ON o.stage = 'train' AND o.key = r.key AND o.video_id = r.video_id
+        ORDER BY s.saved_at DESC NULLS LAST, r.key
+        """
+    ).fetchall()
+    names = ("key", "dataset_key", "adversary", "iterations", "saved_at")
+    runs = []
+    for *row, finished, worker in rows:
+        state = "finished" if finished else "running" if worker_alive(worker) else "interrupted"
+        runs.append({**dict(zip(names, row, strict=True)), "state": state})
+    return runs
