@@ -42,9 +42,8 @@ def dataset_flow(
         ingest = load_ingest(con, video_id, ingest_key)
     key = dataset_key(settings, lift_key)
 
-    def run(refresh: bool) -> StageResult:
-        task = dataset_task.with_options(refresh_cache=refresh)
-        return task(data_root, ingest, lift_key, settings, key, force=refresh)
+    def run() -> StageResult:
+        return dataset_task(data_root, ingest, lift_key, settings, key)
 
     result, state = reuse_or_run(
         data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run
@@ -67,9 +66,8 @@ def _extra_clips(
     video_id = "extra-" + digest(upstream)[:20]
     key = stage_key(STAGE, {"extra_clips": "files"}, dataset_code(), upstream)
 
-    def run(refresh: bool) -> StageResult:
-        task = extra_clips_task.with_options(refresh_cache=refresh)
-        return task(data_root, str(path.resolve()), files, bones, video_id, key, force=refresh)
+    def run() -> StageResult:
+        return extra_clips_task(data_root, str(path.resolve()), files, bones, video_id, key)
 
     reuse_or_run(data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run)
     return video_id, key

@@ -56,9 +56,8 @@ def evaluate_flow(
         adversary = dataset_info(con, info.dataset_key).adversary
     key = evaluate_key(settings, info.run_key, compared)
 
-    def run(refresh: bool) -> StageResult:
-        task = evaluate_task.with_options(refresh_cache=refresh)
-        return task(data_root, info.run_key, compared, settings, key, force=refresh)
+    def run() -> StageResult:
+        return evaluate_task(data_root, info.run_key, compared, settings, key)
 
     result, state = reuse_or_run(
         data_root, stage=STAGE, video_id=info.run_key, key=key, force=force, run=run

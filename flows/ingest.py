@@ -8,10 +8,14 @@ from prefect import flow
 from prefect.runtime import flow_run
 
 from flows.config import from_tables
-from flows.runs import StageSummary, settle, still_committed
+from flows.runs import StageSummary, settle
+from storage.db import connect
+from storage.paths import data_paths
+from storage.records import register_video
 from tasks.ingest.config import declare
-from tasks.ingest.stage import ingest_key
+from tasks.ingest.stage import STAGE, ingest_key
 from tasks.ingest.task import identify_task, ingest_task
+from tasks.runner import committed
 
 
 def _run_name() -> str:
@@ -33,12 +37,15 @@ def ingest_flow(
     declaration = declare(adversary, adversary_colour, notes)
     file = identify_task(video)
     key = ingest_key(settings, file.video_id, declaration)
-    task = ingest_task.with_options(refresh_cache=True) if force else ingest_task
-    result = task(data_root, file, declaration, settings, key, force=force)
-    if not still_committed(data_root, result):
-        result = ingest_task.with_options(refresh_cache=True)(
-            data_root, file, declaration, settings, key, force=True
-        )
+    db = data_paths(data_root).db
+    # Unlike the later stages, no 'running' note: the video is not listed before it is
+    # registered, and an ingest takes seconds.
+    result = None if force else committed(db, STAGE, file.video_id, key)
+    if result is None:
+        result = ingest_task(data_root, file, declaration, settings, key)
+    # Registered whether computed or reused: the same bytes may come from a new path.
+    with connect(db) as con:
+        register_video(con, file.video_id, file.size_bytes, file.path)
     state = settle(data_root, result)
     return StageSummary(
         file.video_id, file.path, "ingest", key, state, result.seconds, result.notes

@@ -45,9 +45,8 @@ def lift_flow(
         calibration_sha = sha256_file(calibration)
     key = lift_key(settings, pose_key, calibration_sha)
 
-    def run(refresh: bool) -> StageResult:
-        task = lift_task.with_options(refresh_cache=refresh)
-        return task(data_root, ingest, pose_key, settings, key, calibration_sha, force=refresh)
+    def run() -> StageResult:
+        return lift_task(data_root, ingest, pose_key, settings, key, calibration_sha)
 
     result, state = reuse_or_run(
         data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run

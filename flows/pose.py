@@ -44,11 +44,10 @@ def pose_flow(
     pick = latest_pick(paths.db, video_id)
     key = pose_key(settings, ingest_key, pick)
 
-    def run(refresh: bool) -> StageResult:
-        # Chunks keep their own cache: a refreshed assembly reuses them.
+    def run() -> StageResult:
+        # Chunks keep their own cache: a forced assembly reuses them.
         spans, names = _track_chunks(data_root, ingest, settings)
-        task = pose_task.with_options(refresh_cache=refresh)
-        return task(data_root, ingest, spans, names, settings, key, pick, force=refresh)
+        return pose_task(data_root, ingest, spans, names, settings, key, pick)
 
     result, state = reuse_or_run(
         data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run

@@ -49,12 +49,6 @@ def settle(data_root: str, result: StageResult) -> str:
     return state
 
 
-def still_committed(data_root: str, result: StageResult) -> bool:
-    """False when Prefect's cache remembers an output the database no longer has."""
-    found = committed(data_paths(data_root).db, result.stage, result.video_id, result.key)
-    return found is not None
-
-
 def record_failure(data_root: str, video_id: str, stage: str, key: str, error: BaseException):
     """Note that ``stage`` failed for a registered video, so `ringside status` can say why."""
     with connect(data_paths(data_root).db) as con:
@@ -68,13 +62,11 @@ def reuse_or_run(
     video_id: str,
     key: str,
     force: bool,
-    run: Callable[[bool], StageResult],
+    run: Callable[[], StageResult],
 ) -> tuple[StageResult, str]:
-    """The committed output of ``stage`` under ``key``, or ``run(refresh)``'s, and its state.
-
-    ``run(refresh)`` calls the stage's task, ignoring Prefect's cache when ``refresh``. It runs
-    once more, refreshed, when Prefect's cache remembers an output the database no longer has.
-    A stage that fails on bad input has the failure recorded for `ringside status`.
+    """The committed output of ``stage`` under ``key`` unless ``force``, else ``run()``'s (the
+    stage's task, which computes and commits), and its state. The database is the one cache
+    asked. A stage that fails on bad input has the failure recorded for `ringside status`.
     """
     result = None if force else committed(data_paths(data_root).db, stage, video_id, key)
     if result is None:
@@ -82,9 +74,7 @@ def reuse_or_run(
         with connect(data_paths(data_root).db) as con:
             record_run(con, current_run_id(), video_id, stage, key, "running")
         try:
-            result = run(force)
-            if not still_committed(data_root, result):
-                result = run(True)
+            result = run()
         except BadInput as error:
             record_failure(data_root, video_id, stage, key, error)
             raise

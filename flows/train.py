@@ -49,9 +49,8 @@ def train_flow(
     dataset_key = info.dataset_key  # the whole key, where a prefix was given
     key = train_key(settings, dataset_key, warm)
 
-    def run(refresh: bool) -> StageResult:
-        task = train_task.with_options(refresh_cache=refresh)
-        return task(data_root, dataset_key, settings, key, warm, force=refresh)
+    def run() -> StageResult:
+        return train_task(data_root, dataset_key, settings, key, warm)
 
     result, state = reuse_or_run(
         data_root, stage=STAGE, video_id=dataset_key, key=key, force=force, run=run

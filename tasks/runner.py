@@ -62,15 +62,13 @@ def run_stage(
     upstream: Mapping[str, Any],
     run_id: str,
     compute: Callable[[], StageOutput],
-    force: bool = False,
 ) -> StageResult:
-    """The output of ``stage`` under ``key``: the committed one unless ``force``, else computed.
+    """Compute the output of ``stage`` under ``key`` and commit it (whether one is committed
+    already is the caller's question: `flows.runs.reuse_or_run`).
 
-    The database is opened only to look and to write, never while ``compute`` runs, so other
-    processes can use it meanwhile.
+    The database is opened only to write, never while ``compute`` runs, so other processes can
+    use it meanwhile.
     """
-    if not force and (found := committed(db, stage, video_id, key)) is not None:
-        return found
     start = time.perf_counter()
     output = compute()
     seconds = time.perf_counter() - start

@@ -3,18 +3,13 @@
 from __future__ import annotations
 
 from prefect import task
-from prefect.cache_policies import INPUTS, TASK_SOURCE
+from prefect.cache_policies import NO_CACHE
 
 
 def stage_task(name: str, run_name: str | None = None):
-    """``@task`` cached on its inputs and source, never on ``force``, with persisted results.
-
-    The results are small records (keys and metrics, `tasks.runner.StageResult`); the database
-    stays the source of truth.
+    """``@task`` without Prefect's cache: whether a stage's output exists is asked of the
+    database, the source of truth, once, before the task is called (`flows.runs.reuse_or_run`).
+    A Prefect cache here was a second and a third check of the same thing (its hit was thrown
+    away when the database had lost the output); only the pose chunks keep one, where it pays.
     """
-    return task(
-        name=name,
-        cache_policy=(INPUTS + TASK_SOURCE) - "force",
-        persist_result=True,
-        task_run_name=run_name,
-    )
+    return task(name=name, cache_policy=NO_CACHE, task_run_name=run_name)

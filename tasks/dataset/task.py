@@ -35,7 +35,6 @@ def dataset_task(
     lift_key: str,
     config: DatasetConfig,
     key: str,
-    force: bool = False,
 ) -> StageResult:
     """Cut one video's lifted motion into clips, transitions, labels and statistics."""
     paths = data_paths(data_root)
@@ -64,7 +63,6 @@ def dataset_task(
         upstream=dataset_upstream(lift_key),
         run_id=str(flow_run.id),
         compute=compute,
-        force=force,
     )
 
 
@@ -76,7 +74,6 @@ def extra_clips_task(
     bones: list[BoneLengths],
     video_id: str,
     key: str,
-    force: bool,
 ) -> StageResult:
     """The user's extra single-actor clips (``files``: name -> SHA-256), retargeted onto each
     of the fighters' ``bones``, as one dataset output."""
@@ -91,7 +88,6 @@ def extra_clips_task(
         upstream={"files": files, "bones": [asdict(b) for b in bones]},
         run_id=str(flow_run.id),
         compute=lambda: extra_clip_output(Path(folder), bones, key=key, video_id=video_id),
-        force=force,
     )
 
 

@@ -38,7 +38,6 @@ def evaluate_task(
     compared: tuple[str, ...],
     config: EvaluateConfig,
     key: str,
-    force: bool = False,
 ) -> StageResult:
     """Evaluate training run ``run_key`` (bouts, tables, export, video) and commit it."""
     paths = data_paths(data_root)
@@ -57,5 +56,4 @@ def evaluate_task(
             key=key,
             artifacts=paths.artifacts,
         ),
-        force=force,
     )

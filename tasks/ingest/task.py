@@ -8,9 +8,7 @@ from prefect import task
 from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
-from storage.db import connect
 from storage.paths import data_paths
-from storage.records import register_video
 from tasks.ingest.config import AdversaryDeclaration, IngestConfig
 from tasks.ingest.probe import VideoFile, identify
 from tasks.ingest.stage import STAGE, ingest_code, ingest_upstream, ingest_video
@@ -31,10 +29,9 @@ def ingest_task(
     declaration: AdversaryDeclaration,
     config: IngestConfig,
     key: str,
-    force: bool = False,
 ) -> StageResult:
     paths = data_paths(data_root)
-    result = run_stage(
+    return run_stage(
         db=paths.db,
         stage=STAGE,
         video_id=video.video_id,
@@ -46,8 +43,4 @@ def ingest_task(
         compute=lambda: ingest_video(
             video, declaration, config, key=key, artifacts=paths.artifacts
         ),
-        force=force,
     )
-    with connect(paths.db) as con:
-        register_video(con, video.video_id, video.size_bytes, video.path)
-    return result

@@ -30,7 +30,6 @@ def lift_task(
     config: LiftStageConfig,
     key: str,
     calibration_sha: str | None,
-    force: bool = False,
 ) -> StageResult:
     """Lift both fighters of a video and commit the output under ``key``."""
     from storage.db import connect
@@ -69,5 +68,4 @@ def lift_task(
         upstream=lift_upstream(pose_key, calibration_sha),
         run_id=str(flow_run.id),
         compute=compute,
-        force=force,
     )

@@ -71,7 +71,6 @@ def pose_task(
     config: PoseConfig,
     key: str,
     pick: int | None,
-    force: bool = False,
 ) -> StageResult:
     """Assemble the chunks into the video's pose output and commit it under ``key``."""
     paths = data_paths(data_root)
@@ -104,5 +103,4 @@ def pose_task(
         upstream=pose_upstream(ingest.key, pick),
         run_id=str(flow_run.id),
         compute=compute,
-        force=force,
     )

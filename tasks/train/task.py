@@ -36,7 +36,6 @@ def train_task(
     config: TrainConfig,
     key: str,
     warm: WarmStart | None = None,
-    force: bool = False,
 ) -> StageResult:
     """Train MAAIP on a dataset (resuming from the run's newest checkpoint, or starting from
     ``warm``'s networks) and commit it."""
@@ -58,5 +57,4 @@ def train_task(
             config=config,
             warm=warm,
         ),
-        force=force,
     )
