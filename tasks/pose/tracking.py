@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from models.pose.types import Detection
 from tasks.pose.config import TrackerConfig
@@ -31,10 +32,9 @@ from tasks.pose.config import TrackerConfig
 
 
 def hungarian(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Minimum-cost assignment between the rows and columns of a rectangular cost matrix.
-
-    Shortest augmenting paths with row and column potentials (Jonker & Volgenant 1987, the
-    O(N^2 M) form of the Kuhn-Munkres method), written for this project.
+    """Minimum-cost assignment between the rows and columns of a rectangular cost matrix, with
+    forbidden pairs (scipy's `linear_sum_assignment` on a matrix where they cost more than any
+    allowed set).
 
     Args:
         cost: (N, M) float costs; ``np.inf`` marks a forbidden pair.
@@ -54,66 +54,14 @@ def hungarian(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     allowed = np.isfinite(cost)
     if not allowed.any():
         return empty, empty.copy()
-    transposed = cost.shape[0] > cost.shape[1]
-    if transposed:  # the solver wants no more rows than columns
-        cost, allowed = cost.T, allowed.T
     low, high = cost[allowed].min(), cost[allowed].max()
     scaled = (cost - low) / (high - low) if high > low else np.zeros_like(cost)
     # Allowed costs now lie in [0, 1]; a forbidden pair costing more than K allowed pairs together
     # makes the optimum use as few forbidden pairs as possible first, and only then save cost.
     big = min(cost.shape) + 1.0
-    col_of_row = _shortest_augmenting_paths(np.where(allowed, scaled, big))
-    rows = np.arange(len(col_of_row))
-    keep = allowed[rows, col_of_row]
-    rows, cols = rows[keep], col_of_row[keep]
-    if transposed:
-        order = np.argsort(cols)
-        rows, cols = cols[order], rows[order]
-    return rows.astype(np.int64), cols.astype(np.int64)
-
-
-def _shortest_augmenting_paths(cost: np.ndarray) -> np.ndarray:
-    """(N,) column given to each row of the finite (N, M) ``cost``, N <= M, at least total cost.
-
-    Rows join one at a time; each finds the cheapest path in reduced costs to a free column
-    (Dijkstra over columns), and the potentials u, v keep every reduced cost non-negative.
-    Index 0 of the column arrays is a virtual column holding the row being added.
-    """
-    n, m = cost.shape
-    u = np.zeros(n + 1)
-    v = np.zeros(m + 1)
-    row_in = np.zeros(m + 1, dtype=np.int64)  # 1-based row held by each column, 0 = free
-    came_from = np.zeros(m + 1, dtype=np.int64)
-    for row in range(1, n + 1):
-        row_in[0] = row
-        col = 0
-        dist = np.full(m + 1, np.inf)
-        done = np.zeros(m + 1, dtype=bool)
-        while True:
-            done[col] = True
-            here = row_in[col]
-            reduced = cost[here - 1] - u[here] - v[1:]
-            open_ = ~done[1:]
-            better = open_ & (reduced < dist[1:])
-            dist[1:][better] = reduced[better]
-            came_from[1:][better] = col
-            reach = np.where(open_, dist[1:], np.inf)
-            nxt = int(np.argmin(reach)) + 1
-            step = reach[nxt - 1]
-            u[row_in[done]] += step
-            v[done] -= step
-            dist[~done] -= step
-            col = nxt
-            if row_in[col] == 0:
-                break
-        while col:  # flip the path: each column takes the row of the column before it
-            prev = came_from[col]
-            row_in[col] = row_in[prev]
-            col = prev
-    col_of_row = np.empty(n, dtype=np.int64)
-    taken = np.flatnonzero(row_in[1:])
-    col_of_row[row_in[1:][taken] - 1] = taken
-    return col_of_row
+    rows, cols = linear_sum_assignment(np.where(allowed, scaled, big))
+    keep = allowed[rows, cols]
+    return rows[keep].astype(np.int64), cols[keep].astype(np.int64)
 
 
 # ---------------------------------------------------------------------------------------------
