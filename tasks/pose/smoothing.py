@@ -13,6 +13,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.signal import savgol_coeffs
 
 # Weight floor for a finite point whose confidence is 0, so a window holding only such points
 # still has a solvable fit (it then acts as an unweighted fit).
@@ -122,6 +123,9 @@ def polynomial_weights(nodes: np.ndarray, at: np.ndarray, order: int) -> np.ndar
 
     With V the (N, P) Vandermonde matrix of ``nodes`` the fit is a = (VᵀV)⁻¹Vᵀ y, so
     W = V_at (VᵀV)⁻¹Vᵀ; nodes are centred on their mean first to keep VᵀV well conditioned.
+    Ours rather than scipy's `savgol_coeffs` because the nodes may be any frames (a run shorter
+    than the window, the local fits of `confidence_weighted` and `adaptive_window`), where
+    `savgol_coeffs` takes an evenly spaced window only.
     """
     nodes = np.asarray(nodes, dtype=np.float64)
     at = np.asarray(at, dtype=np.float64)
@@ -135,11 +139,10 @@ def savgol_coefficients(window: int, order: int) -> np.ndarray:
     """(window,) Savitzky-Golay smoothing weights for the centre of a window (Savitzky & Golay,
     Anal. Chem. 1964): the least-squares polynomial of degree ``order`` evaluated at the centre.
 
-    window 5, order 2 gives [-3, 12, 17, 12, -3] / 35.
+    window 5, order 2 gives [-3, 12, 17, 12, -3] / 35. scipy's `savgol_coeffs`.
     """
     check_window("window", window, order, order_name="order")
-    half = window // 2
-    return polynomial_weights(np.arange(-half, half + 1), np.array([0.0]), order)[0]
+    return savgol_coeffs(window, order, use="dot")
 
 
 def _finite_runs(valid: np.ndarray) -> list[tuple[int, int]]:
@@ -167,10 +170,11 @@ def savitzky_golay(keypoints: np.ndarray, *, window: int, order: int) -> np.ndar
     kp, _ = checked(keypoints)
     check_window("window", window, order, order_name="order")
     half = window // 2
-    positions = np.arange(window)
     centre = savgol_coefficients(window, order)
-    head = polynomial_weights(positions, positions[:half], order)
-    tail = polynomial_weights(positions, positions[window - half :], order)
+    # The same window's polynomial at its first and last `half` frames (empty when half is 0).
+    edge = [savgol_coeffs(window, order, pos=p, use="dot") for p in range(window)]
+    head = np.reshape(edge[:half], (half, window))
+    tail = np.reshape(edge[window - half :], (half, window))
     out = np.full_like(kp, np.nan)
     observed = np.isfinite(kp).all(axis=2)
     for j in range(kp.shape[1]):
