@@ -30,13 +30,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from tasks.pose.refine import (  # noqa: E402
-    SMOOTHERS,
-    RefineConfig,
-    fill_gaps,
-    fix_flips,
-    jitter_px,
-)
+from tasks.pose.config import RefineConfig  # noqa: E402
+from tasks.pose.refine import SMOOTHERS, fill_gaps, fix_flips, jitter_px  # noqa: E402
 from tests.test_refine import (  # noqa: E402
     FPS,
     GROUPS,

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from models.pose.types import BLAZEPOSE_33
+from tasks.pose.config import RefineConfig
 from tasks.pose.refine import (
     SMOOTHERS,
-    RefineConfig,
     fill_gaps,
     fix_flips,
     flip_bones,

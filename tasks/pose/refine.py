@@ -19,13 +19,11 @@ from typing import Protocol
 
 import numpy as np
 
-from models.settings import setting
+from tasks.pose.checks import check_positive, checked
+from tasks.pose.config import SMOOTHER_NAMES, RefineConfig
 from tasks.pose.smoothing import (
     MIN_WEIGHT,
     adaptive_window,
-    check_positive,
-    check_window,
-    checked,
     confidence_weighted,
     one_euro,
     savitzky_golay,
@@ -380,121 +378,6 @@ def jitter_px(keypoints: np.ndarray) -> float:
 # Configured stage step
 
 
-@dataclass(frozen=True)
-class RefineConfig:
-    """How one fighter's 2D keypoints are refined over a chunk of frames.
-
-    Smoother parameters are the picks of ``benchmarks/refine_filters.py --sweep`` on the
-    synthetic fighter (about 400 px tall, 30 fps); pixel- and frame-based ones want revisiting
-    for much smaller fighters or other frame rates.
-    """
-
-    smoother: str = setting(
-        "adaptive_window",
-        "Smoother applied last, a name in SMOOTHERS: none, one_euro, savitzky_golay, "
-        "confidence_weighted, adaptive_window (the winner of benchmarks/refine_filters.py).",
-    )
-    min_confidence: float = setting(
-        0.3,
-        "Joint confidence (0-1) below which a point is untrusted: it neither votes on flips nor "
-        "survives gap filling (replaced when the gap is short, else NaN).",
-    )
-    max_gap: int = setting(
-        5, "Longest run of missing or untrusted frames (per joint) that is interpolated."
-    )
-    flip_ratio: float = setting(
-        0.5,
-        "A limb group's left/right labels are swapped back when its mirrored cost against the "
-        "previous frames is below this share of its as-is cost.",
-    )
-    flip_max_age: int = setting(
-        10, "Frames after which a joint's last position no longer serves as a flip reference."
-    )
-    one_euro_min_cutoff: float = setting(2.0, "1€ filter cutoff at rest (Hz).")
-    one_euro_beta: float = setting(
-        0.1,
-        "1€ filter cutoff gain per unit speed (Hz per px/s); in pixels, so it suits fighters "
-        "about 400 px tall and wants scaling with their size.",
-    )
-    one_euro_d_cutoff: float = setting(5.0, "1€ filter cutoff of its speed estimate (Hz).")
-    sg_window: int = setting(7, "Savitzky-Golay window (odd, frames).")
-    sg_order: int = setting(2, "Savitzky-Golay polynomial degree.")
-    cw_window: int = setting(7, "Confidence-weighted regression window (odd, frames).")
-    cw_order: int = setting(2, "Confidence-weighted regression polynomial degree.")
-    cw_robust_iterations: int = setting(
-        1, "Rounds of outlier reweighting in the confidence-weighted regression (0 = none)."
-    )
-    ici_window_min: int = setting(5, "Adaptive-window regression: shortest window (odd, frames).")
-    ici_window_max: int = setting(
-        17, "Adaptive-window regression: longest window at most this many frames."
-    )
-    ici_window_step: int = setting(
-        4, "Adaptive-window regression: growth from one window to the next (even, frames)."
-    )
-    ici_order: int = setting(2, "Adaptive-window regression polynomial degree.")
-    ici_threshold: float = setting(
-        1.0,
-        "Adaptive-window regression: confidence-interval half-width in noise standard "
-        "deviations; larger keeps longer windows (smoother, more peak clipping).",
-    )
-    ici_robust_iterations: int = setting(
-        1, "Rounds of outlier reweighting in the adaptive-window regression (0 = none)."
-    )
-
-    @property
-    def ici_windows(self) -> tuple[int, ...]:
-        """The adaptive-window regression's window lengths, shortest first."""
-        return tuple(range(self.ici_window_min, self.ici_window_max + 1, self.ici_window_step))
-
-    def __post_init__(self) -> None:
-        if self.smoother not in SMOOTHERS:
-            raise ValueError(
-                f"refine.smoother must be one of {sorted(SMOOTHERS)}, got {self.smoother!r}"
-            )
-        if not 0.0 <= self.min_confidence <= 1.0:
-            raise ValueError(f"refine.min_confidence must be in [0, 1], got {self.min_confidence}")
-        for name in ("max_gap", "cw_robust_iterations", "ici_robust_iterations"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"refine.{name} must be >= 0, got {getattr(self, name)}")
-        if self.flip_max_age < 1:
-            raise ValueError(f"refine.flip_max_age must be >= 1, got {self.flip_max_age}")
-        for name in ("flip_ratio", "one_euro_min_cutoff", "one_euro_d_cutoff", "ici_threshold"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"refine.{name} must be > 0, got {getattr(self, name)}")
-        if self.one_euro_beta < 0:
-            raise ValueError(f"refine.one_euro_beta must be >= 0, got {self.one_euro_beta}")
-        check_window(
-            "refine.sg_window", self.sg_window, self.sg_order, order_name="refine.sg_order"
-        )
-        check_window(
-            "refine.cw_window", self.cw_window, self.cw_order, order_name="refine.cw_order"
-        )
-        if self.cw_window < 2 * self.cw_order + 1:
-            raise ValueError(
-                f"refine.cw_window must be at least 2 * refine.cw_order + 1, got {self.cw_window}"
-            )
-        if self.ici_window_step < 2 or self.ici_window_step % 2:
-            raise ValueError(
-                f"refine.ici_window_step must be a positive even number, got {self.ici_window_step}"
-            )
-        if self.ici_window_max < self.ici_window_min:
-            raise ValueError(
-                f"refine.ici_window_max ({self.ici_window_max}) must be at least "
-                f"refine.ici_window_min ({self.ici_window_min})"
-            )
-        check_window(
-            "refine.ici_window_min",
-            self.ici_window_min,
-            self.ici_order,
-            order_name="refine.ici_order",
-        )
-        if self.ici_window_min < 2 * self.ici_order + 1:
-            raise ValueError(
-                "refine.ici_window_min must be at least 2 * refine.ici_order + 1, "
-                f"got {self.ici_window_min}"
-            )
-
-
 class Smoother(Protocol):
     """A smoother as :func:`refine` calls it: (T, J, 2) keypoints, (T, J) confidence, fps and the
     config in; (T, J, 2) smoothed keypoints out, NaN where the input is."""
@@ -561,6 +444,7 @@ SMOOTHERS: Mapping[str, Smoother] = {
     "confidence_weighted": _confidence_weighted,
     "adaptive_window": _adaptive_window,
 }
+assert tuple(SMOOTHERS) == SMOOTHER_NAMES, "RefineConfig names the smoothers"
 
 
 # eq=False: fields are arrays, whose == is elementwise; compare by identity.

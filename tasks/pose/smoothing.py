@@ -1,6 +1,5 @@
 """Smoothers of one fighter's 2D keypoint tracks over time (one-euro, Savitzky-Golay, a
-confidence-weighted local polynomial, an adaptive window), and the input checks refinement
-(`tasks.pose.refine`) shares with them.
+confidence-weighted local polynomial, an adaptive window).
 
 Pure NumPy functions over a window of frames; inputs are never modified. Shapes as in
 `tasks.pose.refine`: ``keypoints`` (T, J, 2) pixels, NaN where not observed; ``confidence``
@@ -15,49 +14,11 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.signal import savgol_coeffs
 
+from tasks.pose.checks import check_positive, check_window, checked
+
 # Weight floor for a finite point whose confidence is 0, so a window holding only such points
 # still has a solvable fit (it then acts as an unweighted fit).
 MIN_WEIGHT = 1e-3
-
-
-# ---------------------------------------------------------------------------------------------
-# Checks
-
-
-def checked(
-    keypoints: np.ndarray, confidence: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """float64 copies of the inputs after shape and value checks that name the argument."""
-    kp = np.array(keypoints, dtype=np.float64, copy=True)
-    if kp.ndim != 3 or kp.shape[2] != 2:
-        raise ValueError(f"keypoints must have shape (T, J, 2), got {kp.shape}")
-    if np.isinf(kp).any():
-        raise ValueError("keypoints must be finite or NaN, got inf")
-    if confidence is None:
-        return kp, None
-    conf = np.array(confidence, dtype=np.float64, copy=True)
-    if conf.shape != kp.shape[:2]:
-        raise ValueError(
-            f"confidence must have shape (T, J) = {kp.shape[:2]} to match keypoints, "
-            f"got {conf.shape}"
-        )
-    if not np.isfinite(conf).all() or (conf < 0).any() or (conf > 1).any():
-        raise ValueError("confidence must hold values in [0, 1] (use 0 for missing joints)")
-    return kp, conf
-
-
-def check_positive(name: str, value: float) -> None:
-    if not value > 0:
-        raise ValueError(f"{name} must be > 0, got {value}")
-
-
-def check_window(name: str, window: int, order: int, *, order_name: str) -> None:
-    if order < 0:
-        raise ValueError(f"{order_name} must be >= 0, got {order}")
-    if window < 1 or window % 2 == 0:
-        raise ValueError(f"{name} must be a positive odd number of frames, got {window}")
-    if window <= order:
-        raise ValueError(f"{name} ({window}) must be larger than {order_name} ({order})")
 
 
 # ---------------------------------------------------------------------------------------------
