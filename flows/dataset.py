@@ -17,10 +17,10 @@ from storage.keys import digest, stage_key
 from storage.paths import data_paths
 from tasks.dataset.stage import STAGE, dataset_code, dataset_key
 from tasks.dataset.store import candidate_members, member_bones
-from tasks.dataset.task import assemble_task, dataset_task, extra_clips_task
+from tasks.dataset.task import assemble_task, dataset_call, extra_clips_call
 from tasks.errors import BadInput
 from tasks.ingest.store import load_ingest
-from tasks.runner import StageResult
+from tasks.runner import StageCall
 
 
 def _run_name() -> str:
@@ -42,11 +42,11 @@ def dataset_flow(
         ingest = load_ingest(con, video_id, ingest_key)
     key = dataset_key(settings, lift_key)
 
-    def run() -> StageResult:
-        return dataset_task(data_root, ingest, lift_key, settings, key)
+    def call() -> StageCall:
+        return dataset_call(data_root, ingest, lift_key, settings, key)
 
     result, state = reuse_or_run(
-        data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run
+        data_root, stage=STAGE, video_id=video_id, key=key, force=force, call=call
     )
     return StageSummary(video_id, ingest.path, STAGE, key, state, result.seconds, result.notes)
 
@@ -66,10 +66,10 @@ def _extra_clips(
     video_id = "extra-" + digest(upstream)[:20]
     key = stage_key(STAGE, {"extra_clips": "files"}, dataset_code(), upstream)
 
-    def run() -> StageResult:
-        return extra_clips_task(data_root, str(path.resolve()), files, bones, video_id, key)
+    def call() -> StageCall:
+        return extra_clips_call(str(path.resolve()), files, bones, video_id, key)
 
-    reuse_or_run(data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run)
+    reuse_or_run(data_root, stage=STAGE, video_id=video_id, key=key, force=force, call=call)
     return video_id, key
 
 

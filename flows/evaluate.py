@@ -14,8 +14,8 @@ from storage.paths import data_paths
 from tasks.dataset.store import dataset_info
 from tasks.errors import BadInput
 from tasks.evaluate.store import STAGE, compared_runs, evaluation_tables, resolve_run
-from tasks.evaluate.task import evaluate_key, evaluate_task
-from tasks.runner import StageResult
+from tasks.evaluate.task import evaluate_call, evaluate_key
+from tasks.runner import StageCall
 
 
 def _cell(value):
@@ -56,11 +56,11 @@ def evaluate_flow(
         adversary = dataset_info(con, info.dataset_key).adversary
     key = evaluate_key(settings, info.run_key, compared)
 
-    def run() -> StageResult:
-        return evaluate_task(data_root, info.run_key, compared, settings, key)
+    def call() -> StageCall:
+        return evaluate_call(data_root, info.run_key, compared, settings, key)
 
     result, state = reuse_or_run(
-        data_root, stage=STAGE, video_id=info.run_key, key=key, force=force, run=run
+        data_root, stage=STAGE, video_id=info.run_key, key=key, force=force, call=call
     )
     publish_tables(data_root, key, info.run_key)
     return StageSummary(info.run_key, adversary, STAGE, key, state, result.seconds, result.notes)

@@ -14,8 +14,9 @@ from storage.paths import data_paths
 from storage.records import register_video
 from tasks.ingest.config import declare
 from tasks.ingest.stage import STAGE, ingest_key
-from tasks.ingest.task import identify_task, ingest_task
+from tasks.ingest.task import identify_task, ingest_call
 from tasks.runner import committed
+from tasks.stage_task import run_stage_task
 
 
 def _run_name() -> str:
@@ -42,7 +43,7 @@ def ingest_flow(
     # registered, and an ingest takes seconds.
     result = None if force else committed(db, STAGE, file.video_id, key)
     if result is None:
-        result = ingest_task(data_root, file, declaration, settings, key)
+        result = run_stage_task(db, ingest_call(data_root, file, declaration, settings, key))
     # Registered whether computed or reused: the same bytes may come from a new path.
     with connect(db) as con:
         register_video(con, file.video_id, file.size_bytes, file.path)

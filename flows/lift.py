@@ -15,8 +15,8 @@ from storage.paths import data_paths
 from tasks.errors import BadInput
 from tasks.ingest.store import load_ingest
 from tasks.lift.stage import STAGE, lift_key
-from tasks.lift.task import lift_task
-from tasks.runner import StageResult
+from tasks.lift.task import lift_call
+from tasks.runner import StageCall
 
 
 def _run_name() -> str:
@@ -45,10 +45,10 @@ def lift_flow(
         calibration_sha = sha256_file(calibration)
     key = lift_key(settings, pose_key, calibration_sha)
 
-    def run() -> StageResult:
-        return lift_task(data_root, ingest, pose_key, settings, key, calibration_sha)
+    def call() -> StageCall:
+        return lift_call(data_root, ingest, pose_key, settings, key, calibration_sha)
 
     result, state = reuse_or_run(
-        data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run
+        data_root, stage=STAGE, video_id=video_id, key=key, force=force, call=call
     )
     return StageSummary(video_id, ingest.path, STAGE, key, state, result.seconds, result.notes)

@@ -20,8 +20,8 @@ from tasks.pose.chunk import STOP
 from tasks.pose.config import PoseConfig
 from tasks.pose.merge import ChunkSpan
 from tasks.pose.stage import STAGE, chunk_key, model_files, plan_spans, pose_key
-from tasks.pose.task import latest_pick, pose_chunk_task, pose_task
-from tasks.runner import StageResult
+from tasks.pose.task import latest_pick, pose_call, pose_chunk_task
+from tasks.runner import StageCall
 
 
 def _run_name() -> str:
@@ -44,13 +44,13 @@ def pose_flow(
     pick = latest_pick(paths.db, video_id)
     key = pose_key(settings, ingest_key, pick)
 
-    def run() -> StageResult:
+    def call() -> StageCall:
         # Chunks keep their own cache: a forced assembly reuses them.
         spans, names = _track_chunks(data_root, ingest, settings)
-        return pose_task(data_root, ingest, spans, names, settings, key, pick)
+        return pose_call(data_root, ingest, spans, names, settings, key, pick)
 
     result, state = reuse_or_run(
-        data_root, stage=STAGE, video_id=video_id, key=key, force=force, run=run
+        data_root, stage=STAGE, video_id=video_id, key=key, force=force, call=call
     )
     return StageSummary(video_id, ingest.path, STAGE, key, state, result.seconds, result.notes)
 

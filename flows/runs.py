@@ -13,7 +13,8 @@ from storage.db import connect
 from storage.paths import data_paths
 from storage.records import record_run, stale_runs
 from tasks.errors import BadInput
-from tasks.runner import StageResult, committed
+from tasks.runner import StageCall, StageResult, committed
+from tasks.stage_task import run_stage_task
 
 
 @dataclass(frozen=True)
@@ -62,11 +63,13 @@ def reuse_or_run(
     video_id: str,
     key: str,
     force: bool,
-    run: Callable[[], StageResult],
+    call: Callable[[], StageCall],
 ) -> tuple[StageResult, str]:
-    """The committed output of ``stage`` under ``key`` unless ``force``, else ``run()``'s (the
-    stage's task, which computes and commits), and its state. The database is the one cache
-    asked. A stage that fails on bad input has the failure recorded for `ringside status`.
+    """The committed output of ``stage`` under ``key`` unless ``force``, else the output of the
+    stage's ``call()``, computed and committed by `run_stage_task`, and its state. The database
+    is the one cache asked; ``call`` is made only when it has no output (the pose stage tracks
+    its chunks then). A stage that fails on bad input has the failure recorded for
+    `ringside status`.
     """
     result = None if force else committed(data_paths(data_root).db, stage, video_id, key)
     if result is None:
@@ -74,7 +77,7 @@ def reuse_or_run(
         with connect(data_paths(data_root).db) as con:
             record_run(con, current_run_id(), video_id, stage, key, "running")
         try:
-            result = run()
+            result = run_stage_task(data_paths(data_root).db, call())
         except BadInput as error:
             record_failure(data_root, video_id, stage, key, error)
             raise

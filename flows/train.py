@@ -12,10 +12,10 @@ from storage.db import connect
 from storage.paths import data_paths
 from tasks.dataset.store import DatasetInfo, UnknownDataset, dataset_info
 from tasks.errors import BadInput
-from tasks.runner import StageResult
+from tasks.runner import StageCall
 from tasks.train.run import STAGE
 from tasks.train.store import warm_start_source
-from tasks.train.task import train_key, train_task
+from tasks.train.task import train_call, train_key
 
 
 def resolve_dataset(data_root: str | Path, dataset_key: str) -> DatasetInfo:
@@ -49,11 +49,11 @@ def train_flow(
     dataset_key = info.dataset_key  # the whole key, where a prefix was given
     key = train_key(settings, dataset_key, warm)
 
-    def run() -> StageResult:
-        return train_task(data_root, dataset_key, settings, key, warm)
+    def call() -> StageCall:
+        return train_call(data_root, dataset_key, settings, key, warm)
 
     result, state = reuse_or_run(
-        data_root, stage=STAGE, video_id=dataset_key, key=key, force=force, run=run
+        data_root, stage=STAGE, video_id=dataset_key, key=key, force=force, call=call
     )
     return StageSummary(
         dataset_key, info.adversary, STAGE, key, state, result.seconds, result.notes

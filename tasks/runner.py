@@ -51,30 +51,43 @@ def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | No
     return StageResult(stage, video_id, key, run_id, seconds, metrics, notes)
 
 
-def run_stage(
-    *,
-    db: Path,
-    stage: str,
-    video_id: str,
-    key: str,
-    config: Any,
-    code: str,
-    upstream: Mapping[str, Any],
-    run_id: str,
-    compute: Callable[[], StageOutput],
-) -> StageResult:
-    """Compute the output of ``stage`` under ``key`` and commit it (whether one is committed
-    already is the caller's question: `flows.runs.reuse_or_run`).
+@dataclass(frozen=True)
+class StageCall:
+    """One output a stage is to compute: what its record says (settings, code, upstream keys)
+    and how to compute it. Each stage's ``task.py`` builds one; `tasks.stage_task.run_stage_task`
+    runs any of them. ``run_name`` names the Prefect task run."""
 
-    The database is opened only to write, never while ``compute`` runs, so other processes can
-    use it meanwhile.
+    run_name: str
+    stage: str
+    video_id: str
+    key: str
+    config: Any
+    code: str
+    upstream: Mapping[str, Any]
+    compute: Callable[[], StageOutput]
+
+
+def run_stage(db: Path, call: StageCall, run_id: str) -> StageResult:
+    """Compute ``call``'s output and commit it (whether one is committed already is the
+    caller's question: `flows.runs.reuse_or_run`).
+
+    The database is opened only to write, never while the computation runs, so other processes
+    can use it meanwhile.
     """
     start = time.perf_counter()
-    output = compute()
+    output = call.compute()
     seconds = time.perf_counter() - start
-    record = OutputRecord(stage, video_id, key, config, code, upstream, run_id, seconds)
+    record = OutputRecord(
+        call.stage, call.video_id, call.key, call.config, call.code, call.upstream, run_id, seconds
+    )
     with connect(db) as con:
         write_output(con, record, output.rows, output.metrics, output.notes)
     return StageResult(
-        stage, video_id, key, run_id, seconds, dict(output.metrics), tuple(output.notes)
+        call.stage,
+        call.video_id,
+        call.key,
+        run_id,
+        seconds,
+        dict(output.metrics),
+        tuple(output.notes),
     )

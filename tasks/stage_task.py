@@ -1,15 +1,28 @@
-"""The Prefect task decorator every stage's output task uses."""
+"""The one Prefect task that computes and commits any stage's output."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from prefect import task
 from prefect.cache_policies import NO_CACHE
+from prefect.runtime import flow_run
+
+from tasks.runner import StageCall, StageResult, run_stage
 
 
-def stage_task(name: str, run_name: str | None = None):
-    """``@task`` without Prefect's cache: whether a stage's output exists is asked of the
-    database, the source of truth, once, before the task is called (`flows.runs.reuse_or_run`).
-    A Prefect cache here was a second and a third check of the same thing (its hit was thrown
-    away when the database had lost the output); only the pose chunks keep one, where it pays.
+@task(name="stage", cache_policy=NO_CACHE)
+def _stage_task(db: Path, call: StageCall) -> StageResult:
+    return run_stage(db, call, str(flow_run.id))
+
+
+def run_stage_task(db: Path, call: StageCall) -> StageResult:
+    """Compute and commit ``call``'s output as a Prefect task run named for its stage.
+
+    Without Prefect's cache: whether a stage's output exists is asked of the database, the
+    source of truth, once, before this is called (`flows.runs.reuse_or_run`). A Prefect cache
+    here was a second and a third check of the same thing (its hit was thrown away when the
+    database had lost the output); only the pose chunks keep one, where it pays.
     """
-    return task(name=name, cache_policy=NO_CACHE, task_run_name=run_name)
+    named = _stage_task.with_options(name=call.stage, task_run_name=call.run_name)
+    return named(db, call)

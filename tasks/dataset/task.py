@@ -7,7 +7,6 @@ from pathlib import Path
 
 from prefect import task
 from prefect.cache_policies import NO_CACHE
-from prefect.runtime import flow_run
 
 from models.humanoid.boxer import BoneLengths
 from storage.db import connect
@@ -24,18 +23,16 @@ from tasks.dataset.store import candidate_members, record_dataset
 from tasks.errors import BadInput
 from tasks.ingest.store import IngestOutput
 from tasks.lift.store import load_motion
-from tasks.runner import StageResult, run_stage
-from tasks.stage_task import stage_task
+from tasks.runner import StageCall
 
 
-@stage_task("dataset", "dataset-{ingest.video_id:.12}")
-def dataset_task(
+def dataset_call(
     data_root: str,
     ingest: IngestOutput,
     lift_key: str,
     config: DatasetConfig,
     key: str,
-) -> StageResult:
+) -> StageCall:
     """Cut one video's lifted motion into clips, transitions, labels and statistics."""
     paths = data_paths(data_root)
 
@@ -53,40 +50,35 @@ def dataset_task(
             config=config,
         )
 
-    return run_stage(
-        db=paths.db,
+    return StageCall(
+        run_name=f"dataset-{ingest.video_id:.12}",
         stage=STAGE,
         video_id=ingest.video_id,
         key=key,
         config=config,
         code=dataset_code(),
         upstream=dataset_upstream(lift_key),
-        run_id=str(flow_run.id),
         compute=compute,
     )
 
 
-@stage_task("dataset-extra-clips")
-def extra_clips_task(
-    data_root: str,
+def extra_clips_call(
     folder: str,
     files: dict[str, str],
     bones: list[BoneLengths],
     video_id: str,
     key: str,
-) -> StageResult:
+) -> StageCall:
     """The user's extra single-actor clips (``files``: name -> SHA-256), retargeted onto each
     of the fighters' ``bones``, as one dataset output."""
-    paths = data_paths(data_root)
-    return run_stage(
-        db=paths.db,
+    return StageCall(
+        run_name=f"dataset-extra-clips-{video_id:.12}",
         stage=STAGE,
         video_id=video_id,
         key=key,
         config={"extra_clips": folder},
         code=dataset_code(),
         upstream={"files": files, "bones": [asdict(b) for b in bones]},
-        run_id=str(flow_run.id),
         compute=lambda: extra_clip_output(Path(folder), bones, key=key, video_id=video_id),
     )
 

@@ -4,14 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from prefect.runtime import flow_run
-
 from storage.keys import code_version, stage_key
 from storage.paths import data_paths
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.stage import STAGE, evaluate, load_inputs
-from tasks.runner import StageResult, run_stage
-from tasks.stage_task import stage_task
+from tasks.runner import StageCall
 
 
 def evaluate_code() -> str:
@@ -31,25 +28,23 @@ def evaluate_key(config: EvaluateConfig, run_key: str, compared: Sequence[str] =
     return stage_key(STAGE, config, evaluate_code(), evaluate_upstream(run_key, compared))
 
 
-@stage_task("evaluate", "evaluate-{run_key:.12}")
-def evaluate_task(
+def evaluate_call(
     data_root: str,
     run_key: str,
     compared: tuple[str, ...],
     config: EvaluateConfig,
     key: str,
-) -> StageResult:
+) -> StageCall:
     """Evaluate training run ``run_key`` (bouts, tables, export, video) and commit it."""
     paths = data_paths(data_root)
-    return run_stage(
-        db=paths.db,
+    return StageCall(
+        run_name=f"evaluate-{run_key:.12}",
         stage=STAGE,
         video_id=run_key,
         key=key,
         config=config,
         code=evaluate_code(),
         upstream=evaluate_upstream(run_key, compared),
-        run_id=str(flow_run.id),
         compute=lambda: evaluate(
             load_inputs(paths.db, paths.artifacts, run_key, compared),
             config,

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from prefect.runtime import flow_run
 from tqdm import tqdm
 
 from storage.paths import data_paths
@@ -18,19 +17,17 @@ from tasks.lift.stage import (
     lift_video,
 )
 from tasks.pose.store import fighter_keypoints
-from tasks.runner import StageResult, run_stage
-from tasks.stage_task import stage_task
+from tasks.runner import StageCall
 
 
-@stage_task("lift", "lift-{ingest.video_id:.12}")
-def lift_task(
+def lift_call(
     data_root: str,
     ingest: IngestOutput,
     pose_key: str,
     config: LiftStageConfig,
     key: str,
     calibration_sha: str | None,
-) -> StageResult:
+) -> StageCall:
     """Lift both fighters of a video and commit the output under ``key``."""
     from storage.db import connect
 
@@ -58,14 +55,13 @@ def lift_task(
                 progress=bar.update,
             )
 
-    return run_stage(
-        db=paths.db,
+    return StageCall(
+        run_name=f"lift-{ingest.video_id:.12}",
         stage=STAGE,
         video_id=ingest.video_id,
         key=key,
         config=config,
         code=lift_code(),
         upstream=lift_upstream(pose_key, calibration_sha),
-        run_id=str(flow_run.id),
         compute=compute,
     )

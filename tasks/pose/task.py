@@ -6,7 +6,6 @@ from pathlib import Path
 
 from prefect import task
 from prefect.cache_policies import INPUTS, TASK_SOURCE
-from prefect.runtime import flow_run
 
 from storage.artifacts import put_bytes, read_bytes
 from storage.db import connect
@@ -23,8 +22,7 @@ from tasks.pose.stage import (
     process_chunk,
 )
 from tasks.pose.store import newest_pick
-from tasks.runner import StageResult, run_stage
-from tasks.stage_task import stage_task
+from tasks.runner import StageCall
 
 
 @task(
@@ -62,8 +60,7 @@ def latest_pick(db: Path, video_id: str) -> int | None:
         return newest_pick(con, video_id)
 
 
-@stage_task("pose", "pose-{ingest.video_id:.12}")
-def pose_task(
+def pose_call(
     data_root: str,
     ingest: IngestOutput,
     spans: list[ChunkSpan],
@@ -71,7 +68,7 @@ def pose_task(
     config: PoseConfig,
     key: str,
     pick: int | None,
-) -> StageResult:
+) -> StageCall:
     """Assemble the chunks into the video's pose output and commit it under ``key``."""
     paths = data_paths(data_root)
 
@@ -93,14 +90,13 @@ def pose_task(
             source_frames=ingest.source_frames,
         )
 
-    return run_stage(
-        db=paths.db,
+    return StageCall(
+        run_name=f"pose-{ingest.video_id:.12}",
         stage=STAGE,
         video_id=ingest.video_id,
         key=key,
         config=config,
         code=pose_code(),
         upstream=pose_upstream(ingest.key, pick),
-        run_id=str(flow_run.id),
         compute=compute,
     )

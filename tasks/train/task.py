@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-from prefect.runtime import flow_run
-
 from models.maaip.config import TrainConfig
 from storage.keys import code_version, stage_key
 from storage.paths import data_paths
-from tasks.runner import StageResult, run_stage
-from tasks.stage_task import stage_task
+from tasks.runner import StageCall
 from tasks.train.run import STAGE, train
 from tasks.train.store import WarmStart
 
@@ -29,26 +26,24 @@ def train_key(config: TrainConfig, dataset_key: str, warm: WarmStart | None = No
     return stage_key(STAGE, config, train_code(), train_upstream(dataset_key, warm))
 
 
-@stage_task("train", "train-{dataset_key:.12}")
-def train_task(
+def train_call(
     data_root: str,
     dataset_key: str,
     config: TrainConfig,
     key: str,
     warm: WarmStart | None = None,
-) -> StageResult:
+) -> StageCall:
     """Train MAAIP on a dataset (resuming from the run's newest checkpoint, or starting from
     ``warm``'s networks) and commit it."""
     paths = data_paths(data_root)
-    return run_stage(
-        db=paths.db,
+    return StageCall(
+        run_name=f"train-{dataset_key:.12}",
         stage=STAGE,
         video_id=dataset_key,
         key=key,
         config=config,
         code=train_code(),
         upstream=train_upstream(dataset_key, warm),
-        run_id=str(flow_run.id),
         compute=lambda: train(
             db=paths.db,
             artifacts=paths.artifacts,
