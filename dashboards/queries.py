@@ -42,7 +42,6 @@ from tasks.pose.store import (
     track_handovers,
 )
 from tasks.train import store as train_store
-from tasks.train.store import learning_curves
 
 # Every stage, in pipeline order (a stage has its config section once it exists): the ones
 # `ringside metrics --stage` knows. A per-video stage's output belongs to a video; training's
@@ -146,7 +145,7 @@ def default_every(iterations: int) -> int:
 def curves(con: duckdb.DuckDBPyConnection, key: str, *, every: int) -> list[dict[str, Any]]:
     """Run ``key``'s learning curves averaged over blocks of ``every`` iterations, the rows
     `ringside curves --run KEY --every N --json` prints."""
-    return learning_curves(con, key, every=every)
+    return train_store.learning_curves(con, key, every=every)
 
 
 def curves_frame(rows: Sequence[Mapping[str, Any]]) -> pd.DataFrame:

@@ -8,15 +8,14 @@ from prefect import flow
 from prefect.runtime import flow_run
 
 from flows.config import from_tables
-from flows.runs import StageSummary, settle
+from flows.runs import StageSummary, reuse_or_run
 from storage.db import connect
 from storage.paths import data_paths
 from storage.records import register_video
 from tasks.ingest.config import declare
 from tasks.ingest.stage import STAGE, ingest_key
 from tasks.ingest.task import identify_task, ingest_call
-from tasks.runner import committed
-from tasks.stage_task import run_stage_task
+from tasks.runner import StageCall
 
 
 def _run_name() -> str:
@@ -38,16 +37,16 @@ def ingest_flow(
     declaration = declare(adversary, adversary_colour, notes)
     file = identify_task(video)
     key = ingest_key(settings, file.video_id, declaration)
-    db = data_paths(data_root).db
-    # Unlike the later stages, no 'running' note: the video is not listed before it is
-    # registered, and an ingest takes seconds.
-    result = None if force else committed(db, STAGE, file.video_id, key)
-    if result is None:
-        result = run_stage_task(db, ingest_call(data_root, file, declaration, settings, key))
+
+    def call() -> StageCall:
+        return ingest_call(data_root, file, declaration, settings, key)
+
+    result, state = reuse_or_run(
+        data_root, stage=STAGE, video_id=file.video_id, key=key, force=force, call=call, noted=False
+    )
     # Registered whether computed or reused: the same bytes may come from a new path.
-    with connect(db) as con:
+    with connect(data_paths(data_root).db) as con:
         register_video(con, file.video_id, file.size_bytes, file.path)
-    state = settle(data_root, result)
     return StageSummary(
         file.video_id, file.path, "ingest", key, state, result.seconds, result.notes
     )

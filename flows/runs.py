@@ -64,22 +64,27 @@ def reuse_or_run(
     key: str,
     force: bool,
     call: Callable[[], StageCall],
+    noted: bool = True,
 ) -> tuple[StageResult, str]:
     """The committed output of ``stage`` under ``key`` unless ``force``, else the output of the
     stage's ``call()``, computed and committed by `run_stage_task`, and its state. The database
     is the one cache asked; ``call`` is made only when it has no output (the pose stage tracks
-    its chunks then). A stage that fails on bad input has the failure recorded for
-    `ringside status`.
+    its chunks then). When ``noted``, the computation is noted as running and a failure on bad
+    input as failed, for `ringside status` (ingest is not: its video is not listed before it is
+    registered, and an ingest takes seconds).
     """
-    result = None if force else committed(data_paths(data_root).db, stage, video_id, key)
+    db = data_paths(data_root).db
+    result = None if force else committed(db, stage, video_id, key)
     if result is None:
-        # Seen by `ringside status` and the dashboard while the stage computes.
-        with connect(data_paths(data_root).db) as con:
-            record_run(con, current_run_id(), video_id, stage, key, "running")
+        if noted:
+            # Seen by `ringside status` and the dashboard while the stage computes.
+            with connect(db) as con:
+                record_run(con, current_run_id(), video_id, stage, key, "running")
         try:
-            result = run_stage_task(data_paths(data_root).db, call())
+            result = run_stage_task(db, call())
         except BadInput as error:
-            record_failure(data_root, video_id, stage, key, error)
+            if noted:
+                record_failure(data_root, video_id, stage, key, error)
             raise
     return result, settle(data_root, result)
 

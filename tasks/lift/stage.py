@@ -260,11 +260,11 @@ def lift_video(
     rejected = dict.fromkeys(REASONS, 0)
     fighter_frames = 0
     notes: list[str] = []
+    K, dist, source = _intrinsics(config, size, calibration)
+    fighters = {r: _without_distortion(track, K, dist) for r, track in fighters.items()}
     twice = np.zeros(frames, bool)
     if all(r in fighters for r in ROLES):
         twice = one_person(*(fighters[r].keypoints for r in ROLES), gates)
-    K, dist, source = _intrinsics(config, size, calibration)
-    fighters = {r: _without_distortion(track, K, dist) for r, track in fighters.items()}
     finished = 0  # frames of the shot before, told when the next one starts
     for shot, start, end in shots:
         advance(finished)

@@ -85,11 +85,12 @@ def lift_series(con: duckdb.DuckDBPyConnection, key: str, video_id: str) -> Lift
     steps = int(rows["step"].max()) + 1 if len(roles) else 0
     # On the grid, NaN where a fighter has no row; NULL (an output made before the measures were
     # stored) reads as NaN too.
-    grid = {}
-    for name in ("x", "y", "floor_penetration_m", "slide_left_m_s", "slide_right_m_s"):
-        for role in np.unique(roles):
-            mine = roles == role
-            values = grid.setdefault(role, {}).setdefault(name, np.full(steps, np.nan))
+    grid: dict[str, dict[str, np.ndarray]] = {}
+    for role in np.unique(roles):
+        mine = roles == role
+        grid[role] = {}
+        for name in ("x", "y", "floor_penetration_m", "slide_left_m_s", "slide_right_m_s"):
+            values = grid[role][name] = np.full(steps, np.nan)
             values[rows["step"][mine]] = np.ma.filled(
                 np.ma.asarray(rows[name][mine], float), np.nan
             )
