@@ -23,9 +23,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-os.environ.setdefault(
-    "OMP_WAIT_POLICY", "PASSIVE"
-)  # as `ringside` sets it (flows/cli/environment.py)
+# As `ringside` sets it (flows/cli/environment.py).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from models.maaip.config import TrainConfig  # noqa: E402
 from models.maaip.env import ArenaEnv  # noqa: E402

@@ -19,9 +19,8 @@ os.environ["PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL"] = "CRITICAL"
 os.environ["PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS"] = "120"
 os.environ["OPENCV_FFMPEG_LOGLEVEL"] = "-8"
 os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering, as `ringside` sets it
-os.environ.setdefault(
-    "OMP_WAIT_POLICY", "PASSIVE"
-)  # as `ringside` sets it (flows/cli/environment.py)
+# As `ringside` sets it (flows/cli/environment.py).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 # Every test's data directory shares the one pulled copy of the assets.
 REPO = Path(__file__).resolve().parent.parent
 os.environ.setdefault(
