@@ -10,7 +10,7 @@ from typing import Any
 
 import duckdb
 
-from storage.records import output_metrics
+from storage.records import newest_output, output_metrics
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import member_statistics
 from tasks.errors import BadInput
@@ -107,12 +107,8 @@ def evaluation_tables(
 
 def newest_evaluation(con: duckdb.DuckDBPyConnection, run_key: str) -> str | None:
     """The key of the newest committed evaluation of training run ``run_key``, or None."""
-    row = con.execute(
-        "SELECT key FROM stage_outputs WHERE stage = ? AND video_id = ? "
-        "ORDER BY created_at DESC LIMIT 1",
-        [STAGE, run_key],
-    ).fetchone()
-    return None if row is None else row[0]
+    newest = newest_output(con, STAGE, run_key)
+    return None if newest is None else newest[0]
 
 
 def evaluation_artifacts(con: duckdb.DuckDBPyConnection, key: str, run_key: str) -> dict[str, str]:
