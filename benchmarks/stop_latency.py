@@ -33,11 +33,11 @@ TRIALS = 3
 # The command as `python -m flows.cli`, or with the flag the pose flow sets made inert.
 COMMAND = "import runpy\nrunpy.run_module('flows.cli', run_name='__main__')"
 NO_FLAG = (
-    "import flows.pose, threading\n"
+    "import tasks.pose.task, threading\n"
     "class Inert(threading.Event):\n"
     "    def set(self):\n"
     "        pass\n"
-    "flows.pose.STOP = Inert()\n" + COMMAND
+    "tasks.pose.task.STOP = Inert()\n" + COMMAND
 )
 LINE = "ringside: error: stopped by SIGTERM; the same command picks up where it stopped"
 

@@ -10,13 +10,9 @@ from prefect import flow
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from flows.config import PIPELINE_STAGES, from_tables
-from flows.dataset import assemble_flow, dataset_flow
-from flows.evaluate import evaluate_flow
-from flows.ingest import ingest_flow
-from flows.lift import lift_flow
-from flows.pose import pose_flow
+from flows.dataset import assemble_flow
 from flows.runs import StageSummary
-from flows.train import train_flow
+from flows.stage import run_stage_flow
 from tasks.errors import BadInput
 
 
@@ -83,57 +79,38 @@ def video_to_opponent(
     A video that fails does not stop the others; the flow fails at the end, naming each failure.
     """
     stages = stages_until(until)
-    pose = pose_flow.with_options(task_runner=chunk_runner(from_tables(config or {}).pose.workers))
+    chunks = chunk_runner(from_tables(config or {}).pose.workers)
     forced = set(rerun or [])
     unknown = forced - set(PIPELINE_STAGES)
     if unknown:
         raise ValueError(
             f"cannot rerun unknown stages {sorted(unknown)}; known: {list(PIPELINE_STAGES)}"
         )
+
+    def run(stage: str, subject: str, inputs: dict, **options) -> StageSummary:
+        summary = run_stage_flow(
+            stage, data_root, subject, inputs, config, stage in forced, **options
+        )
+        summaries.append(summary)
+        return summary
+
     summaries: list[StageSummary] = []
     failures: list[str] = []
+    declaration = {"adversary": adversary, "adversary_colour": adversary_colour, "notes": notes}
     for video in videos:
         try:
-            ingested = ingest_flow(
-                data_root,
-                video,
-                adversary,
-                adversary_colour,
-                notes,
-                config,
-                force="ingest" in forced,
-            )
+            ingested = run("ingest", video, declaration)
         except BadInput as error:
             failures.append(str(error))
             continue
-        summaries.append(ingested)
-        if "pose" not in stages:
-            continue
+        video_id, ingest_key = ingested.video_id, ingested.key
         try:
-            posed = pose(data_root, ingested.video_id, ingested.key, config, force="pose" in forced)
-            summaries.append(posed)
-            if "lift" not in stages:
-                continue
-            lifted = lift_flow(
-                data_root,
-                ingested.video_id,
-                ingested.key,
-                posed.key,
-                config,
-                force="lift" in forced,
-            )
-            summaries.append(lifted)
+            if "pose" in stages:
+                posed = run("pose", video_id, {"ingest": ingest_key}, task_runner=chunks)
+            if "lift" in stages:
+                lifted = run("lift", video_id, {"ingest": ingest_key, "pose": posed.key})
             if "dataset" in stages:
-                summaries.append(
-                    dataset_flow(
-                        data_root,
-                        ingested.video_id,
-                        ingested.key,
-                        lifted.key,
-                        config,
-                        force="dataset" in forced,
-                    )
-                )
+                run("dataset", video_id, {"ingest": ingest_key, "lift": lifted.key})
         except BadInput as error:
             failures.append(str(error))
     if any(s.stage == "dataset" for s in summaries):
@@ -142,12 +119,9 @@ def video_to_opponent(
             assembled = assemble_flow(data_root, adversary, config, "dataset" in forced)
             summaries.append(assembled)
             if "train" in stages:
-                trained = train_flow(data_root, assembled.key, config, "train" in forced)
-                summaries.append(trained)
+                trained = run("train", assembled.key, {})
                 if "evaluate" in stages:
-                    summaries.append(
-                        evaluate_flow(data_root, trained.key, config, "evaluate" in forced)
-                    )
+                    run("evaluate", trained.key, {})
         except BadInput as error:
             failures.append(str(error))
     if failures:

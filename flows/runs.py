@@ -3,17 +3,17 @@ what a command does about the flow runs a killed one left running."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 from prefect.artifacts import create_table_artifact
 from prefect.runtime import flow_run
 
 from storage.db import connect
-from storage.paths import data_paths
+from storage.paths import DataPaths
 from storage.records import record_run, stale_runs
 from tasks.errors import BadInput
-from tasks.runner import StageCall, StageResult, committed
+from tasks.runner import StagePlan, StageResult, committed
 from tasks.stage_task import run_stage_task
 
 
@@ -34,13 +34,13 @@ def current_run_id() -> str:
     return str(flow_run.id)
 
 
-def settle(data_root: str, result: StageResult) -> str:
+def settle(paths: DataPaths, result: StageResult) -> str:
     """Record whether ``result`` was computed by this run (``done``) or reused (``cached``), and
     publish its metrics as a Prefect table artifact. Returns the state."""
     run_id = current_run_id()
     state = "done" if result.run_id == run_id else "cached"
     if state == "cached":
-        with connect(data_paths(data_root).db) as con:
+        with connect(paths.db) as con:
             record_run(con, run_id, result.video_id, result.stage, result.key, "cached")
     create_table_artifact(
         key=f"{result.stage}-{result.video_id[:12]}",
@@ -50,46 +50,33 @@ def settle(data_root: str, result: StageResult) -> str:
     return state
 
 
-def record_failure(data_root: str, video_id: str, stage: str, key: str, error: BaseException):
-    """Note that ``stage`` failed for a registered video, so `ringside status` can say why."""
-    with connect(data_paths(data_root).db) as con:
-        record_run(con, current_run_id(), video_id, stage, key, "failed", str(error))
-
-
-def reuse_or_run(
-    data_root: str,
-    *,
-    stage: str,
-    video_id: str,
-    key: str,
-    force: bool,
-    call: Callable[[], StageCall],
-    noted: bool = True,
-) -> tuple[StageResult, str]:
-    """The committed output of ``stage`` under ``key`` unless ``force``, else the output of the
-    stage's ``call()``, computed and committed by `run_stage_task`, and its state. The database
-    is the one cache asked; ``call`` is made only when it has no output (the pose stage tracks
-    its chunks then). When ``noted``, the computation is noted as running and a failure on bad
-    input as failed, for `ringside status` (ingest is not: its video is not listed before it is
-    registered, and an ingest takes seconds).
+def reuse_or_run(paths: DataPaths, plan: StagePlan, force: bool) -> tuple[StageResult, str]:
+    """The committed output of ``plan`` unless ``force``, else the output its ``compute`` makes,
+    committed by `run_stage_task`; and its state. The database is the one cache asked; the
+    plan's ``before`` and ``compute`` run only when it has no output.
     """
-    db = data_paths(data_root).db
-    result = None if force else committed(db, stage, video_id, key)
+    spec = plan.spec
+    key = spec.key
+    result = None if force else committed(paths.db, spec.stage, spec.video_id, key)
     if result is None:
-        if noted:
+        if plan.noted:
             # Seen by `ringside status` and the dashboard while the stage computes.
-            with connect(db) as con:
-                record_run(con, current_run_id(), video_id, stage, key, "running")
+            with connect(paths.db) as con:
+                record_run(con, current_run_id(), spec.video_id, spec.stage, key, "running")
         try:
-            result = run_stage_task(db, call())
+            plan.before()
+            result = run_stage_task(paths.db, spec, plan.compute)
         except BadInput as error:
-            if noted:
-                record_failure(data_root, video_id, stage, key, error)
+            if plan.noted:
+                with connect(paths.db) as con:
+                    record_run(
+                        con, current_run_id(), spec.video_id, spec.stage, key, "failed", str(error)
+                    )
             raise
-    return result, settle(data_root, result)
+    return result, settle(paths, result)
 
 
-def crash_stale_flow_runs(data_root: str) -> int:
+def crash_stale_flow_runs(db: Path) -> int:
     """Mark as Crashed the flow runs a killed command left RUNNING in Prefect (they stay so for
     ever, in the UI too): those of its stages (`stale_runs`) and the flows above them. Returns
     how many were marked."""
@@ -105,7 +92,6 @@ def crash_stale_flow_runs(data_root: str) -> int:
     from prefect.client.schemas.objects import StateType
     from prefect.states import Crashed
 
-    db = data_paths(data_root).db
     if not db.exists():
         return 0
     with connect(db, read_only=True) as con:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from storage.db import connect
+from storage.keys import stage_key
 from storage.records import Columns, OutputRecord, output_metrics, output_run, write_output
 
 
@@ -52,40 +53,73 @@ def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | No
 
 
 @dataclass(frozen=True)
-class StageCall:
-    """One output a stage is to compute: what its record says (settings, code, upstream keys)
-    and how to compute it. Each stage's ``task.py`` builds one; `tasks.stage_task.run_stage_task`
-    runs any of them. ``run_name`` names the Prefect task run."""
+class StageSpec:
+    """What the record of one stage output says: its stage, its subject (a video, an
+    assembled dataset or a training run), settings, code version and upstream keys. Its key is
+    derived from them (ARCHITECTURE.md, Data), so an output is described once."""
 
-    run_name: str
     stage: str
     video_id: str
-    key: str
     config: Any
     code: str
     upstream: Mapping[str, Any]
+
+    @property
+    def key(self) -> str:
+        return stage_key(self.stage, self.config, self.code, self.upstream)
+
+    @property
+    def run_name(self) -> str:
+        """The name of the Prefect task run that computes it."""
+        return f"{self.stage}-{self.video_id:.12}"
+
+
+def _nothing() -> None:
+    return None
+
+
+@dataclass(frozen=True)
+class StagePlan:
+    """One stage output, planned by its stage's ``task.py`` and run by `flows.stage`.
+
+    ``compute`` is called only when the database has no output under ``spec.key``, inside the
+    stage's Prefect task; ``before`` runs in the flow just before it (the pose stage tracks its
+    chunks there, each a Prefect task of its own), ``after`` in the flow whether the output was
+    computed or reused. ``name`` is what the run's summary lists it by (the video's path, the
+    adversary). ``noted``: the computation is noted as running, and a failure as failed, for
+    `ringside status` (not ingest's: its video is registered only after it).
+    """
+
+    spec: StageSpec
+    name: str
     compute: Callable[[], StageOutput]
+    before: Callable[[], None] = _nothing
+    after: Callable[[], None] = _nothing
+    noted: bool = True
 
 
-def run_stage(db: Path, call: StageCall, run_id: str) -> StageResult:
-    """Compute ``call``'s output and commit it (whether one is committed already is the
-    caller's question: `flows.runs.reuse_or_run`).
+def run_stage(
+    db: Path, spec: StageSpec, compute: Callable[[], StageOutput], run_id: str
+) -> StageResult:
+    """Compute ``spec``'s output with ``compute`` and commit it (whether one is committed
+    already is the caller's question: `flows.runs.reuse_or_run`).
 
     The database is opened only to write, never while the computation runs, so other processes
     can use it meanwhile.
     """
     start = time.perf_counter()
-    output = call.compute()
+    output = compute()
     seconds = time.perf_counter() - start
+    key = spec.key
     record = OutputRecord(
-        call.stage, call.video_id, call.key, call.config, call.code, call.upstream, run_id, seconds
+        spec.stage, spec.video_id, key, spec.config, spec.code, spec.upstream, run_id, seconds
     )
     with connect(db) as con:
         write_output(con, record, output.rows, output.metrics, output.notes)
     return StageResult(
-        call.stage,
-        call.video_id,
-        call.key,
+        spec.stage,
+        spec.video_id,
+        key,
         run_id,
         seconds,
         dict(output.metrics),

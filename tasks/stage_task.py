@@ -2,27 +2,28 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
-from tasks.runner import StageCall, StageResult, run_stage
+from tasks.runner import StageOutput, StageResult, StageSpec, run_stage
 
 
 @task(name="stage", cache_policy=NO_CACHE)
-def _stage_task(db: Path, call: StageCall) -> StageResult:
-    return run_stage(db, call, str(flow_run.id))
+def _stage_task(db: Path, spec: StageSpec, compute: Callable[[], StageOutput]) -> StageResult:
+    return run_stage(db, spec, compute, str(flow_run.id))
 
 
-def run_stage_task(db: Path, call: StageCall) -> StageResult:
-    """Compute and commit ``call``'s output as a Prefect task run named for its stage.
+def run_stage_task(db: Path, spec: StageSpec, compute: Callable[[], StageOutput]) -> StageResult:
+    """Compute and commit ``spec``'s output as a Prefect task run named for its stage.
 
     Without Prefect's cache: whether a stage's output exists is asked of the database, the
     source of truth, once, before this is called (`flows.runs.reuse_or_run`). A Prefect cache
     here was a second and a third check of the same thing (its hit was thrown away when the
     database had lost the output); only the pose chunks keep one, where it pays.
     """
-    named = _stage_task.with_options(name=call.stage, task_run_name=call.run_name)
-    return named(db, call)
+    named = _stage_task.with_options(name=spec.stage, task_run_name=spec.run_name)
+    return named(db, spec, compute)

@@ -48,9 +48,10 @@ from flows.cli.upkeep import (
     config_command,
     restore_command,
 )
+from storage.paths import DataPaths
 
 # Each command's function, called with its parsed arguments and the data directory.
-COMMANDS: dict[str, Callable[[argparse.Namespace, Path], int]] = {
+COMMANDS: dict[str, Callable[[argparse.Namespace, DataPaths], int]] = {
     "process": process_command,
     "status": status_command,
     "rerun": rerun_command,
@@ -100,24 +101,23 @@ def _command(raw: list[str]) -> int:
     known, _ = pre.parse_known_args(raw)
     from storage.paths import data_paths
 
-    data_root = data_paths(known.data).root
-    prepare_environment(data_root, verbose=known.verbose)
+    paths = data_paths(known.data)
+    prepare_environment(paths, verbose=known.verbose)
     with prefect_settings_of_this_command():
-        return _dispatch(raw, data_root)
+        return _dispatch(raw, paths)
 
 
-def _dispatch(raw: list[str], data_root: Path) -> int:
+def _dispatch(raw: list[str], paths: DataPaths) -> int:
     args = build_parser().parse_args(raw)
     import duckdb
 
     from flows.serve import ServerError
     from storage.assets import AssetError
     from storage.db import DatabaseBusy, damaged_database, error_line
-    from storage.paths import data_paths
     from tasks.errors import BadInput
 
     try:
-        return COMMANDS[args.command](args, data_root)
+        return COMMANDS[args.command](args, paths)
     except (BadInput, ValueError, FileNotFoundError) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -128,7 +128,7 @@ def _dispatch(raw: list[str], data_root: Path) -> int:
         if not damaged_database(error):
             raise
         print(
-            f"ringside: error: the database {data_paths(data_root).db} is damaged "
+            f"ringside: error: the database {paths.db} is damaged "
             f"({error_line(error)}); `ringside check` says what is affected "
             "and `ringside check --repair` recomputes it",
             file=sys.stderr,

@@ -9,16 +9,18 @@ import os
 import sys
 from pathlib import Path
 
+from storage.paths import DataPaths
+
 EXIT_FAILED = 1
 
 EXIT_BAD_INPUT = 2
 
 
-def prepare_environment(data_root: Path, *, verbose: bool) -> None:
+def prepare_environment(paths: DataPaths, *, verbose: bool) -> None:
     """Prefect settings Ringside needs, unless the user has set them: its home (ephemeral
     server database, cached results) inside the data directory, no telemetry, a quiet console."""
-    os.environ["RINGSIDE_DATA"] = str(data_root)
-    os.environ.setdefault("PREFECT_HOME", str(data_root / "prefect"))
+    os.environ["RINGSIDE_DATA"] = str(paths.root)
+    os.environ.setdefault("PREFECT_HOME", str(paths.prefect_home))
     # Prefect creates its home with a plain mkdir and cannot start its server without it.
     Path(os.environ["PREFECT_HOME"]).expanduser().mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
@@ -41,13 +43,13 @@ def prepare_environment(data_root: Path, *, verbose: bool) -> None:
         # While `ringside serve` runs on this data directory, every run reports to its server
         # and shows in its UI; otherwise a flow command starts a server of its own
         # (`flow_server`).
-        api = served_api(data_root)
+        api = served_api(paths.root)
         if api is not None:
             os.environ["PREFECT_API_URL"] = api
 
 
 @contextlib.contextmanager
-def flow_server(data_root: Path):
+def flow_server(paths: DataPaths):
     """Where a command's flows report: `ringside serve`'s server or the user's
     (PREFECT_API_URL), else a private server started here, once the command has checked its
     input (it takes seconds to start: a mistyped path waited for it). Then the runs a killed
@@ -56,9 +58,9 @@ def flow_server(data_root: Path):
         from flows.serve import private_server
 
         # Not Prefect's temporary server: a killed command would leave that one running.
-        os.environ["PREFECT_API_URL"] = private_server(data_root)
+        os.environ["PREFECT_API_URL"] = private_server(paths.root)
     with prefect_settings_of_this_command():
-        _crash_stale_flow_runs(data_root)
+        _crash_stale_flow_runs(paths.db)
         yield
 
 
@@ -77,13 +79,13 @@ def prefect_settings_of_this_command():
         yield
 
 
-def _crash_stale_flow_runs(data_root: Path) -> None:
+def _crash_stale_flow_runs(db: Path) -> None:
     """Tidy Prefect before a run: a killed command's flow runs would read RUNNING for ever. A
     failure here must not stop the run, so it is only logged."""
     from flows.runs import crash_stale_flow_runs
 
     try:
-        marked = crash_stale_flow_runs(str(data_root))
+        marked = crash_stale_flow_runs(db)
     except Exception as error:  # the API unreachable, a changed Prefect: the run goes on
         logging.getLogger("ringside").debug("stale flow runs not marked: %s", error)
         return

@@ -12,11 +12,12 @@ from flows.cli.environment import EXIT_BAD_INPUT, flow_server
 from flows.cli.parser import overrides
 from flows.cli.tables import print_opponent, print_summary, print_table
 from flows.cli.upkeep import pull_assets
+from storage.paths import DataPaths
 
 
 def run_pipeline(
     args,
-    data_root: Path,
+    paths: DataPaths,
     videos: list[str],
     adversary: str,
     colour,
@@ -27,7 +28,6 @@ def run_pipeline(
     from flows.pipeline import PipelineFailed, video_to_opponent
     from flows.serve import run_parameters
     from storage.check import remove_stale_temporaries
-    from storage.paths import data_paths
     from tasks.ingest.probe import check_file
 
     # Cheap checks before Prefect starts, so a mistyped path fails in milliseconds.
@@ -35,9 +35,9 @@ def run_pipeline(
         check_file(Path(video))
     config = load_config(args.config, overrides(args))
     # Half-written files of a process killed mid-write (`storage.files.write_atomic`).
-    remove_stale_temporaries(data_paths(data_root).artifacts)
+    remove_stale_temporaries(paths.artifacts)
     parameters = run_parameters(
-        data_root,
+        paths.root,
         videos,
         adversary,
         colour,
@@ -47,35 +47,32 @@ def run_pipeline(
         rerun=rerun,
     )
     try:
-        with flow_server(data_root):
+        with flow_server(paths):
             summaries = video_to_opponent(**parameters)
     except PipelineFailed as failed:
         if failed.summaries:
-            print_summary(failed.summaries, data_root, args.json)
+            print_summary(failed.summaries, paths, args.json)
         for line in failed.failures:
             print(f"ringside: error: {line}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    print_summary(summaries, data_root, args.json)
+    print_summary(summaries, paths, args.json)
     evaluated = [s for s in summaries if s.stage == "evaluate"]
     if evaluated and not args.json:
-        print_opponent(data_root, evaluated[-1])
+        print_opponent(paths, evaluated[-1])
     return 0
 
 
-def process_command(args, data_root: Path) -> int:
-    return run_pipeline(
-        args, data_root, args.videos, args.adversary, args.adversary_colour, args.notes
-    )
+def process_command(args, paths: DataPaths) -> int:
+    return run_pipeline(args, paths, args.videos, args.adversary, args.adversary_colour, args.notes)
 
 
-def status_command(args, data_root: Path) -> int:
+def status_command(args, paths: DataPaths) -> int:
     from flows.config import STAGES
     from storage.db import connect
-    from storage.paths import data_paths
     from storage.records import opponent_states, stage_states
     from tasks.dataset.store import list_datasets
 
-    db = data_paths(data_root).db
+    db = paths.db
     videos: list[dict[str, Any]] = []
     opponents: list[dict[str, Any]] = []
     # The JSON's documented fields; the dashboard shows the timings too.
@@ -103,16 +100,15 @@ def status_command(args, data_root: Path) -> int:
     return 0
 
 
-def rerun_command(args, data_root: Path) -> int:
+def rerun_command(args, paths: DataPaths) -> int:
     from storage.db import connect
-    from storage.paths import data_paths
     from tasks.ingest.store import ingested_video
 
-    with connect(data_paths(data_root).db, read_only=True) as con:
+    with connect(paths.db, read_only=True) as con:
         video = ingested_video(con, args.video)
     return run_pipeline(
         args,
-        data_root,
+        paths,
         [video.path],
         video.adversary,
         video.colour,
@@ -121,24 +117,22 @@ def rerun_command(args, data_root: Path) -> int:
     )
 
 
-def pick_command(args, data_root: Path) -> int:
+def pick_command(args, paths: DataPaths) -> int:
     from storage.db import connect
-    from storage.paths import data_paths
     from tasks.ingest.store import ingested_video
     from tasks.pose.store import record_pick
 
-    with connect(data_paths(data_root).db) as con:
+    with connect(paths.db) as con:
         video = ingested_video(con, args.video)
         record_pick(con, video.video_id, args.track)
-    return run_pipeline(args, data_root, [video.path], video.adversary, video.colour, video.notes)
+    return run_pipeline(args, paths, [video.path], video.adversary, video.colour, video.notes)
 
 
-def metrics_command(args, data_root: Path) -> int:
+def metrics_command(args, paths: DataPaths) -> int:
     from storage.db import connect
-    from storage.paths import data_paths
     from storage.records import latest_metrics
 
-    db = data_paths(data_root).db
+    db = paths.db
     rows = []
     if db.exists():
         with connect(db, read_only=True) as con:
@@ -161,12 +155,11 @@ def metrics_command(args, data_root: Path) -> int:
     return 0
 
 
-def datasets_command(args, data_root: Path) -> int:
+def datasets_command(args, paths: DataPaths) -> int:
     from storage.db import connect
-    from storage.paths import data_paths
     from tasks.dataset.store import list_datasets
 
-    db = data_paths(data_root).db
+    db = paths.db
     rows = []
     if db.exists():
         with connect(db, read_only=True) as con:
@@ -179,13 +172,12 @@ def datasets_command(args, data_root: Path) -> int:
     return 0
 
 
-def demo_command(args, data_root: Path) -> int:
+def demo_command(args, paths: DataPaths) -> int:
     from flows.config import DEMO_SETTINGS
     from storage.assets import BOXING_CLIPS, SAMPLE_VIDEO
-    from storage.paths import data_paths
 
-    pull_assets(data_root)
-    assets = data_paths(data_root).assets
+    pull_assets(paths)
+    assets = paths.assets
     sample = assets / SAMPLE_VIDEO
     args.config, args.until = None, None
     # The sample is two people walking: DeepMimic's punch, retargeted onto both fighters, joins
@@ -195,7 +187,7 @@ def demo_command(args, data_root: Path) -> int:
         setattr(args, "cfg__" + name.replace(".", "__"), value)
     return run_pipeline(
         args,
-        data_root,
+        paths,
         [str(sample)],
         "demo adversary",
         None,

@@ -14,10 +14,11 @@ from pathlib import Path
 
 from flows.cli.environment import EXIT_FAILED
 from flows.cli.parser import overrides
+from storage.paths import DataPaths
 
 
-def streamlit_argv(data_root: Path, *, host: str, port: int) -> list[str]:
-    """The command line that serves the dashboard of ``data_root`` with Streamlit: headless (it
+def streamlit_argv(paths: DataPaths, *, host: str, port: int) -> list[str]:
+    """The command line that serves the dashboard of ``paths`` with Streamlit: headless (it
     opens no browser and asks no questions), without Streamlit's usage statistics."""
     # Its file, not the module: importing the app would load Streamlit into this command.
     app = importlib.util.find_spec("dashboards.app").origin
@@ -40,7 +41,7 @@ def streamlit_argv(data_root: Path, *, host: str, port: int) -> list[str]:
         "minimal",
         "--",
         "--data",
-        str(data_root),
+        str(paths.root),
     ]
 
 
@@ -74,7 +75,7 @@ def sigterm_as_ctrl_c():
         signal.signal(signal.SIGTERM, previous)
 
 
-def dashboard_command(args, data_root: Path) -> int:
+def dashboard_command(args, paths: DataPaths) -> int:
     import webbrowser
 
     if not 0 < args.port < 65536:
@@ -88,8 +89,8 @@ def dashboard_command(args, data_root: Path) -> int:
 
     # A SIGTERM stops the server as Ctrl-C does, not orphaning it.
     with sigterm_as_ctrl_c():
-        server = subprocess.Popen(streamlit_argv(data_root, host=args.host, port=args.port))
-        print(f"dashboard of {data_root} at {url} (Ctrl-C stops it)", flush=True)
+        server = subprocess.Popen(streamlit_argv(paths, host=args.host, port=args.port))
+        print(f"dashboard of {paths.root} at {url} (Ctrl-C stops it)", flush=True)
         try:
             if not args.no_browser and graphical and wait_until_serving(url, server):
                 webbrowser.open(url)
@@ -106,7 +107,7 @@ def dashboard_command(args, data_root: Path) -> int:
             return 0
 
 
-def serve_command(args, data_root: Path) -> int:
+def serve_command(args, paths: DataPaths) -> int:
     from flows import serve as served
     from flows.config import load_config
     from tasks.errors import BadInput
@@ -135,9 +136,9 @@ def serve_command(args, data_root: Path) -> int:
             args.every,
             args.until,
         )
-    running = served.served_api(data_root)
+    running = served.served_api(paths.root)
     if running is not None:
-        raise ValueError(f"{data_root} is served already, at {running.removesuffix('/api')}")
+        raise ValueError(f"{paths.root} is served already, at {running.removesuffix('/api')}")
     own_server = "PREFECT_API_URL" not in os.environ
     if own_server and not served.port_free(args.port):
         raise ValueError(f"--port {args.port} is in use (another server?): choose another")
@@ -147,27 +148,27 @@ def serve_command(args, data_root: Path) -> int:
     api = os.environ.setdefault("PREFECT_API_URL", f"http://127.0.0.1:{args.port}/api")
     for name, value in served.RUNNER_SETTINGS.items():
         os.environ.setdefault(name, value)
-    deployments = served.deployments(data_root, config, watch)
+    deployments = served.deployments(paths.root, config, watch)
     # SIGTERM stops it as Ctrl-C does, the server included (below); once serving, SIGTERM
     # cancels the runner instead (see serve_deployments).
     server = None
     with sigterm_as_ctrl_c():
         try:
             if own_server:
-                written = served.server_log_size(data_root)
-                server = served.start_server(data_root, args.port)
+                written = served.server_log_size(paths.root)
+                server = served.start_server(paths.root, args.port)
                 if not served.wait_until_up(api, server):
-                    print(served.log_tail(data_root), file=sys.stderr)
+                    print(served.log_tail(paths.root), file=sys.stderr)
                     why = served.startup_failure(
-                        data_root, written, server.poll() is not None, served.SERVER_START_S
+                        paths.root, written, server.poll() is not None, served.SERVER_START_S
                     )
                     print(f"ringside: error: {why}", file=sys.stderr)
                     return EXIT_FAILED
             ui = api.removesuffix("/api")
-            served.write_served(data_root, served.Served(api, ui, os.getpid()))
+            served.write_served(paths.root, served.Served(api, ui, os.getpid()))
             print(f"Prefect UI: {ui} (Ctrl-C stops serving)", flush=True)
             print(
-                f"serving {served.PIPELINE_FLOW}/{served.DEPLOYMENT} on {data_root}: "
+                f"serving {served.PIPELINE_FLOW}/{served.DEPLOYMENT} on {paths.root}: "
                 "`ringside schedule`, the dashboard's reruns and the UI's Run start it",
                 flush=True,
             )
@@ -177,18 +178,18 @@ def serve_command(args, data_root: Path) -> int:
                     f"watching {watch.folder.resolve()} {when} for new videos of {watch.adversary}",
                     flush=True,
                 )
-            served.serve_deployments(deployments, data_root, args.workers)
+            served.serve_deployments(deployments, paths.root, args.workers)
         except (KeyboardInterrupt, SystemExit):  # SystemExit: Prefect's own SIGTERM handler
             pass
         finally:
-            served.clear_served(data_root, os.getpid())
+            served.clear_served(paths.root, os.getpid())
             if server is not None:
                 served.stop_process(server)
     print("serving stopped", file=sys.stderr)
     return 0
 
 
-def worker_command(args, data_root: Path) -> int:
+def worker_command(args, paths: DataPaths) -> int:
     from flows import serve as served
     from tasks.errors import BadInput
 
@@ -197,15 +198,15 @@ def worker_command(args, data_root: Path) -> int:
     api = os.environ.get("PREFECT_API_URL")
     if api is None:
         raise BadInput(
-            str(data_root),
+            str(paths.root),
             f"{served.NO_SERVER} (on another machine: set PREFECT_API_URL to its server)",
         )
     served.ensure_work_pool()
     with sigterm_as_ctrl_c():
-        worker = served.start_worker(data_root, args.limit)
+        worker = served.start_worker(paths.root, args.limit)
         print(
             f"taking runs from work pool '{served.WORK_POOL}' of {api}, {args.limit} at a time "
-            f"(log: {served.worker_log(data_root)}; Ctrl-C stops)",
+            f"(log: {served.worker_log(paths.root)}; Ctrl-C stops)",
             flush=True,
         )
         try:
@@ -218,7 +219,7 @@ def worker_command(args, data_root: Path) -> int:
     return 0
 
 
-def schedule_command(args, data_root: Path) -> int:
+def schedule_command(args, paths: DataPaths) -> int:
     from datetime import datetime
 
     from flows import serve as served
@@ -231,7 +232,7 @@ def schedule_command(args, data_root: Path) -> int:
     at = served.parse_when(args.at, now=datetime.now().astimezone())
     config = load_config(args.config, overrides(args))
     parameters = served.run_parameters(
-        data_root,
+        paths.root,
         args.videos,
         args.adversary,
         args.adversary_colour,
@@ -240,9 +241,9 @@ def schedule_command(args, data_root: Path) -> int:
         until=args.until,
     )
     run_id = served.submit_run(
-        data_root, parameters, at=None if args.at.strip().lower() == "now" else at
+        paths.root, parameters, at=None if args.at.strip().lower() == "now" else at
     )
-    ui = (served.served_api(data_root) or "").removesuffix("/api")
+    ui = (served.served_api(paths.root) or "").removesuffix("/api")
     url = f"{ui}/runs/flow-run/{run_id}"
     if args.json:
         print(json.dumps({"flow_run_id": run_id, "scheduled_time": at.isoformat(), "url": url}))

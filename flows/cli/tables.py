@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from pathlib import Path
 from typing import Any
+
+from storage.paths import DataPaths
 
 
 def print_table(rows: list[dict[str, Any]], columns: list[str]) -> None:
@@ -19,8 +20,7 @@ def print_table(rows: list[dict[str, Any]], columns: list[str]) -> None:
         print("  ".join(v.ljust(w) for v, w in zip(t, widths, strict=True)))
 
 
-def print_summary(summaries: list, data_root: Path, as_json: bool) -> None:
-    from storage.paths import data_paths
+def print_summary(summaries: list, paths: DataPaths, as_json: bool) -> None:
 
     rows = [dataclasses.asdict(s) for s in summaries]
     if as_json:
@@ -40,29 +40,26 @@ def print_summary(summaries: list, data_root: Path, as_json: bool) -> None:
         where = " ".join(filter(None, (row["stage"], row["video_id"][:12])))
         for note in row["notes"]:
             print(f"note: {where}: {note}")
-    paths = data_paths(data_root)
     print(f"\nresults: {paths.db}\nartifacts: {paths.artifacts}")
     print("see them with: ringside status | ringside metrics")
 
 
-def print_opponent(data_root: Path, evaluated) -> None:
+def print_opponent(paths: DataPaths, evaluated) -> None:
     """Where the pipeline's opponent is (the folder its evaluation exported, written where
     `ringside export` writes it), its bout and its headline numbers against the evaluation's
     baselines."""
     from storage.artifacts import artifact_path
     from storage.db import connect
-    from storage.paths import data_paths
     from storage.records import output_metrics
     from tasks.evaluate.export import stored_opponent
     from tasks.evaluate.opponent import MANIFEST
     from tasks.evaluate.store import evaluation_artifacts
 
-    paths = data_paths(data_root)
     run_key = evaluated.video_id
     with connect(paths.db, read_only=True) as con:
         metrics = output_metrics(con, "evaluate", run_key, evaluated.key)
         media = evaluation_artifacts(con, evaluated.key, run_key)
-    out = data_root / "opponents" / f"{run_key[:12]}-adversary"
+    out = paths.root / "opponents" / f"{run_key[:12]}-adversary"
     folder = stored_opponent(paths.artifacts, media, out)
     iteration = json.loads((folder / MANIFEST).read_text())["iteration"]
 

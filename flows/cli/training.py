@@ -11,28 +11,31 @@ from pathlib import Path
 from flows.cli.environment import flow_server
 from flows.cli.parser import overrides
 from flows.cli.tables import pivot, print_summary, print_table
+from storage.paths import DataPaths
 
 
-def train_command(args, data_root: Path) -> int:
+def train_command(args, paths: DataPaths) -> int:
     from flows.config import load_config
-    from flows.train import resolve_dataset, train_flow
+    from flows.stage import run_stage_flow
+    from tasks.train.task import resolve_dataset
 
     config = load_config(args.config, overrides(args))
-    resolve_dataset(data_root, args.dataset)  # fail fast, before Prefect starts
-    with flow_server(data_root):
-        summary = train_flow(str(data_root), args.dataset, config.as_dict(), args.rerun)
-    print_summary([summary], data_root, args.json)
+    resolve_dataset(paths.db, args.dataset)  # fail fast, before Prefect starts
+    with flow_server(paths):
+        summary = run_stage_flow(
+            "train", str(paths.root), args.dataset, config=config.as_dict(), force=args.rerun
+        )
+    print_summary([summary], paths, args.json)
     return 0
 
 
-def curves_command(args, data_root: Path) -> int:
+def curves_command(args, paths: DataPaths) -> int:
     from storage.db import connect
-    from storage.paths import data_paths
     from tasks.train.store import CURVES, learning_curves
 
     if args.every < 1:
         raise ValueError(f"--every must be at least 1, got {args.every}")
-    with connect(data_paths(data_root).db, read_only=True) as con:
+    with connect(paths.db, read_only=True) as con:
         rows = learning_curves(con, args.run, every=args.every)
     if args.json:
         print(json.dumps(rows))
@@ -45,13 +48,11 @@ def curves_command(args, data_root: Path) -> int:
     return 0
 
 
-def export_command(args, data_root: Path) -> int:
-    from storage.paths import data_paths
+def export_command(args, paths: DataPaths) -> int:
     from tasks.evaluate.export import trained_policy
 
-    paths = data_paths(data_root)
     trained = trained_policy(paths.db, paths.artifacts, args.run)
-    out = args.out or data_root / "opponents" / f"{trained.run_key[:12]}-{args.agent}"
+    out = args.out or paths.root / "opponents" / f"{trained.run_key[:12]}-{args.agent}"
     folder = trained.export(0 if args.agent == "adversary" else 1, out)
     if args.json:
         print(
@@ -66,25 +67,26 @@ def export_command(args, data_root: Path) -> int:
     return 0
 
 
-def evaluate_command(args, data_root: Path) -> int:
+def evaluate_command(args, paths: DataPaths) -> int:
     from flows.config import load_config
     from storage.db import connect
-    from storage.paths import data_paths
     from storage.records import output_metrics
     from tasks.errors import BadInput
     from tasks.evaluate.stage import POLICIES
     from tasks.evaluate.store import evaluation_tables, resolve_run
 
     config = load_config(args.config, overrides(args))
-    db = data_paths(data_root).db
+    db = paths.db
     if not db.exists():
         raise BadInput(str(db), "no database yet: process some footage and train first")
     with connect(db, read_only=True) as con:  # fail fast, before Prefect starts
         resolve_run(con, args.run)
-    from flows.evaluate import evaluate_flow
+    from flows.stage import run_stage_flow
 
-    with flow_server(data_root):
-        summary = evaluate_flow(str(data_root), args.run, config.as_dict(), args.rerun)
+    with flow_server(paths):
+        summary = run_stage_flow(
+            "evaluate", str(paths.root), args.run, config=config.as_dict(), force=args.rerun
+        )
     with connect(db, read_only=True) as con:
         tables = evaluation_tables(con, summary.key, summary.video_id)
         metrics = output_metrics(con, "evaluate", summary.video_id, summary.key)
@@ -95,7 +97,7 @@ def evaluate_command(args, data_root: Path) -> int:
             )
         )
         return 0
-    print_summary([summary], data_root, False)
+    print_summary([summary], paths, False)
 
     def number(value) -> str:
         return "" if value is None else f"{value:.4g}"
@@ -149,10 +151,9 @@ def evaluate_command(args, data_root: Path) -> int:
     return 0
 
 
-def export_motion_command(args, data_root: Path) -> int:
+def export_motion_command(args, paths: DataPaths) -> int:
     from storage.artifacts import read_bytes
     from storage.db import connect
-    from storage.paths import data_paths
     from tasks.errors import BadInput
     from tasks.evaluate.export import write_folder
     from tasks.evaluate.motion_files import BOUTS, bout_files, lifted_files
@@ -160,7 +161,6 @@ def export_motion_command(args, data_root: Path) -> int:
     from tasks.ingest.store import ingested_video, load_ingest
     from tasks.lift.store import load_motion, newest_lift
 
-    paths = data_paths(data_root)
     if not paths.db.exists():
         raise BadInput(str(paths.db), "no database yet: process a video first")
     with connect(paths.db, read_only=True) as con:
@@ -187,7 +187,7 @@ def export_motion_command(args, data_root: Path) -> int:
     if not files:
         raise BadInput(what, "holds no motion to export")
     folder = write_folder(
-        args.out or data_root / "motion" / default,
+        args.out or paths.root / "motion" / default,
         {name: file.text.encode() for name, file in files.items()},
     )
     frames = {name: file.frames for name, file in files.items()}
@@ -200,7 +200,7 @@ def export_motion_command(args, data_root: Path) -> int:
     return 0
 
 
-def spar_command(args, _data_root: Path) -> int:
+def spar_command(args, _paths: DataPaths) -> int:
     from tqdm import tqdm
 
     from tasks.evaluate.opponent import load_opponent

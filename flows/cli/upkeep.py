@@ -9,18 +9,17 @@ from pathlib import Path
 
 from flows.cli.environment import EXIT_FAILED
 from flows.cli.tables import print_problems
+from storage.paths import DataPaths
 
 
-def check_command(args, data_root: Path) -> int:
+def check_command(args, paths: DataPaths) -> int:
     import duckdb
     from tqdm import tqdm
 
     from flows.serve import prefect_database
     from storage.check import repair, scan
     from storage.db import error_line
-    from storage.paths import data_paths
 
-    paths = data_paths(data_root)
     prefect_db = prefect_database()
     with tqdm(desc="check", unit=" tables", disable=args.json or not sys.stderr.isatty()) as bar:
         problems = scan(paths.db, paths.artifacts, lambda _: bar.update(1), prefect_db)
@@ -60,11 +59,10 @@ def check_command(args, data_root: Path) -> int:
     return EXIT_FAILED if left else 0
 
 
-def backup_command(args, data_root: Path) -> int:
+def backup_command(args, paths: DataPaths) -> int:
     from storage.backup import DATABASE, backup
-    from storage.paths import data_paths
 
-    db = data_paths(data_root).db
+    db = paths.db
     if not db.exists():
         raise FileNotFoundError(f"{db}: no database yet; nothing to back up")
     manifest = backup(db, args.folder)
@@ -72,16 +70,14 @@ def backup_command(args, data_root: Path) -> int:
     print(
         f"backed up {db} ({manifest['bytes'] / 1e6:.1f} MB, {rows} rows in "
         f"{len(manifest['rows'])} tables) to {args.folder / DATABASE}; the artifacts stay in "
-        f"{data_paths(data_root).artifacts}"
+        f"{paths.artifacts}"
     )
     return 0
 
 
-def restore_command(args, data_root: Path) -> int:
+def restore_command(args, paths: DataPaths) -> int:
     from storage.backup import restore
-    from storage.paths import data_paths
 
-    paths = data_paths(data_root)
     aside, problems = restore(paths.db, paths.artifacts, args.folder)
     kept = f"; the database it replaced is kept as {aside}" if aside else ""
     print(f"restored {paths.db} from {args.folder}{kept}")
@@ -92,29 +88,28 @@ def restore_command(args, data_root: Path) -> int:
     return 0
 
 
-def pull_assets(data_root: Path, *, dev: bool = False) -> list[Path]:
+def pull_assets(paths: DataPaths, *, dev: bool = False) -> list[Path]:
     from storage.assets import pull
-    from storage.paths import data_paths
 
-    root = data_paths(data_root).assets
+    root = paths.assets
     files = pull(root, dev=dev, log=lambda line: print(line, file=sys.stderr))
     print(f"assets ready in {root} ({len(files)} files)", file=sys.stderr)
     return files
 
 
-def assets_command(args, data_root: Path) -> int:
-    pull_assets(data_root, dev=args.dev)
+def assets_command(args, paths: DataPaths) -> int:
+    pull_assets(paths, dev=args.dev)
     return 0
 
 
-def config_command(_args, _data_root: Path) -> int:
+def config_command(_args, _paths: DataPaths) -> int:
     from flows.config import defaults_text
 
     print(defaults_text(), end="")
     return 0
 
 
-def calibrate_command(args, _data_root: Path) -> int:
+def calibrate_command(args, _paths: DataPaths) -> int:
     import cv2
 
     from tasks.errors import BadInput

@@ -28,7 +28,7 @@ from models.humanoid.compiled import body_states, humanoid_index, velocities
 from models.humanoid.kinematics import heading_frame
 from models.humanoid.observations import OPPONENT_DIM, BodyState, observation, self_observation
 from models.pose.types import BLAZEPOSE_33
-from storage.keys import code_version, stage_key
+from storage.keys import code_version, digest
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
@@ -37,7 +37,7 @@ from tasks.errors import BadInput
 from tasks.lift.deepmimic import load_deepmimic, retarget
 from tasks.lift.motion import RATE, FighterMotion, fighter_distance
 from tasks.roles import AGENTS, ROLES
-from tasks.runner import StageOutput
+from tasks.runner import StageOutput, StageSpec
 
 EXTRA = "extra"  # the role and agent (2) of clips the user adds
 EXTRA_AGENT = 2
@@ -48,12 +48,17 @@ def dataset_code() -> str:
     return code_version("tasks.dataset", "models.humanoid")
 
 
-def dataset_upstream(lift_key: str) -> dict:
-    return {"lift": lift_key}
+def dataset_spec(config: DatasetConfig, video_id: str, lift_key: str) -> StageSpec:
+    return StageSpec(STAGE, video_id, config, dataset_code(), {"lift": lift_key})
 
 
-def dataset_key(config: DatasetConfig, lift_key: str) -> str:
-    return stage_key(STAGE, config, dataset_code(), dataset_upstream(lift_key))
+def extra_clips_spec(folder: Path, files: Mapping[str, str], bones: list[BoneLengths]) -> StageSpec:
+    """The extra clips' output: ``files`` (name -> SHA-256) of ``folder`` retargeted onto the
+    fighters' ``bones``, under a pseudo video id their bytes and the bones name."""
+    upstream = {"files": dict(files), "bones": [dataclasses.asdict(b) for b in bones]}
+    video_id = "extra-" + digest(upstream)[:20]
+    # Not the folder: the same clips anywhere are the same output.
+    return StageSpec(STAGE, video_id, {"extra_clips": "files"}, dataset_code(), upstream)
 
 
 @dataclass(frozen=True)

@@ -1,97 +1,91 @@
-"""Prefect tasks of the dataset stage: one video's demonstrations, extra clips, the assembly."""
+"""The dataset stage's plans: one video's demonstrations, the extra clips, and the assembly of
+an adversary's dataset from them."""
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from collections.abc import Mapping
 from pathlib import Path
 
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from models.humanoid.boxer import BoneLengths
 from storage.db import connect
-from storage.paths import data_paths
+from storage.files import sha256_file
+from storage.paths import DataPaths
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.stage import (
     STAGE,
     build_dataset,
     dataset_code,
-    dataset_upstream,
+    dataset_spec,
     extra_clip_output,
+    extra_clips_spec,
 )
-from tasks.dataset.store import candidate_members, record_dataset
+from tasks.dataset.store import candidate_members, member_bones, record_dataset
 from tasks.errors import BadInput
-from tasks.ingest.store import IngestOutput
+from tasks.ingest.store import load_ingest
 from tasks.lift.store import load_motion
-from tasks.runner import StageCall
+from tasks.runner import StagePlan
 
 
-def dataset_call(
-    data_root: str,
-    ingest: IngestOutput,
-    lift_key: str,
-    config: DatasetConfig,
-    key: str,
-) -> StageCall:
-    """Cut one video's lifted motion into clips, transitions, labels and statistics."""
-    paths = data_paths(data_root)
+def dataset_plan(
+    paths: DataPaths, config: DatasetConfig, video_id: str, inputs: Mapping[str, str]
+) -> StagePlan:
+    """Cut lift output ``inputs["lift"]`` into clips, transitions, labels and statistics."""
+    with connect(paths.db, read_only=True) as con:
+        ingest = load_ingest(con, video_id, inputs["ingest"])
+    lift_key = inputs["lift"]
+    spec = dataset_spec(config, video_id, lift_key)
 
     def compute():
         with connect(paths.db, read_only=True) as con:
-            fighters = load_motion(con, ingest.video_id, lift_key)
+            fighters = load_motion(con, video_id, lift_key)
         if not fighters:
-            raise BadInput(STAGE, f"lift output {lift_key} of video {ingest.video_id} is empty")
+            raise BadInput(STAGE, f"lift output {lift_key} of video {video_id} is empty")
         return build_dataset(
             fighters,
-            key=key,
-            video_id=ingest.video_id,
+            key=spec.key,
+            video_id=video_id,
             shots=list(ingest.shots),
             fps=ingest.fps,
             config=config,
         )
 
-    return StageCall(
-        run_name=f"dataset-{ingest.video_id:.12}",
-        stage=STAGE,
-        video_id=ingest.video_id,
-        key=key,
-        config=config,
-        code=dataset_code(),
-        upstream=dataset_upstream(lift_key),
-        compute=compute,
-    )
+    return StagePlan(spec, ingest.path, compute)
 
 
-def extra_clips_call(
-    folder: str,
-    files: dict[str, str],
-    bones: list[BoneLengths],
-    video_id: str,
-    key: str,
-) -> StageCall:
-    """The user's extra single-actor clips (``files``: name -> SHA-256), retargeted onto each
-    of the fighters' ``bones``, as one dataset output."""
-    return StageCall(
-        run_name=f"dataset-extra-clips-{video_id:.12}",
-        stage=STAGE,
-        video_id=video_id,
-        key=key,
-        config={"extra_clips": folder},
-        code=dataset_code(),
-        upstream={"files": files, "bones": [asdict(b) for b in bones]},
-        compute=lambda: extra_clip_output(Path(folder), bones, key=key, video_id=video_id),
+def extra_clips_plan(paths: DataPaths, config: DatasetConfig, adversary: str) -> StagePlan:
+    """The analyst's extra single-actor clips (the DeepMimic-format ``*.txt`` of folder
+    ``config.extra_clips``), retargeted onto the bodies of ``adversary``'s fighters, as one
+    dataset output."""
+    folder = config.extra_clips
+    path = Path(folder)
+    if not path.is_dir():
+        raise BadInput(folder, "not a folder (dataset.extra_clips)")
+    files = {p.name: sha256_file(p) for p in sorted(path.glob("*.txt"))}
+    if not files:
+        raise BadInput(folder, "no *.txt motion clips in this folder (dataset.extra_clips)")
+    with connect(paths.db, read_only=True) as con:
+        bones = member_bones(con, candidate_members(con, adversary, config, dataset_code()))
+    spec = extra_clips_spec(path.resolve(), files, bones)
+    return StagePlan(
+        spec,
+        folder,
+        compute=lambda: extra_clip_output(
+            path.resolve(), bones, key=spec.key, video_id=spec.video_id
+        ),
     )
 
 
 @task(name="dataset-assemble", cache_policy=NO_CACHE)
 def assemble_task(
-    data_root: str, adversary: str, config: DatasetConfig, extra: tuple[str, str] | None
+    paths: DataPaths, adversary: str, config: DatasetConfig, extra: tuple[str, str] | None
 ) -> tuple[str, list[tuple[str, str]], bool]:
     """Record the dataset of ``adversary``'s footage (plus the ``extra`` clips' output).
 
     Returns its key, its members and whether it is new.
     """
-    with connect(data_paths(data_root).db) as con:
+    with connect(paths.db) as con:
         members = candidate_members(con, adversary, config, dataset_code())
         if extra is not None:
             members.append(extra)

@@ -1,54 +1,80 @@
-"""Prefect task of the evaluate stage."""
+"""The evaluate stage's plan: one finished training run judged, its adversary exported."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
 
-from storage.keys import code_version, stage_key
-from storage.paths import data_paths
+from prefect.artifacts import create_table_artifact
+
+from storage.db import connect
+from storage.keys import code_version
+from storage.paths import DataPaths
+from tasks.dataset.store import dataset_info
+from tasks.errors import BadInput
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.stage import STAGE, evaluate, load_inputs
-from tasks.runner import StageCall
+from tasks.evaluate.store import compared_runs, evaluation_tables, resolve_run
+from tasks.runner import StagePlan, StageSpec
 
 
 def evaluate_code() -> str:
     return code_version("tasks.evaluate", "tasks.dataset", "models.humanoid", "models.maaip")
 
 
-def evaluate_upstream(run_key: str, compared: Sequence[str] = ()) -> dict:
-    """The run evaluated and, when there are any, the other runs its tables compare it with
-    (a new damage or heading run on the dataset changes the tables, so the key)."""
+def evaluate_spec(config: EvaluateConfig, run_key: str, compared: Sequence[str] = ()) -> StageSpec:
+    """The evaluation of ``run_key``; its upstream names the other runs its tables compare it
+    with, when there are any (a new damage or heading run on the dataset changes the tables,
+    so the key)."""
     upstream: dict = {"train": run_key}
     if compared:
         upstream["compared"] = sorted(compared)
-    return upstream
+    return StageSpec(STAGE, run_key, config, evaluate_code(), upstream)
 
 
-def evaluate_key(config: EvaluateConfig, run_key: str, compared: Sequence[str] = ()) -> str:
-    return stage_key(STAGE, config, evaluate_code(), evaluate_upstream(run_key, compared))
-
-
-def evaluate_call(
-    data_root: str,
-    run_key: str,
-    compared: tuple[str, ...],
-    config: EvaluateConfig,
-    key: str,
-) -> StageCall:
-    """Evaluate training run ``run_key`` (bouts, tables, export, video) and commit it."""
-    paths = data_paths(data_root)
-    return StageCall(
-        run_name=f"evaluate-{run_key:.12}",
-        stage=STAGE,
-        video_id=run_key,
-        key=key,
-        config=config,
-        code=evaluate_code(),
-        upstream=evaluate_upstream(run_key, compared),
+def evaluate_plan(
+    paths: DataPaths, config: EvaluateConfig, run_key: str, inputs: Mapping[str, str]
+) -> StagePlan:
+    """Evaluate finished training run ``run_key`` (a prefix will do; `ringside metrics --stage
+    train` lists them): bouts, tables, export, video. The run is checked before anything is
+    computed; the tables are published as Prefect artifacts whether computed or reused."""
+    if not paths.db.exists():
+        raise BadInput(str(paths.db), "no database yet: process some footage and train first")
+    with connect(paths.db) as con:  # writable: brings an older database's schema up to date
+        info = resolve_run(con, run_key)
+        compared = tuple(other.run_key for other in compared_runs(con, info))
+        adversary = dataset_info(con, info.dataset_key).adversary
+    spec = evaluate_spec(config, info.run_key, compared)
+    return StagePlan(
+        spec,
+        adversary,
         compute=lambda: evaluate(
-            load_inputs(paths.db, paths.artifacts, run_key, compared),
+            load_inputs(paths.db, paths.artifacts, info.run_key, compared),
             config,
-            key=key,
+            key=spec.key,
             artifacts=paths.artifacts,
         ),
+        after=lambda: publish_tables(paths, spec.key, info.run_key),
     )
+
+
+def _cell(value):
+    """A table cell Prefect can store as JSON: NaN as None, booleans as text."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    return value
+
+
+def publish_tables(paths: DataPaths, key: str, run_key: str) -> None:
+    """The evaluation's tables as Prefect table artifacts, one per non-empty table."""
+    with connect(paths.db, read_only=True) as con:
+        tables = evaluation_tables(con, key, run_key)
+    for name, rows in tables.items():
+        if rows:
+            create_table_artifact(
+                key=f"evaluate-{name}-{run_key[:12]}",
+                table=[{k: _cell(v) for k, v in r.items()} for r in rows],
+                description=f"evaluate {name} of training run {run_key[:12]} (key {key})",
+            )

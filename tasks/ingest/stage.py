@@ -6,10 +6,10 @@ import time
 from pathlib import Path
 
 from storage.artifacts import put_bytes
-from storage.keys import code_version, stage_key
+from storage.keys import code_version
 from tasks.ingest.config import AdversaryDeclaration, IngestConfig
 from tasks.ingest.probe import VideoFile, plan_chunks, scan_video
-from tasks.runner import StageOutput
+from tasks.runner import StageOutput, StageSpec
 
 STAGE = "ingest"
 
@@ -18,12 +18,12 @@ def ingest_code() -> str:
     return code_version("tasks.ingest")
 
 
-def ingest_key(config: IngestConfig, video_id: str, declaration: AdversaryDeclaration) -> str:
-    return stage_key(STAGE, config, ingest_code(), ingest_upstream(video_id, declaration))
-
-
-def ingest_upstream(video_id: str, declaration: AdversaryDeclaration) -> dict:
-    return {"video": video_id, "adversary": declaration}
+def ingest_spec(
+    config: IngestConfig, video_id: str, declaration: AdversaryDeclaration
+) -> StageSpec:
+    return StageSpec(
+        STAGE, video_id, config, ingest_code(), {"video": video_id, "adversary": declaration}
+    )
 
 
 def ingest_video(

@@ -1,17 +1,20 @@
-"""Prefect tasks of the ingest stage: thin wrappers that add storage and caching to the work."""
+"""The ingest stage's plan: a video file identified by its bytes, registered, probed."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
-from storage.paths import data_paths
-from tasks.ingest.config import AdversaryDeclaration, IngestConfig
+from storage.db import connect
+from storage.paths import DataPaths
+from storage.records import register_video
+from tasks.ingest.config import IngestConfig, declare
 from tasks.ingest.probe import VideoFile, identify
-from tasks.ingest.stage import STAGE, ingest_code, ingest_upstream, ingest_video
-from tasks.runner import StageCall
+from tasks.ingest.stage import ingest_spec, ingest_video
+from tasks.runner import StagePlan
 
 
 @task(name="identify-video", cache_policy=NO_CACHE)
@@ -20,23 +23,26 @@ def identify_task(path: str) -> VideoFile:
     return identify(Path(path))
 
 
-def ingest_call(
-    data_root: str,
-    video: VideoFile,
-    declaration: AdversaryDeclaration,
-    config: IngestConfig,
-    key: str,
-) -> StageCall:
-    paths = data_paths(data_root)
-    return StageCall(
-        run_name=f"ingest-{video.video_id:.12}",
-        stage=STAGE,
-        video_id=video.video_id,
-        key=key,
-        config=config,
-        code=ingest_code(),
-        upstream=ingest_upstream(video.video_id, declaration),
+def ingest_plan(
+    paths: DataPaths, config: IngestConfig, video: str, inputs: Mapping[str, str | None]
+) -> StagePlan:
+    """Probe ``video`` (its shots, chunks, timing) and register it, under the adversary the
+    analyst declared (``inputs``: adversary, adversary_colour, notes)."""
+    declaration = declare(inputs["adversary"], inputs.get("adversary_colour"), inputs.get("notes"))
+    file = identify_task(video)
+    spec = ingest_spec(config, file.video_id, declaration)
+
+    def register() -> None:
+        # Whether computed or reused: the same bytes may come from a new path.
+        with connect(paths.db) as con:
+            register_video(con, file.video_id, file.size_bytes, file.path)
+
+    return StagePlan(
+        spec,
+        file.path,
         compute=lambda: ingest_video(
-            video, declaration, config, key=key, artifacts=paths.artifacts
+            file, declaration, config, key=spec.key, artifacts=paths.artifacts
         ),
+        after=register,
+        noted=False,
     )

@@ -23,7 +23,7 @@ from models.humanoid.fitting import fit_humanoid
 from models.humanoid.kinematics import NQ, NV
 from storage.artifacts import put_bytes
 from storage.files import scratch_dir
-from storage.keys import code_version, stage_key
+from storage.keys import code_version
 from tasks.errors import BadInput
 from tasks.lift.camera import (
     Camera,
@@ -53,7 +53,7 @@ from tasks.lift.resample import resample
 from tasks.lift.series import cleanup_series
 from tasks.lift.video import render_lift
 from tasks.roles import ROLES
-from tasks.runner import StageOutput
+from tasks.runner import StageOutput, StageSpec
 
 STAGE = "lift"
 
@@ -62,12 +62,11 @@ def lift_code() -> str:
     return code_version("tasks.lift", "models.humanoid", "models.maaip.arena")
 
 
-def lift_upstream(pose_key: str, calibration_sha: str | None) -> dict:
-    return {"pose": pose_key, "calibration": calibration_sha}
-
-
-def lift_key(config: LiftStageConfig, pose_key: str, calibration_sha: str | None) -> str:
-    return stage_key(STAGE, config, lift_code(), lift_upstream(pose_key, calibration_sha))
+def lift_spec(
+    config: LiftStageConfig, video_id: str, pose_key: str, calibration_sha: str | None
+) -> StageSpec:
+    upstream = {"pose": pose_key, "calibration": calibration_sha}
+    return StageSpec(STAGE, video_id, config, lift_code(), upstream)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,67 +1,57 @@
-"""Prefect task of the lift stage, and reading the pose output it starts from."""
+"""The lift stage's plan: both fighters of a posed video to humanoid motions in one world."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 from tqdm import tqdm
 
-from storage.paths import data_paths
-from tasks.ingest.store import IngestOutput
+from storage.db import connect
+from storage.files import sha256_file
+from storage.paths import DataPaths
+from tasks.errors import BadInput
+from tasks.ingest.store import load_ingest
 from tasks.lift.config import LiftStageConfig
-from tasks.lift.stage import (
-    STAGE,
-    fighter_tracks,
-    lift_code,
-    lift_upstream,
-    lift_video,
-)
+from tasks.lift.stage import fighter_tracks, lift_spec, lift_video
 from tasks.pose.store import fighter_keypoints
-from tasks.runner import StageCall
+from tasks.runner import StagePlan
 
 
-def lift_call(
-    data_root: str,
-    ingest: IngestOutput,
-    pose_key: str,
-    config: LiftStageConfig,
-    key: str,
-    calibration_sha: str | None,
-) -> StageCall:
-    """Lift both fighters of a video and commit the output under ``key``."""
-    from storage.db import connect
-
-    paths = data_paths(data_root)
+def lift_plan(
+    paths: DataPaths, config: LiftStageConfig, video_id: str, inputs: Mapping[str, str]
+) -> StagePlan:
+    """Lift both fighters of pose output ``inputs["pose"]`` to 3D and clean them up in MuJoCo
+    (with the calibration, when one is set, whose bytes are then part of the key)."""
+    with connect(paths.db, read_only=True) as con:
+        ingest = load_ingest(con, video_id, inputs["ingest"])
+    calibration = Path(config.calibration) if config.calibration else None
+    calibration_sha = None
+    if calibration is not None:
+        if not calibration.is_file():
+            raise BadInput(str(calibration), "calibration file not found (lift.calibration)")
+        calibration_sha = sha256_file(calibration)
+    pose_key = inputs["pose"]
+    spec = lift_spec(config, video_id, pose_key, calibration_sha)
 
     def compute():
         with connect(paths.db, read_only=True) as con:
-            fighters = fighter_tracks(
-                fighter_keypoints(con, ingest.video_id, pose_key), ingest.frames
-            )
+            fighters = fighter_tracks(fighter_keypoints(con, video_id, pose_key), ingest.frames)
         # Shown on an interactive terminal only, as pose's.
         with tqdm(
             total=ingest.frames, unit="frame", desc=f"lift {Path(ingest.path).name}", disable=None
         ) as bar:
             return lift_video(
                 fighters,
-                key=key,
-                video_id=ingest.video_id,
+                key=spec.key,
+                video_id=video_id,
                 fps=ingest.fps,
                 size=(ingest.width, ingest.height),
                 shots=list(ingest.shots),
                 config=config,
-                calibration=Path(config.calibration) if config.calibration else None,
+                calibration=calibration,
                 artifacts=paths.artifacts,
                 progress=bar.update,
             )
 
-    return StageCall(
-        run_name=f"lift-{ingest.video_id:.12}",
-        stage=STAGE,
-        video_id=ingest.video_id,
-        key=key,
-        config=config,
-        code=lift_code(),
-        upstream=lift_upstream(pose_key, calibration_sha),
-        compute=compute,
-    )
+    return StagePlan(spec, ingest.path, compute)

@@ -60,7 +60,8 @@ class ChunkTracks:
 
 # Chunks run in worker threads, which a stop signal never reaches, and Prefect waits for the
 # running ones before a stopped command may exit (7 s on a loaded 2-core machine). The flow
-# waiting on them sets this as it stops (`flows.pose`), and each chunk ends at its next frame.
+# waiting on them sets this as it stops (`tasks.pose.task.track_chunks`), and each chunk ends
+# at its next frame.
 STOP = threading.Event()
 
 

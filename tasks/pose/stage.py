@@ -19,7 +19,7 @@ from models.pose.tiling import TiledDetector
 from models.pose.types import BLAZEPOSE_33, BLAZEPOSE_TO_COCO17, COCO_17, Detector, PoseEstimator
 from storage.artifacts import put_bytes
 from storage.files import scratch_dir
-from storage.keys import code_version, digest, stage_key
+from storage.keys import code_version, digest
 from tasks.errors import BadInput
 from tasks.pose.chunk import ChunkTracks, track_chunk
 from tasks.pose.config import FighterConfig, PoseConfig
@@ -37,7 +37,7 @@ from tasks.pose.overlay import H264Writer, draw_people, overlay_size
 from tasks.pose.refine import flip_bones, flip_groups, flip_permutation, refine
 from tasks.pose.tracking import colour_distance
 from tasks.roles import ROLES
-from tasks.runner import StageOutput
+from tasks.runner import StageOutput, StageSpec
 
 STAGE = "pose"
 JOINTS = len(BLAZEPOSE_33)
@@ -58,12 +58,8 @@ def pose_code() -> str:
     return code_version("tasks.pose", "models.pose")
 
 
-def pose_upstream(ingest_key: str, pick: int | None) -> dict:
-    return {"ingest": ingest_key, "pick": pick}
-
-
-def pose_key(config: PoseConfig, ingest_key: str, pick: int | None) -> str:
-    return stage_key(STAGE, config, pose_code(), pose_upstream(ingest_key, pick))
+def pose_spec(config: PoseConfig, video_id: str, ingest_key: str, pick: int | None) -> StageSpec:
+    return StageSpec(STAGE, video_id, config, pose_code(), {"ingest": ingest_key, "pick": pick})
 
 
 def chunk_key(config: PoseConfig, video_id: str, span: ChunkSpan, models: tuple[str, str]) -> str:

@@ -1,28 +1,26 @@
-"""Prefect tasks of the pose stage: one per chunk (cached each), one to assemble the video."""
+"""The pose stage's plan: chunks tracked concurrently (a cached Prefect task each), then
+assembled into the video's pose output."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 from prefect import task
 from prefect.cache_policies import INPUTS, TASK_SOURCE
+from tqdm import tqdm
 
-from storage.artifacts import put_bytes, read_bytes
+from storage.artifacts import artifact_path, put_bytes, read_bytes
 from storage.db import connect
-from storage.paths import data_paths
-from tasks.ingest.store import IngestOutput
-from tasks.pose.chunk import ChunkTracks
+from storage.files import sha256_file
+from storage.paths import DataPaths
+from tasks.ingest.store import IngestOutput, load_ingest
+from tasks.pose.chunk import STOP, ChunkTracks
 from tasks.pose.config import PoseConfig
 from tasks.pose.merge import ChunkSpan
-from tasks.pose.stage import (
-    STAGE,
-    assemble,
-    pose_code,
-    pose_upstream,
-    process_chunk,
-)
+from tasks.pose.stage import assemble, chunk_key, model_files, plan_spans, pose_spec, process_chunk
 from tasks.pose.store import newest_pick
-from tasks.runner import StageCall
+from tasks.runner import StagePlan
 
 
 @task(
@@ -34,7 +32,7 @@ from tasks.runner import StageCall
     task_run_name="pose-chunk-{span.index}",
 )
 def pose_chunk_task(
-    data_root: str,
+    paths: DataPaths,
     video: str,
     span: ChunkSpan,
     fps: float,
@@ -43,41 +41,28 @@ def pose_chunk_task(
     chunk_key: str,
 ) -> str:
     """Track one chunk; its result goes to the artifact store and the task returns its name."""
-    paths = data_paths(data_root)
     tracks = process_chunk(Path(video), span, fps, config, (Path(models[0]), Path(models[1])))
     return put_bytes(paths.artifacts, tracks.to_bytes(), ".npz")
 
 
-def load_chunk(data_root: str, name: str) -> ChunkTracks:
-    return ChunkTracks.from_bytes(read_bytes(data_paths(data_root).artifacts, name))
-
-
-def latest_pick(db: Path, video_id: str) -> int | None:
-    """The analyst's newest choice of adversary track for ``video_id``, if any."""
-    if not db.exists():
-        return None
-    with connect(db, read_only=True) as con:
-        return newest_pick(con, video_id)
-
-
-def pose_call(
-    data_root: str,
-    ingest: IngestOutput,
-    spans: list[ChunkSpan],
-    chunk_names: list[str],
-    config: PoseConfig,
-    key: str,
-    pick: int | None,
-) -> StageCall:
-    """Assemble the chunks into the video's pose output and commit it under ``key``."""
-    paths = data_paths(data_root)
+def pose_plan(
+    paths: DataPaths, config: PoseConfig, video_id: str, inputs: Mapping[str, str]
+) -> StagePlan:
+    """Both fighters' tracks and refined keypoints of ingest output ``inputs["ingest"]``, with
+    the analyst's newest pick of the adversary's track."""
+    with connect(paths.db, read_only=True) as con:
+        ingest = load_ingest(con, video_id, inputs["ingest"])
+        pick = newest_pick(con, video_id)
+    spec = pose_spec(config, video_id, ingest.key, pick)
+    spans = plan_spans(list(ingest.chunks), config.overlap_frames, ingest.source_frames)
+    names: list[str] = []  # the chunks' artifacts, filled in the flow by `before`
 
     def compute():
         return assemble(
             Path(ingest.path),
             spans,
-            [load_chunk(data_root, name) for name in chunk_names],
-            key=key,
+            [ChunkTracks.from_bytes(read_bytes(paths.artifacts, name)) for name in names],
+            key=spec.key,
             video_id=ingest.video_id,
             frames=ingest.frames,
             fps=ingest.fps,
@@ -90,13 +75,45 @@ def pose_call(
             source_frames=ingest.source_frames,
         )
 
-    return StageCall(
-        run_name=f"pose-{ingest.video_id:.12}",
-        stage=STAGE,
-        video_id=ingest.video_id,
-        key=key,
-        config=config,
-        code=pose_code(),
-        upstream=pose_upstream(ingest.key, pick),
-        compute=compute,
+    # Chunks keep their own cache: a forced assembly reuses them.
+    return StagePlan(
+        spec,
+        ingest.path,
+        compute,
+        before=lambda: names.extend(track_chunks(paths, ingest, config, spans)),
     )
+
+
+def track_chunks(
+    paths: DataPaths, ingest: IngestOutput, config: PoseConfig, spans: list[ChunkSpan]
+) -> list[str]:
+    """Track every chunk, each cached on its own; their artifacts' names."""
+    models = model_files(config, paths.assets)
+    hashes = (sha256_file(models[0]), sha256_file(models[1]))
+
+    def arguments(span: ChunkSpan) -> tuple:
+        key = chunk_key(config, ingest.video_id, span, hashes)
+        return paths, ingest.path, span, ingest.fps, config, tuple(map(str, models)), key
+
+    STOP.clear()
+    futures = [pose_chunk_task.submit(*arguments(span)) for span in spans]
+    names = []
+    try:
+        # Shown on an interactive terminal only; advances as chunks finish.
+        with tqdm(
+            total=ingest.frames, unit="frame", desc=f"pose {Path(ingest.path).name}", disable=None
+        ) as bar:
+            for span, future in zip(spans, futures, strict=True):
+                name = future.result()
+                if not artifact_path(paths.artifacts, name).exists():
+                    # Prefect's cache names a chunk file that is gone (deleted, a lost disk):
+                    # the store is the truth, so the chunk is tracked again and cached anew.
+                    name = pose_chunk_task.with_options(refresh_cache=True)(*arguments(span))
+                names.append(name)
+                bar.update(span.end - span.start)
+    except BaseException:
+        # A stop signal (Prefect raises it here, in the main thread) or a failed chunk: the
+        # chunks still at work end at their next frame rather than finishing first.
+        STOP.set()
+        raise
+    return names

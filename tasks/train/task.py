@@ -1,54 +1,64 @@
-"""Prefect task of the train stage."""
+"""The train stage's plan: MAAIP on one assembled dataset."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from pathlib import Path
+
 from models.maaip.config import TrainConfig
-from storage.keys import code_version, stage_key
-from storage.paths import data_paths
-from tasks.runner import StageCall
+from storage.db import connect
+from storage.keys import code_version
+from storage.paths import DataPaths
+from tasks.dataset.store import DatasetInfo, UnknownDataset, dataset_info
+from tasks.errors import BadInput
+from tasks.runner import StagePlan, StageSpec
 from tasks.train.run import STAGE, train
-from tasks.train.store import WarmStart
+from tasks.train.store import WarmStart, warm_start_source
 
 
 def train_code() -> str:
     return code_version("tasks.train", "tasks.dataset", "models.humanoid", "models.maaip")
 
 
-def train_upstream(dataset_key: str, warm: WarmStart | None) -> dict:
-    """The dataset and, for a warm start, the run whose networks it starts from."""
+def train_spec(config: TrainConfig, dataset_key: str, warm: WarmStart | None = None) -> StageSpec:
+    """The run on ``dataset_key``; its upstream names the run whose networks a warm start
+    takes, if any."""
     upstream = {"dataset": dataset_key}
     if warm is not None:
         upstream["warm_start"] = warm.run_key
-    return upstream
+    return StageSpec(STAGE, dataset_key, config, train_code(), upstream)
 
 
-def train_key(config: TrainConfig, dataset_key: str, warm: WarmStart | None = None) -> str:
-    return stage_key(STAGE, config, train_code(), train_upstream(dataset_key, warm))
+def resolve_dataset(db: Path, dataset_key: str) -> DatasetInfo:
+    """The dataset ``dataset_key`` (or a prefix of its key) names; BadInput naming what is
+    wrong when there is none."""
+    if not db.exists():
+        raise BadInput(str(db), "no database yet: process some footage first")
+    with connect(db) as con:  # writable: brings an older database's schema up to date
+        try:
+            return dataset_info(con, dataset_key)
+        except UnknownDataset as error:
+            raise BadInput(f"--dataset {dataset_key}", str(error)) from None
 
 
-def train_call(
-    data_root: str,
-    dataset_key: str,
-    config: TrainConfig,
-    key: str,
-    warm: WarmStart | None = None,
-) -> StageCall:
-    """Train MAAIP on a dataset (resuming from the run's newest checkpoint, or starting from
-    ``warm``'s networks) and commit it."""
-    paths = data_paths(data_root)
-    return StageCall(
-        run_name=f"train-{dataset_key:.12}",
-        stage=STAGE,
-        video_id=dataset_key,
-        key=key,
-        config=config,
-        code=train_code(),
-        upstream=train_upstream(dataset_key, warm),
+def train_plan(
+    paths: DataPaths, config: TrainConfig, dataset_key: str, inputs: Mapping[str, str]
+) -> StagePlan:
+    """Train the two fighters' policies on dataset ``dataset_key`` (a prefix of a key will
+    do), resuming from the run's newest checkpoint, or starting from the networks of the
+    adversary's previous run where `train.warm_start` finds one (`warm_start_source`)."""
+    info = resolve_dataset(paths.db, dataset_key)
+    with connect(paths.db) as con:
+        warm = warm_start_source(con, info.dataset_key, config)
+    spec = train_spec(config, info.dataset_key, warm)
+    return StagePlan(
+        spec,
+        info.adversary,
         compute=lambda: train(
             db=paths.db,
             artifacts=paths.artifacts,
-            dataset_key=dataset_key,
-            key=key,
+            dataset_key=info.dataset_key,
+            key=spec.key,
             config=config,
             warm=warm,
         ),

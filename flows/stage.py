@@ -1,0 +1,81 @@
+"""The one flow that runs any stage for one subject: plan its output, reuse the committed one
+or compute it, summarise."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from importlib import import_module
+from pathlib import Path
+from typing import Any
+
+from prefect import flow
+from prefect.task_runners import ThreadPoolTaskRunner
+
+from flows.config import from_tables
+from flows.runs import StageSummary, reuse_or_run
+from storage.paths import data_paths
+from tasks.runner import StagePlan
+
+# Each stage's plan, by module path: a command imports only the stage it runs.
+PLANS: dict[str, str] = {
+    "ingest": "tasks.ingest.task:ingest_plan",
+    "pose": "tasks.pose.task:pose_plan",
+    "lift": "tasks.lift.task:lift_plan",
+    "dataset": "tasks.dataset.task:dataset_plan",
+    "train": "tasks.train.task:train_plan",
+    "evaluate": "tasks.evaluate.task:evaluate_plan",
+}
+
+
+def plan_of(stage: str):
+    module, name = PLANS[stage].split(":")
+    return getattr(import_module(module), name)
+
+
+# One task at a time unless the caller says otherwise (the pose stage's chunks: `chunk_runner`).
+@flow(name="stage", task_runner=ThreadPoolTaskRunner(max_workers=1))
+def stage_flow(
+    data_root: str,
+    stage: str,
+    subject: str,
+    inputs: dict[str, Any] | None = None,
+    config: dict | None = None,
+    force: bool = False,
+) -> StageSummary:
+    """Stage ``stage``'s output for ``subject`` (a video file for ingest, a video id, a dataset
+    key or a training run key) from ``inputs`` (the upstream outputs' keys; ingest's are the
+    adversary's declaration); ``force`` recomputes even when a committed output exists."""
+    paths = data_paths(data_root)
+    settings = getattr(from_tables(config or {}), stage)
+    plan: StagePlan = plan_of(stage)(paths, settings, subject, inputs or {})
+    result, state = reuse_or_run(paths, plan, force)
+    plan.after()
+    return StageSummary(
+        plan.spec.video_id,
+        plan.name,
+        plan.spec.stage,
+        result.key,
+        state,
+        result.seconds,
+        result.notes,
+    )
+
+
+def run_stage_flow(
+    stage: str,
+    data_root: str,
+    subject: str,
+    inputs: Mapping[str, Any] | None = None,
+    config: dict | None = None,
+    force: bool = False,
+    task_runner=None,
+) -> StageSummary:
+    """`stage_flow` as a flow run named for its stage and subject, as Prefect's UI lists it
+    (``ingest-fight.mp4``, ``pose-3f2a…``)."""
+    label = Path(subject).name if stage == "ingest" else subject[:12]
+    options: dict[str, Any] = {"name": stage, "flow_run_name": f"{stage}-{label}"}
+    if task_runner is not None:
+        options["task_runner"] = task_runner
+    return stage_flow.with_options(**options)(
+        data_root, stage, subject, dict(inputs or {}), config, force
+    )
