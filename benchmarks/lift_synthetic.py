@@ -19,8 +19,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
+from tasks.deepmimic import CLIPS
 from tasks.lift.config import LiftStageConfig  # noqa: E402
-from tasks.lift.deepmimic import CLIPS
 from tasks.lift.synthetic import evaluate_lift, make_case  # noqa: E402
 
 SEEDS = (0, 1, 2)

@@ -42,7 +42,7 @@ from models.maaip.demonstrations import ReferenceMotions, facing_reference  # no
 from models.maaip.env import ArenaEnv, EnvConfig  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
-from tasks.lift.deepmimic import clip_path, load_deepmimic, retarget  # noqa: E402
+from tasks.deepmimic import clip_path, load_deepmimic, retarget  # noqa: E402
 
 NUM_ENVS = 64
 STEPS = 15  # per repeat: half a second, before zero-action fighters start to fall

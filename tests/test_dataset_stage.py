@@ -13,6 +13,7 @@ from conftest import process_argv, query, run_cli
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.compiled import body_states, humanoid_index, keypoint_positions, velocities
 from models.humanoid.kinematics import axis_angle_matrix, matrix_to_quat, quat_to_matrix
+from models.humanoid.motion import RATE
 from models.humanoid.observations import (
     OPPONENT_BLOCKS,
     SELF_BLOCKS,
@@ -32,10 +33,9 @@ from tasks.dataset.store import (
     member_bones,
     record_dataset,
 )
+from tasks.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.errors import BadInput
-from tasks.lift.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.lift.lifting import detect_contacts
-from tasks.lift.motion import RATE
 from tasks.lift.store import load_motion
 
 BONES = BoneLengths()

@@ -10,9 +10,9 @@ import pytest
 from conftest import read_video
 
 from models.humanoid.boxer import BoneLengths, single_scene_mjcf
-from tasks.lift.motion import RATE, FighterMotion
+from models.humanoid.motion import RATE, FighterMotion
 from tasks.lift.series import cleanup_series, fighter_distance
-from tasks.lift.video import follow_fighters, render_lift
+from tasks.media import follow_fighters, render_lift
 
 BONES = BoneLengths()
 STANDING = mujoco.MjModel.from_xml_string(single_scene_mjcf(BONES)).qpos0.copy()

@@ -28,6 +28,7 @@ from models.humanoid.kinematics import (
     qpos_from_body_rotations,
     quat_to_matrix,
 )
+from models.humanoid.motion import clean_runs, gaussian_smooth
 from models.pose.types import BLAZEPOSE_33
 from tasks.config import build
 from tasks.lift.camera import project
@@ -54,7 +55,6 @@ from tasks.lift.metrics import (
     pa_mpjpe_mm,
     sole_points,
 )
-from tasks.lift.motion import clean_runs, gaussian_smooth
 
 FPS = 30.0
 

@@ -22,7 +22,7 @@ from models.maaip.arena import DAMAGE_BODIES, arena_index, arena_mjcf
 from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions, facing_reference
 from models.maaip.env import ArenaEnv, centred_pair, geom_bottoms
-from tasks.lift.deepmimic import clip_path, load_deepmimic, retarget
+from tasks.deepmimic import clip_path, load_deepmimic, retarget
 
 SMALL = BoneLengths().scaled(0.9)
 

@@ -26,6 +26,7 @@ import numpy as np
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.compiled import body_states, humanoid_index, velocities
 from models.humanoid.kinematics import heading_frame
+from models.humanoid.motion import RATE, FighterMotion, fighter_distance
 from models.humanoid.observations import OPPONENT_DIM, BodyState, observation, self_observation
 from models.pose.types import BLAZEPOSE_33
 from storage.keys import code_version, digest
@@ -33,9 +34,8 @@ from tasks.dataset.config import DatasetConfig
 from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
 from tasks.dataset.store import STAGE
+from tasks.deepmimic import load_deepmimic, retarget
 from tasks.errors import BadInput
-from tasks.lift.deepmimic import load_deepmimic, retarget
-from tasks.lift.motion import RATE, FighterMotion, fighter_distance
 from tasks.roles import AGENTS, ROLES
 from tasks.runner import StageOutput, StageSpec
 
@@ -45,7 +45,7 @@ _ANKLES = [BLAZEPOSE_33.index("left_ankle"), BLAZEPOSE_33.index("right_ankle")]
 
 
 def dataset_code() -> str:
-    return code_version("tasks.dataset", "models.humanoid")
+    return code_version("tasks.dataset", "tasks.deepmimic", "models.humanoid")
 
 
 def dataset_spec(config: DatasetConfig, video_id: str, lift_key: str) -> StageSpec:
@@ -437,7 +437,7 @@ def extra_clip_output(
     folder: Path, bones: Sequence[BoneLengths], *, key: str, video_id: str
 ) -> StageOutput:
     """Single-actor clips (agent 2) from the DeepMimic-format motion files in ``folder``, each
-    retargeted (`tasks.lift.deepmimic.retarget`, 30 Hz) onto every body in ``bones`` (the
+    retargeted (`tasks.deepmimic.retarget`, 30 Hz) onto every body in ``bones`` (the
     dataset's fighters), so that the motion prior sees them on the humanoids it judges; the
     default body when ``bones`` is empty.
     """

@@ -22,8 +22,8 @@ import numpy as np
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.bvh import bvh_text
 from models.humanoid.kinematics import NQ
+from models.humanoid.motion import RATE, FighterMotion
 from tasks.dataset.stage import cut_clips, shot_of
-from tasks.lift.motion import RATE, FighterMotion
 from tasks.roles import ROLES
 
 

@@ -12,7 +12,7 @@ Partners (`Partner`): another opponent folder (e.g. the opponent's trained partn
 `ringside export --agent opponent`), or "still", a boxer that holds its guard (the opponent's
 trained partner's, on its bones: every PD target at that pose), the simplest scripted boxer.
 
-Offscreen rendering (`tasks.lift.video`: MuJoCo's renderer through EGL, into an H.264 MP4 that
+Offscreen rendering (`tasks.media`: MuJoCo's renderer through EGL, into an H.264 MP4 that
 browsers play) shows the bout from the arena's "side" camera.
 """
 
@@ -30,7 +30,7 @@ from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions
 from models.maaip.env import ArenaEnv, standing_like
 from tasks.evaluate.opponent import Opponent
-from tasks.lift.video import open_video, render_frame
+from tasks.media import open_video, render_frame
 
 STILL = "still"
 

@@ -22,7 +22,7 @@ same tables:
 5. The adversary's opponent folder (`export_opponent`: ONNX policy, MJCF, manifest) with
    onnxruntime's parity against torch on observations recorded in the bouts, and the first
    `evaluate.video_seconds` of the trained episodes, played one after another, rendered to MP4
-   (`tasks.lift.video.render_bout`), and the trained episodes' motion (`BOUTS`, which
+   (`tasks.media.render_bout`), and the trained episodes' motion (`BOUTS`, which
    `ringside export-motion --run` writes as BVH); all files go to the artifact store.
 """
 
@@ -61,7 +61,7 @@ from tasks.evaluate.metrics import boxing_metrics, label_fighter, style_rows, st
 from tasks.evaluate.motion_files import BOUTS, bouts_npz
 from tasks.evaluate.opponent import FILES, MANIFEST, load_opponent
 from tasks.evaluate.store import DAMAGE_TASKS, STAGE, real_statistics, resolve_run
-from tasks.lift.video import render_bout
+from tasks.media import render_bout
 from tasks.runner import StageOutput
 
 __all__ = ["STAGE", "EvaluateInputs", "evaluate", "load_inputs"]

@@ -19,7 +19,9 @@ from tasks.runner import StagePlan, StageSpec
 
 
 def evaluate_code() -> str:
-    return code_version("tasks.evaluate", "tasks.dataset", "models.humanoid", "models.maaip")
+    return code_version(
+        "tasks.evaluate", "tasks.dataset", "tasks.media", "models.humanoid", "models.maaip"
+    )
 
 
 def evaluate_spec(config: EvaluateConfig, run_key: str, compared: Sequence[str] = ()) -> StageSpec:

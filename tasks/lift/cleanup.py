@@ -23,18 +23,18 @@ import numpy as np
 from models.humanoid.compiled import HumanoidIndex, humanoid_index, keypoint_positions, velocities
 from models.humanoid.fitting import Skeleton, qpos_to_pose, solve_ik, wrap_to_ranges
 from models.humanoid.kinematics import JOINT_LAYOUT, NQ, NV, ROOT_POS, ROOT_QUAT, SITE_NAMES
-from tasks.lift.config import LiftConfig
-from tasks.lift.metrics import (
-    foot_skating_cm_per_frame,
-    jitter_m_s2,
-)
-from tasks.lift.motion import (
+from models.humanoid.motion import (
     check_array,
     check_fps,
     clean_runs,
     gaussian_smooth,
     horizontal_speed,
     runs,
+)
+from tasks.lift.config import LiftConfig
+from tasks.lift.metrics import (
+    foot_skating_cm_per_frame,
+    jitter_m_s2,
 )
 
 

@@ -30,6 +30,13 @@ import numpy as np
 import torch
 
 from models.humanoid.boxer import BoneLengths
+from models.humanoid.motion import (
+    check_array,
+    check_fps,
+    clean_runs,
+    gaussian_smooth,
+    horizontal_speed,
+)
 from models.pose.types import BLAZEPOSE_33
 from tasks.lift.camera import root_translations
 from tasks.lift.config import LiftConfig
@@ -37,13 +44,6 @@ from tasks.lift.metrics import (
     BLAZEPOSE_BONES,
     HIPS,
     SOLES,
-)
-from tasks.lift.motion import (
-    check_array,
-    check_fps,
-    clean_runs,
-    gaussian_smooth,
-    horizontal_speed,
 )
 
 NUM_KEYPOINTS = len(BLAZEPOSE_33)

@@ -1,5 +1,5 @@
 """A lifted motion at the video's frame rate put on the simulation's 30 Hz grid
-(`tasks.lift.motion.FighterMotion`)."""
+(`models.humanoid.motion.FighterMotion`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 from models.humanoid.boxer import BoneLengths, single_scene_mjcf
 from models.humanoid.compiled import velocities
 from models.humanoid.kinematics import NV
-from tasks.lift.motion import FighterMotion
+from models.humanoid.motion import FighterMotion
 
 
 def resample(

@@ -21,8 +21,7 @@ import numpy as np
 
 from models.humanoid.boxer import single_scene_mjcf
 from models.humanoid.fitting import Skeleton
-from tasks.lift.cleanup import contact_slide, floor_depth, sole_positions
-from tasks.lift.motion import (
+from models.humanoid.motion import (
     RATE,
     FighterMotion,
     FighterSeries,
@@ -30,6 +29,7 @@ from tasks.lift.motion import (
     fighter_distance,
     grid_steps,
 )
+from tasks.lift.cleanup import contact_slide, floor_depth, sole_positions
 
 
 def _fighter_series(motion: FighterMotion, steps: int, rate: float) -> FighterSeries:

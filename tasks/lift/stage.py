@@ -21,6 +21,7 @@ import numpy as np
 from models.humanoid.boxer import BoneLengths, single_scene_mjcf
 from models.humanoid.fitting import fit_humanoid
 from models.humanoid.kinematics import NQ, NV
+from models.humanoid.motion import RATE, FighterMotion, fighter_distance
 from storage.artifacts import put_bytes
 from storage.files import scratch_dir
 from storage.keys import code_version
@@ -48,10 +49,9 @@ from tasks.lift.gates import (
 from tasks.lift.gates import notes as gate_notes
 from tasks.lift.lifting import Lifted3D, lift_fighter
 from tasks.lift.metrics import HIPS, bone_length_std_mm
-from tasks.lift.motion import RATE, FighterMotion, fighter_distance
 from tasks.lift.resample import resample
 from tasks.lift.series import cleanup_series
-from tasks.lift.video import render_lift
+from tasks.media import render_lift
 from tasks.roles import ROLES
 from tasks.runner import StageOutput, StageSpec
 
@@ -59,7 +59,7 @@ STAGE = "lift"
 
 
 def lift_code() -> str:
-    return code_version("tasks.lift", "models.humanoid", "models.maaip.arena")
+    return code_version("tasks.lift", "tasks.media", "models.humanoid", "models.maaip.arena")
 
 
 def lift_spec(

@@ -6,14 +6,14 @@ import duckdb
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths
-from tasks.errors import BadInput
-from tasks.lift.motion import (
+from models.humanoid.motion import (
     RATE,
     FighterMotion,
     FighterSeries,
     LiftSeries,
     fighter_distance,
 )
+from tasks.errors import BadInput
 
 
 def _bone_rows(

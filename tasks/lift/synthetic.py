@@ -7,7 +7,7 @@ random pinhole camera, and given the noise the pose stage would add: 2D keypoint
 pixels of error and a per-frame metric 3D estimate (BlazePose's "world landmarks") with a
 few centimetres. The lift's output is then scored against the truth (`tasks.lift.metrics`).
 
-The clips are read and retargeted by `tasks.lift.deepmimic`.
+The clips are read and retargeted by `tasks.deepmimic`.
 
 Shape letters: T frames, J = 33 BlazePose landmarks.
 """
@@ -27,8 +27,7 @@ from models.humanoid.kinematics import (
     NQ,
 )
 from models.pose.types import BLAZEPOSE_33
-from tasks.lift.camera import fov_intrinsics, look_at, project
-from tasks.lift.deepmimic import (
+from tasks.deepmimic import (
     CLIPS,
     FPS,
     Retargeted,
@@ -36,6 +35,7 @@ from tasks.lift.deepmimic import (
     load_deepmimic,
     retarget_report,
 )
+from tasks.lift.camera import fov_intrinsics, look_at, project
 from tasks.lift.metrics import HIPS
 
 

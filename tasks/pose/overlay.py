@@ -1,16 +1,11 @@
-"""The review overlay: skeletons and track ids drawn on the frames, as H.264 MP4 and PNG stills.
-
-OpenCV's wheel writes only MPEG-4 Part 2, which browsers do not play, so the video goes through
-the H.264 encoder of the ffmpeg that ``imageio-ffmpeg`` ships.
-"""
+"""The review overlay: skeletons and track ids drawn on the frames (written as H.264 MP4 by
+`tasks.media.H264Writer`, and as PNG stills)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from pathlib import Path
 
 import cv2
-import imageio_ffmpeg
 import numpy as np
 
 from models.pose.types import BLAZEPOSE_33
@@ -78,47 +73,3 @@ def draw_people(
         for point in keypoints[good].astype(int):
             cv2.circle(out, tuple(point), thickness + 1, (255, 255, 255), -1, cv2.LINE_AA)
     return out
-
-
-class H264Writer:
-    """Writes BGR frames of one size to an H.264 MP4 that browsers play (yuv420p, faststart)."""
-
-    def __init__(self, path: Path, size: tuple[int, int], fps: float):
-        self.size = size
-        self._writer = imageio_ffmpeg.write_frames(
-            str(path),
-            size,
-            fps=fps,
-            codec="libx264",
-            pix_fmt_in="bgr24",
-            quality=None,
-            macro_block_size=2,
-            output_params=[
-                "-pix_fmt",
-                "yuv420p",
-                "-preset",
-                "veryfast",
-                "-crf",
-                "26",
-                "-movflags",
-                "+faststart",
-            ],
-            # ffmpeg shares our terminal: at "error" a command stopped mid-frame (Ctrl-C) printed
-            # ffmpeg's complaint about the cut frame above its one line. A fatal error still shows.
-            ffmpeg_log_level="fatal",
-        )
-        self._writer.send(None)
-
-    def write(self, frame: np.ndarray) -> None:
-        if (frame.shape[1], frame.shape[0]) != self.size:
-            frame = cv2.resize(frame, self.size, interpolation=cv2.INTER_AREA)
-        self._writer.send(np.ascontiguousarray(frame))
-
-    def close(self) -> None:
-        self._writer.close()
-
-    def __enter__(self) -> H264Writer:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

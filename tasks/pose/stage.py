@@ -21,6 +21,7 @@ from storage.artifacts import put_bytes
 from storage.files import scratch_dir
 from storage.keys import code_version, digest
 from tasks.errors import BadInput
+from tasks.media import H264Writer
 from tasks.pose.chunk import ChunkTracks, track_chunk
 from tasks.pose.config import FighterConfig, PoseConfig
 from tasks.pose.fighters import (
@@ -33,7 +34,7 @@ from tasks.pose.fighters import (
 )
 from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, VideoTracks, merge_chunks, summaries
-from tasks.pose.overlay import H264Writer, draw_people, overlay_size
+from tasks.pose.overlay import draw_people, overlay_size
 from tasks.pose.refine import flip_bones, flip_groups, flip_permutation, refine
 from tasks.pose.tracking import colour_distance
 from tasks.roles import ROLES
@@ -55,7 +56,7 @@ NOT_IN_CHUNKS = (
 
 
 def pose_code() -> str:
-    return code_version("tasks.pose", "models.pose")
+    return code_version("tasks.pose", "tasks.media", "models.pose")
 
 
 def pose_spec(config: PoseConfig, video_id: str, ingest_key: str, pick: int | None) -> StageSpec:

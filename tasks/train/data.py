@@ -9,13 +9,13 @@ import mujoco
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.compiled import velocities
+from models.humanoid.motion import RATE
 from models.maaip.demonstrations import (
     Demonstrations,
     demonstrations_from_reference,
     facing_reference,
 )
-from tasks.lift.deepmimic import clip_path, load_deepmimic, retarget
-from tasks.lift.motion import RATE
+from tasks.deepmimic import clip_path, load_deepmimic, retarget
 
 
 def clip_demonstrations(

@@ -17,7 +17,9 @@ from tasks.train.store import WarmStart, warm_start_source
 
 
 def train_code() -> str:
-    return code_version("tasks.train", "tasks.dataset", "models.humanoid", "models.maaip")
+    return code_version(
+        "tasks.train", "tasks.dataset", "tasks.deepmimic", "models.humanoid", "models.maaip"
+    )
 
 
 def train_spec(config: TrainConfig, dataset_key: str, warm: WarmStart | None = None) -> StageSpec:

@@ -1,4 +1,6 @@
-"""MuJoCo humanoids rendered offscreen to an H.264 MP4 that browsers play.
+"""Videos the stages write: H.264 MP4 that browsers play (`H264Writer`; OpenCV's wheel writes
+only MPEG-4 Part 2, which browsers do not, so the video goes through the H.264 encoder of the
+ffmpeg that ``imageio-ffmpeg`` ships), and MuJoCo humanoids rendered offscreen into one.
 
 `render_lift` is the lift stage's review video: both fighters' cleaned motion, each on a humanoid
 of its own bones, in the training arena (`models.maaip.arena`: the adversary is agent 0, red;
@@ -7,8 +9,7 @@ renders a recorded arena motion from the arena's fixed "side" camera (the evalua
 video; `tasks.evaluate.spar` renders live bouts with `open_video` and `render_frame`).
 
 Rendering uses MuJoCo's renderer through EGL (`MUJOCO_GL=egl`, which `ringside` sets before
-MuJoCo is imported; Mesa's software EGL on a machine without a GPU) and the H.264 encoder of
-`tasks.pose.overlay.H264Writer`.
+MuJoCo is imported; Mesa's software EGL on a machine without a GPU).
 """
 
 from __future__ import annotations
@@ -19,13 +20,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
+import imageio_ffmpeg
 import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ
+from models.humanoid.motion import RATE, FighterMotion, gaussian_smooth, grid_steps
 from models.maaip.arena import arena_mjcf
-from tasks.lift.motion import RATE, FighterMotion, gaussian_smooth, grid_steps
 from tasks.roles import ROLES
 
 VIDEO_SIZE = (640, 360)
@@ -33,13 +36,55 @@ VIDEO_SIZE = (640, 360)
 PARKED_M = 1000.0
 
 
+class H264Writer:
+    """Writes BGR frames of one size to an H.264 MP4 that browsers play (yuv420p, faststart)."""
+
+    def __init__(self, path: Path, size: tuple[int, int], fps: float):
+        self.size = size
+        self._writer = imageio_ffmpeg.write_frames(
+            str(path),
+            size,
+            fps=fps,
+            codec="libx264",
+            pix_fmt_in="bgr24",
+            quality=None,
+            macro_block_size=2,
+            output_params=[
+                "-pix_fmt",
+                "yuv420p",
+                "-preset",
+                "veryfast",
+                "-crf",
+                "26",
+                "-movflags",
+                "+faststart",
+            ],
+            # ffmpeg shares our terminal: at "error" a command stopped mid-frame (Ctrl-C) printed
+            # ffmpeg's complaint about the cut frame above its one line. A fatal error still shows.
+            ffmpeg_log_level="fatal",
+        )
+        self._writer.send(None)
+
+    def write(self, frame: np.ndarray) -> None:
+        if (frame.shape[1], frame.shape[0]) != self.size:
+            frame = cv2.resize(frame, self.size, interpolation=cv2.INTER_AREA)
+        self._writer.send(np.ascontiguousarray(frame))
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def __enter__(self) -> H264Writer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def open_video(model: mujoco.MjModel, path: Path, size: tuple[int, int], fps: float):
     """An offscreen renderer of ``model`` and an H.264 writer for ``path`` (close both).
 
     Turns the model's shadows off and widens its offscreen framebuffer to ``size`` (w, h).
     """
-    from tasks.pose.overlay import H264Writer
-
     if os.environ.get("MUJOCO_GL", "").lower() not in ("egl", "osmesa"):
         raise RuntimeError(
             "rendering without a screen needs MUJOCO_GL=egl (or osmesa) set before MuJoCo is "
