@@ -37,6 +37,7 @@ from types import MappingProxyType
 
 import mujoco
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths, boxer_mjcf
 from models.humanoid.compiled import humanoid_index
@@ -240,21 +241,6 @@ def clip_path(assets: str | Path, clip_name: str) -> Path:
 # --------------------------------------------------------------------------
 
 
-def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Spherical interpolation of unit quaternions (..., 4) at fractions u (...)."""
-    dot = np.sum(q0 * q1, axis=-1)
-    q1 = np.where(dot[..., None] < 0, -q1, q1)  # the short way round
-    dot = np.abs(dot)
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    sin = np.sin(theta)
-    near = sin < 1e-6  # nearly equal: linear interpolation is exact enough
-    safe = np.where(near, 1.0, sin)
-    w0 = np.where(near, 1 - u, np.sin((1 - u) * theta) / safe)
-    w1 = np.where(near, u, np.sin(u * theta) / safe)
-    out = w0[..., None] * q0 + w1[..., None] * q1
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
-
-
 def _resample(clip: DeepMimicClip, fps: float) -> dict[str, np.ndarray]:
     """The clip's fields at times k / fps (linear for positions and angles, slerp for rotations)."""
     times = clip.times
@@ -264,9 +250,14 @@ def _resample(clip: DeepMimicClip, fps: float) -> dict[str, np.ndarray]:
     i = np.clip(np.searchsorted(times, query, side="right") - 1, 0, len(times) - 2)
     u = np.clip((query - times[i]) / (times[i + 1] - times[i]), 0.0, 1.0)
     out = {"root_pos": clip.root_pos[i] * (1 - u[:, None]) + clip.root_pos[i + 1] * u[:, None]}
-    out["root"] = _slerp(clip.root_quat[i], clip.root_quat[i + 1], u)
+
+    def slerp(quats: np.ndarray) -> np.ndarray:  # (T, 4) w-x-y-z keyframes at `times`
+        keys = Rotation.from_quat(quats, scalar_first=True)
+        return Slerp(times, keys)(query).as_quat(scalar_first=True)
+
+    out["root"] = slerp(clip.root_quat)
     for name, q in clip.joint_quats.items():
-        out[name] = _slerp(q[i], q[i + 1], u)
+        out[name] = slerp(q)
     for name, a in clip.joint_angles.items():
         out[name] = a[i] * (1 - u) + a[i + 1] * u
     return out
@@ -322,8 +313,8 @@ def _clip_circular(angle: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndar
 
 def _geodesic_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle in degrees of the rotation between (..., 3, 3) rotations a and b."""
-    cos = (np.trace(np.swapaxes(a, -1, -2) @ b, axis1=-2, axis2=-1) - 1) / 2
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    between = Rotation.from_matrix(np.swapaxes(a, -1, -2) @ b, assume_valid=True)
+    return np.degrees(between.magnitude())
 
 
 def _limited_qpos(root_pos: np.ndarray, body_rot: np.ndarray) -> np.ndarray:

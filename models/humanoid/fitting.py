@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.compiled import humanoid_index
@@ -213,17 +214,9 @@ def wrap_to_ranges(hinges: np.ndarray, ranges: np.ndarray) -> np.ndarray:
 
 
 def _rotation_step(root_rot: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
-    """exp([w]_x) @ root_rot for (T, 3) rotation vectors w in the world frame."""
-    angle = np.linalg.norm(rotvec, axis=-1)
-    axis = rotvec / np.maximum(angle, 1e-12)[:, None]
-    k = np.zeros((len(rotvec), 3, 3))
-    k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
-    k = k - np.swapaxes(k, 1, 2)
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    step = np.eye(3) + s * k + (1 - c) * (k @ k)
-    out = step @ root_rot
-    u, _, vt = np.linalg.svd(out)  # re-orthonormalise
-    return u @ vt
+    """exp([w]_x) @ root_rot for (T, 3) rotation vectors w in the world frame, orthonormal:
+    composed as quaternions (`Rotation.from_matrix` takes the rotation nearest root_rot)."""
+    return (Rotation.from_rotvec(rotvec) * Rotation.from_matrix(root_rot)).as_matrix()
 
 
 def solve_ik(

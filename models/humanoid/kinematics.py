@@ -1,5 +1,6 @@
 """Kinematics of the 15-body boxer humanoid: layout, rotations, observation frames, keypoints
-(pure NumPy; MuJoCo's own forward kinematics of a compiled model is `models.humanoid.compiled`).
+(NumPy, rotation conversions through scipy's `Rotation`; MuJoCo's own forward kinematics of a
+compiled model is `models.humanoid.compiled`).
 
 The body follows MAAIP (Younes et al., "MAAIP: Multi-Agent Adversarial Interaction
 Priors for imitation from fighting demonstrations for physics-based characters",
@@ -38,6 +39,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from models.pose.types import BLAZEPOSE_33, COCO_17
 
@@ -245,8 +247,14 @@ KEYPOINT_TO_BODY: Mapping[str, str] = MappingProxyType(
 assert set(BLAZEPOSE_TO_SITE.values()) <= set(SITE_NAMES)
 
 # --------------------------------------------------------------------------
-# Rotations (pure NumPy, batched over leading dimensions)
+# Rotations (batched over leading dimensions)
 # --------------------------------------------------------------------------
+
+# Conversions go through scipy's `Rotation` (its quaternions are scalar-last by default, ours
+# scalar-first: `scalar_first=True` throughout; it takes (..., 3, 3) batches as they are).
+# Three stay our own code, each with the measured reason beside it: `axis_angle_matrix` and
+# `matrix_to_euler_yxz` (scipy's per-call cost slowed the environment's step at its small
+# batches), `heading_yaw` (scipy's yaw folds in the roll near the vertical).
 
 
 def _check_last(name: str, value: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -268,54 +276,33 @@ def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
         (..., 3, 3) rotation matrices R, with R @ v rotating v.
     """
     q = _check_last("quat", quat, (4,))
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    norm = np.linalg.norm(q, axis=-1)
     if np.any(norm == 0):
         raise ValueError("quat must not contain zero quaternions")
-    w, x, y, z = np.moveaxis(q / norm, -1, 0)
-    rows = (
-        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
-    )
-    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+    finite = np.isfinite(norm)
+    if finite.all():
+        return Rotation.from_quat(q, scalar_first=True).as_matrix()
+    # Non-finite quaternions (e.g. frames not lifted) give NaN matrices, as they always have;
+    # scipy would refuse them as zero quaternions.
+    flat, ok = q.reshape(-1, 4), finite.reshape(-1)
+    out = np.full((len(flat), 3, 3), np.nan)
+    out[ok] = Rotation.from_quat(flat[ok], scalar_first=True).as_matrix()
+    return out.reshape(*q.shape[:-1], 3, 3)
 
 
 def matrix_to_quat(rotation: np.ndarray) -> np.ndarray:
-    """Unit quaternions (w, x, y, z) with w >= 0 of rotation matrices (Shepperd's method).
+    """Unit quaternions (w, x, y, z) with w >= 0 of rotation matrices (scipy's `Rotation`; at
+    w = 0 the first non-zero of x, y, z is positive).
 
     Args:
-        rotation: (..., 3, 3) rotation matrices.
+        rotation: (..., 3, 3) rotation matrices (taken as given: not re-orthonormalised).
 
     Returns:
         (..., 4) quaternions.
     """
     r = _check_last("rotation", rotation, (3, 3))
-    r00, r01, r02 = r[..., 0, 0], r[..., 0, 1], r[..., 0, 2]
-    r10, r11, r12 = r[..., 1, 0], r[..., 1, 1], r[..., 1, 2]
-    r20, r21, r22 = r[..., 2, 0], r[..., 2, 1], r[..., 2, 2]
-    # Four candidates, each accurate when its leading component is the largest.
-    lead = np.stack(
-        [1 + r00 + r11 + r22, 1 + r00 - r11 - r22, 1 - r00 + r11 - r22, 1 - r00 - r11 + r22],
-        axis=-1,
-    )
-    big = np.sqrt(np.maximum(lead, 1e-12)) / 2  # |component| of each candidate
-    den = 4 * big
-    candidates = np.stack(
-        [
-            np.stack([big[..., 0], (r21 - r12), (r02 - r20), (r10 - r01)], -1),
-            np.stack([(r21 - r12), big[..., 1], (r01 + r10), (r02 + r20)], -1),
-            np.stack([(r02 - r20), (r01 + r10), big[..., 2], (r12 + r21)], -1),
-            np.stack([(r10 - r01), (r02 + r20), (r12 + r21), big[..., 3]], -1),
-        ],
-        axis=-2,
-    )  # (..., 4 candidates, 4 components)
-    # Off-lead components are divided by 4 * lead; the lead itself is already right.
-    eye = np.eye(4, dtype=bool)
-    candidates = np.where(eye, candidates, candidates / den[..., :, None])
-    best = np.argmax(lead, axis=-1)
-    q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
-    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    rotations = Rotation.from_matrix(r, assume_valid=True)
+    return rotations.as_quat(canonical=True, scalar_first=True)
 
 
 def axis_angle_matrix(axis: Sequence[float] | np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -331,6 +318,11 @@ def axis_angle_matrix(axis: Sequence[float] | np.ndarray, angle: np.ndarray) -> 
     a = np.asarray(axis, dtype=np.float64)
     if a.shape != (3,) or not np.linalg.norm(a) > 0:
         raise ValueError(f"axis must be a non-zero (3,) vector, got {a!r}")
+    # Kept rather than scipy's Rotation.from_rotvec(...).as_matrix(): that was 2.6-5x slower
+    # at the observations' batch (`heading_frame_of_matrix` on (N, 2) roots: 13 vs 63 us at
+    # N = 1, 21 vs 72 us at N = 64) and cost ArenaEnv.step 15 % of its steps/s at N = 1 (the
+    # spar), 3 % at N = 8 (zero actions, CPU time, scipy 1.17). In the fit (`Skeleton.forward`,
+    # T frames) it took 1.2x the time at T = 40 and 0.7x at T = 2000: a small part of the fit.
     a = a / np.linalg.norm(a)
     k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
     t = np.asarray(angle, dtype=np.float64)[..., None, None]
@@ -348,11 +340,7 @@ def euler_yxz_to_matrix(angles: np.ndarray) -> np.ndarray:
         (..., 3, 3) rotation matrices.
     """
     angles = _check_last("angles", angles, (3,))
-    return (
-        axis_angle_matrix(_AXES["y"], angles[..., 0])
-        @ axis_angle_matrix(_AXES["x"], angles[..., 1])
-        @ axis_angle_matrix(_AXES["z"], angles[..., 2])
-    )
+    return Rotation.from_euler("YXZ", angles).as_matrix()  # upper case: intrinsic
 
 
 def matrix_to_euler_yxz(rotation: np.ndarray) -> np.ndarray:
@@ -369,6 +357,12 @@ def matrix_to_euler_yxz(rotation: np.ndarray) -> np.ndarray:
         (..., 3) angles in radians.
     """
     r = _check_last("rotation", rotation, (3, 3))
+    # Kept rather than scipy's Rotation.from_matrix(r).as_euler("YXZ"): that goes through a
+    # quaternion and was 7-10x slower at the step's batch (`action_to_joint_targets` on
+    # (N, 2, 8) joints: 17 vs 174 us at N = 1, 53 vs 376 us at N = 64), costing ArenaEnv.step
+    # 23 % of its steps/s at N = 1 (the spar) and 9 % at N = 8 (zero actions, CPU time, scipy
+    # 1.17). Near the singularity it also rebuilds the rotation less closely: within 1e-7 rad
+    # of |b| = pi/2 it too returns c = 0, but reconstructs to 2e-7 where this does to 2e-9.
     # R = [[ca cc + sa sb sc, sa sb cc - ca sc, sa cb],
     #      [cb sc,            cb cc,            -sb  ],
     #      [ca sb sc - sa cc, sa sc + ca sb cc, ca cb]]
@@ -394,18 +388,7 @@ def expmap_to_matrix(expmap: np.ndarray) -> np.ndarray:
         (..., 3, 3) rotation matrices.
     """
     e = _check_last("expmap", expmap, (3,))
-    theta = np.linalg.norm(e, axis=-1)[..., None, None]
-    x, y, z = np.moveaxis(e, -1, 0)
-    zero = np.zeros_like(x)
-    k = np.stack(
-        [np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)],
-        axis=-2,
-    )
-    small = theta < 1e-6
-    safe = np.where(small, 1.0, theta)
-    sinc = np.where(small, 1 - theta**2 / 6, np.sin(safe) / safe)
-    cosc = np.where(small, 0.5 - theta**2 / 24, (1 - np.cos(safe)) / safe**2)
-    return np.eye(3) + sinc * k + cosc * (k @ k)
+    return Rotation.from_rotvec(e).as_matrix()
 
 
 def matrix_to_expmap(rotation: np.ndarray) -> np.ndarray:
@@ -417,12 +400,8 @@ def matrix_to_expmap(rotation: np.ndarray) -> np.ndarray:
     Returns:
         (..., 3) rotation vectors.
     """
-    q = matrix_to_quat(rotation)
-    w, v = q[..., :1], q[..., 1:]
-    s = np.linalg.norm(v, axis=-1, keepdims=True)
-    angle = 2 * np.arctan2(s, w)
-    factor = np.where(s > 1e-9, angle / np.maximum(s, 1e-12), 2 / np.maximum(w, 1e-12))
-    return v * factor
+    r = _check_last("rotation", rotation, (3, 3))
+    return Rotation.from_matrix(r, assume_valid=True).as_rotvec()  # w >= 0: angle <= pi
 
 
 def tangent_normal(rotation: np.ndarray) -> np.ndarray:
@@ -481,6 +460,12 @@ def heading_yaw(root_quat: np.ndarray) -> np.ndarray:
         (...) yaw angles in (-pi, pi]; 0 where the x axis points straight up or down.
     """
     q = _check_last("root_quat", root_quat, (4,))
+    # Kept rather than scipy's Rotation.from_quat(q).as_euler("ZYX")[..., 0], the same yaw
+    # elsewhere (6e-15 apart): within about 1e-7 rad of an x axis pointing up or down (a
+    # fighter on its back) scipy reports gimbal lock and folds the roll into the yaw, up to
+    # 3 rad off, where this stays within 2e-7 of the true yaw. It was also 6x slower at (N, 2)
+    # roots (17 vs 109 us at N = 1): `ArenaEnv.heading_inputs`, once per step of the heading
+    # task, went from 24 to 111 us at N = 1 (11 % of a step) and 135 to 237 us at N = 64 (<1 %).
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
     return np.arctan2(2 * (x * y + w * z), 1 - 2 * (y * y + z * z))
@@ -697,7 +682,7 @@ def joint_targets_to_action(targets: np.ndarray) -> np.ndarray:
     """Inverse of `action_to_joint_targets`: hinge angles (..., 28) to actions (..., 28)."""
     t = _check_last("targets", targets, (NUM_ACTUATED,))
     action = t.copy()
-    for joint in JOINT_LAYOUT:
-        if joint.dofs == 3:
-            action[..., joint.action] = matrix_to_expmap(euler_yxz_to_matrix(t[..., joint.action]))
+    # All 3-DoF joints in one call each, as in `action_to_joint_targets` (scipy's Rotation has
+    # a per-call cost; the spar's still boxer calls this every step).
+    action[..., _EXPMAP_COLUMNS] = matrix_to_expmap(euler_yxz_to_matrix(t[..., _EXPMAP_COLUMNS]))
     return action

@@ -68,6 +68,7 @@ from dataclasses import dataclass
 import mujoco
 import mujoco.rollout
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import (
@@ -194,9 +195,7 @@ def standing_like(qpos: np.ndarray, hinges: np.ndarray | None = None) -> np.ndar
         out[:, 7:] = hinges
     out[:, ROOT_POS] = qpos[:, ROOT_POS]
     yaw = heading_yaw(qpos[:, ROOT_QUAT])
-    out[:, ROOT_QUAT] = np.stack(
-        [np.cos(yaw / 2), np.zeros_like(yaw), np.zeros_like(yaw), np.sin(yaw / 2)], axis=-1
-    )
+    out[:, ROOT_QUAT] = Rotation.from_euler("z", yaw[:, None]).as_quat(scalar_first=True)
     return out
 
 
