@@ -318,11 +318,9 @@ def axis_angle_matrix(axis: Sequence[float] | np.ndarray, angle: np.ndarray) -> 
     a = np.asarray(axis, dtype=np.float64)
     if a.shape != (3,) or not np.linalg.norm(a) > 0:
         raise ValueError(f"axis must be a non-zero (3,) vector, got {a!r}")
-    # Kept rather than scipy's Rotation.from_rotvec(...).as_matrix(): that was 2.6-5x slower
-    # at the observations' batch (`heading_frame_of_matrix` on (N, 2) roots: 13 vs 63 us at
-    # N = 1, 21 vs 72 us at N = 64) and cost ArenaEnv.step 15 % of its steps/s at N = 1 (the
-    # spar), 3 % at N = 8 (zero actions, CPU time, scipy 1.17). In the fit (`Skeleton.forward`,
-    # T frames) it took 1.2x the time at T = 40 and 0.7x at T = 2000: a small part of the fit.
+    # Kept rather than scipy's Rotation.from_rotvec(...).as_matrix(), 4-5x slower at the
+    # observations' (N, 2) heading frames (13 against 61 us at N = 1, benchmarks/rotations.py),
+    # which every environment step builds.
     a = a / np.linalg.norm(a)
     k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
     t = np.asarray(angle, dtype=np.float64)[..., None, None]
@@ -357,12 +355,10 @@ def matrix_to_euler_yxz(rotation: np.ndarray) -> np.ndarray:
         (..., 3) angles in radians.
     """
     r = _check_last("rotation", rotation, (3, 3))
-    # Kept rather than scipy's Rotation.from_matrix(r).as_euler("YXZ"): that goes through a
-    # quaternion and was 7-10x slower at the step's batch (`action_to_joint_targets` on
-    # (N, 2, 8) joints: 17 vs 174 us at N = 1, 53 vs 376 us at N = 64), costing ArenaEnv.step
-    # 23 % of its steps/s at N = 1 (the spar) and 9 % at N = 8 (zero actions, CPU time, scipy
-    # 1.17). Near the singularity it also rebuilds the rotation less closely: within 1e-7 rad
-    # of |b| = pi/2 it too returns c = 0, but reconstructs to 2e-7 where this does to 2e-9.
+    # Kept rather than scipy's Rotation.from_matrix(r).as_euler("YXZ"), which goes through a
+    # quaternion: 14-19x slower at the step's (N, 2, 8) joints (17 against 235 us at N = 1,
+    # benchmarks/rotations.py), where a whole step of the spar's one environment takes under
+    # 1 ms. At |b| = pi/2 it too returns c = 0.
     # R = [[ca cc + sa sb sc, sa sb cc - ca sc, sa cb],
     #      [cb sc,            cb cc,            -sb  ],
     #      [ca sb sc - sa cc, sa sc + ca sb cc, ca cb]]
@@ -461,11 +457,9 @@ def heading_yaw(root_quat: np.ndarray) -> np.ndarray:
     """
     q = _check_last("root_quat", root_quat, (4,))
     # Kept rather than scipy's Rotation.from_quat(q).as_euler("ZYX")[..., 0], the same yaw
-    # elsewhere (6e-15 apart): within about 1e-7 rad of an x axis pointing up or down (a
-    # fighter on its back) scipy reports gimbal lock and folds the roll into the yaw, up to
-    # 3 rad off, where this stays within 2e-7 of the true yaw. It was also 6x slower at (N, 2)
-    # roots (17 vs 109 us at N = 1): `ArenaEnv.heading_inputs`, once per step of the heading
-    # task, went from 24 to 111 us at N = 1 (11 % of a step) and 135 to 237 us at N = 64 (<1 %).
+    # elsewhere: for a fighter on its back (x axis within about 1e-7 rad of vertical) scipy
+    # meets gimbal lock and folds the roll into the yaw (1.1 rad for a true 0.7), and it is 4-7x
+    # slower at (N, 2) roots (benchmarks/rotations.py).
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
     return np.arctan2(2 * (x * y + w * z), 1 - 2 * (y * y + z * z))
