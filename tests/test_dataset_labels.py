@@ -11,6 +11,7 @@ import pytest
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.compiled import keypoint_positions
 from models.pose.types import BLAZEPOSE_33
+from tasks import deepmimic
 from tasks.dataset.config import THESIS_ARM_M, PunchConfig
 from tasks.dataset.labels import (
     Punch,
@@ -21,7 +22,6 @@ from tasks.dataset.labels import (
     label_steps,
 )
 from tasks.dataset.statistics import DISTRIBUTIONS, FighterStatistics, combine, fighter_statistics
-from tasks.lift import deepmimic
 
 J = {name: i for i, name in enumerate(BLAZEPOSE_33)}
 RATE = deepmimic.FPS  # 30 Hz, the retargeted clips' rate

@@ -13,8 +13,9 @@ import pytest
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import HINGE_NAMES, axis_angle_matrix, body_rotations
 from models.pose.types import BLAZEPOSE_33
+from tasks import deepmimic
 from tasks.errors import BadInput
-from tasks.lift import deepmimic, metrics
+from tasks.lift import metrics
 from tasks.lift import synthetic as syn
 from tasks.lift.camera import look_at, project
 
