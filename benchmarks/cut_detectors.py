@@ -100,6 +100,31 @@ def noisy(f, rng, sigma=10.0, quality=10):
     return cv2.imdecode(jpg, cv2.IMREAD_COLOR)
 
 
+def shaken(full: list[np.ndarray], amplitude: float, rng) -> list[np.ndarray]:
+    """Hand-held shake: a window of 90 % of the frame moved at random by up to ``amplitude`` of
+    the width and height each frame."""
+    h, w = full[0].shape[:2]
+    cw, ch = int(0.9 * w), int(0.9 * h)
+    out = []
+    for f in full:
+        dx, dy = rng.uniform(-amplitude, amplitude) * w, rng.uniform(-amplitude, amplitude) * h
+        x0, y0 = int((w - cw) / 2 + dx), int((h - ch) / 2 + dy)
+        out.append(crop_resize(f, x0, y0, x0 + cw, y0 + ch))
+    return out
+
+
+def panned(full: list[np.ndarray], speed: float) -> list[np.ndarray]:
+    """A steady pan to and fro: a window of 55 % of the width moved ``speed`` of its width a
+    frame."""
+    h, w = full[0].shape[:2]
+    cw = int(0.55 * w)
+    out = []
+    for i, f in enumerate(full):
+        x = int(abs((i * speed * cw) % (2 * (w - cw)) - (w - cw)))
+        out.append(crop_resize(f, x, 0, x + cw, h, (272, int(272 * h / cw))))
+    return out
+
+
 def build_inputs(folder: Path) -> list[tuple[str, str, Path, list, int]]:
     """(group, name, path, true cuts (frame or (first, last) of a gradual transition), tol)."""
     a = read(SAMPLE)
@@ -189,37 +214,11 @@ def build_inputs(folder: Path) -> list[tuple[str, str, Path, list, int]]:
     add("hidden", "noisy_other_camera", [noisy(f, rng) for f in a[:CUT] + b[CUT:]], [CUT])
     # no cut: false-positive checks
     add("no cut", "noisy_sample", [noisy(f, rng) for f in a], [])
-    # hand-held shake: crop window 90 % of the frame, moved at random up to +-3 % of the width
-    # and height each frame (frame-to-frame jumps up to ~6 %), on the full-size sample
-    cw, ch = int(0.9 * W), int(0.9 * H)
-    shake = []
-    for f in full:
-        dx, dy = rng.uniform(-0.03, 0.03) * W, rng.uniform(-0.03, 0.03) * H
-        x0, y0 = int((W - cw) / 2 + dx), int((H - ch) / 2 + dy)
-        shake.append(crop_resize(f, x0, y0, x0 + cw, y0 + ch))
-    add("no cut", "camera_shake_3pct", shake, [])
-    # steady pan of 4 % of the window's width per frame, to and fro (window 55 % of the width)
-    cw = int(0.55 * W)
-    pan = []
-    for i, f in enumerate(full):
-        x = int(abs((i * 0.04 * cw) % (2 * (W - cw)) - (W - cw)))
-        pan.append(crop_resize(f, x, 0, x + cw, H, (272, int(272 * H / cw))))
+    add("no cut", "camera_shake_3pct", shaken(full, 0.03, rng), [])
+    pan = panned(full, 0.04)
     add("no cut", "pan_4pct_per_frame", pan, [])
-    # milder hand-held shake: +-1.5 % of the width and height each frame
-    cw, ch = int(0.9 * W), int(0.9 * H)
-    shake = []
-    for f in full:
-        dx, dy = rng.uniform(-0.015, 0.015) * W, rng.uniform(-0.015, 0.015) * H
-        x0, y0 = int((W - cw) / 2 + dx), int((H - ch) / 2 + dy)
-        shake.append(crop_resize(f, x0, y0, x0 + cw, y0 + ch))
-    add("no cut", "camera_shake_1.5pct", shake, [])
-    # fast pan, 8 % of the window's width per frame, to and fro
-    cw = int(0.55 * W)
-    pan8 = []
-    for i, f in enumerate(full):
-        x = int(abs((i * 0.08 * cw) % (2 * (W - cw)) - (W - cw)))
-        pan8.append(crop_resize(f, x, 0, x + cw, H, (272, int(272 * H / cw))))
-    add("no cut", "pan_8pct_per_frame", pan8, [])
+    add("no cut", "camera_shake_1.5pct", shaken(full, 0.015, rng), [])
+    add("no cut", "pan_8pct_per_frame", panned(full, 0.08), [])
     # slow zoom in: the crop shrinks 1.5 % per frame from the full frame to 40 %
     zoom = []
     for i, f in enumerate(full):
@@ -243,23 +242,7 @@ def build_inputs(folder: Path) -> list[tuple[str, str, Path, list, int]]:
     add("hidden", "cuts_13_apart", a[:30] + b[30:43] + c[43:], [30, 43])
     # a cut while the camera pans (4 %/frame): cam01 panning -> cam02 panning
     full_b = read(SAMPLES / "multi_person/cam02.mp4", size=None)
-    add(
-        "hidden",
-        "cut_during_pan",
-        pan[:CUT]
-        + [
-            crop_resize(
-                f,
-                int(abs((i * 0.04 * cw) % (2 * (W - cw)) - (W - cw))),
-                0,
-                int(abs((i * 0.04 * cw) % (2 * (W - cw)) - (W - cw))) + cw,
-                H,
-                (272, int(272 * H / cw)),
-            )
-            for i, f in enumerate(full_b)
-        ][CUT:],
-        [CUT],
-    )
+    add("hidden", "cut_during_pan", pan[:CUT] + panned(full_b, 0.04)[CUT:], [CUT])
     # fast motion: the fixture's box, 4x faster (12 px/frame of 128) and bigger
     add("no cut", "fast_box", moving_box_frames(60, (200, 60, 20), step=12, box=(40, 60)), [])
     return out

@@ -1,1 +1,2 @@
-"""Prefect flows: one per stage and the pipeline that chains them. Only the CLI imports these."""
+"""Prefect flows: the one flow that runs any stage, the pipeline that chains the stages, the
+server and the watched folder; the CLI. Only the CLI imports these."""

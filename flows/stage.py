@@ -3,8 +3,7 @@ or compute it, summarise."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from importlib import import_module
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -14,22 +13,23 @@ from prefect.task_runners import ThreadPoolTaskRunner
 from flows.config import from_tables
 from flows.runs import StageSummary, reuse_or_run
 from storage.paths import data_paths
+from tasks.dataset.task import dataset_plan
+from tasks.evaluate.task import evaluate_plan
+from tasks.ingest.task import ingest_plan
+from tasks.lift.task import lift_plan
+from tasks.pose.task import pose_plan
 from tasks.runner import StagePlan
+from tasks.train.task import train_plan
 
-# Each stage's plan, by module path: a command imports only the stage it runs.
-PLANS: dict[str, str] = {
-    "ingest": "tasks.ingest.task:ingest_plan",
-    "pose": "tasks.pose.task:pose_plan",
-    "lift": "tasks.lift.task:lift_plan",
-    "dataset": "tasks.dataset.task:dataset_plan",
-    "train": "tasks.train.task:train_plan",
-    "evaluate": "tasks.evaluate.task:evaluate_plan",
+# Each stage's plan: (paths, its settings, subject, inputs) -> StagePlan.
+PLANS: dict[str, Callable[..., StagePlan]] = {
+    "ingest": ingest_plan,
+    "pose": pose_plan,
+    "lift": lift_plan,
+    "dataset": dataset_plan,
+    "train": train_plan,
+    "evaluate": evaluate_plan,
 }
-
-
-def plan_of(stage: str):
-    module, name = PLANS[stage].split(":")
-    return getattr(import_module(module), name)
 
 
 # One task at a time unless the caller says otherwise (the pose stage's chunks: `chunk_runner`).
@@ -47,7 +47,7 @@ def stage_flow(
     adversary's declaration); ``force`` recomputes even when a committed output exists."""
     paths = data_paths(data_root)
     settings = getattr(from_tables(config or {}), stage)
-    plan: StagePlan = plan_of(stage)(paths, settings, subject, inputs or {})
+    plan = PLANS[stage](paths, settings, subject, inputs or {})
     result, state = reuse_or_run(paths, plan, force)
     plan.after()
     return StageSummary(

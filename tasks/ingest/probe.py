@@ -149,10 +149,10 @@ def structure_distance(a: np.ndarray, b: np.ndarray) -> float:
 # and a brightness step, which ours misses) but cuts mild hand-held shake (+-1.5 % of the
 # width) where ours does not, and on fight footage a false cut costs as much as a missed one:
 # it splits the tracks and the world frame. Its HashDetector and HistogramDetector fail the
-# tests' cases (a flat synthetic shot; a mirrored view). PySceneDetect is faster (one pass over
-# the 100-frame sample: 0.6-0.9 s against 2.3 s for ours, most of it our full-frame grey
-# thumbnail), which matters little: the whole ingest costs a tenth of pose and lift together
-# per minute of footage (docs/scaling.md).
+# tests' cases (a flat synthetic shot; a mirrored view). PySceneDetect is about twice as fast
+# (one pass over the 100-frame sample: 0.5-0.6 s against 1.0 s for ours, much of it our
+# full-frame grey thumbnail), which matters little: the whole ingest costs a tenth of pose and
+# lift together per minute of footage (docs/scaling.md).
 class CutDetector:
     """Declares a cut at frame ``i`` when the histogram distance to frame ``i - 1`` exceeds
     ``threshold`` or the structure distance exceeds ``structure_threshold``, and the previous
