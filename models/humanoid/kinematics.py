@@ -39,7 +39,6 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from models.pose.types import BLAZEPOSE_33, COCO_17
 
@@ -266,6 +265,15 @@ def _check_last(name: str, value: np.ndarray, shape: tuple[int, ...]) -> np.ndar
     return array
 
 
+def _rotation():
+    """scipy's `Rotation`, imported on first use: scipy.spatial takes 0.3 s to import, and the
+    dashboard reaches this module (the dataset's statistics use `heading_yaw`) without ever
+    converting a rotation."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
+
+
 def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
     """Rotation matrices of quaternions.
 
@@ -281,12 +289,12 @@ def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
         raise ValueError("quat must not contain zero quaternions")
     finite = np.isfinite(norm)
     if finite.all():
-        return Rotation.from_quat(q, scalar_first=True).as_matrix()
+        return _rotation().from_quat(q, scalar_first=True).as_matrix()
     # Non-finite quaternions (e.g. frames not lifted) give NaN matrices, as they always have;
     # scipy would refuse them as zero quaternions.
     flat, ok = q.reshape(-1, 4), finite.reshape(-1)
     out = np.full((len(flat), 3, 3), np.nan)
-    out[ok] = Rotation.from_quat(flat[ok], scalar_first=True).as_matrix()
+    out[ok] = _rotation().from_quat(flat[ok], scalar_first=True).as_matrix()
     return out.reshape(*q.shape[:-1], 3, 3)
 
 
@@ -301,7 +309,7 @@ def matrix_to_quat(rotation: np.ndarray) -> np.ndarray:
         (..., 4) quaternions.
     """
     r = _check_last("rotation", rotation, (3, 3))
-    rotations = Rotation.from_matrix(r, assume_valid=True)
+    rotations = _rotation().from_matrix(r, assume_valid=True)
     return rotations.as_quat(canonical=True, scalar_first=True)
 
 
@@ -338,7 +346,7 @@ def euler_yxz_to_matrix(angles: np.ndarray) -> np.ndarray:
         (..., 3, 3) rotation matrices.
     """
     angles = _check_last("angles", angles, (3,))
-    return Rotation.from_euler("YXZ", angles).as_matrix()  # upper case: intrinsic
+    return _rotation().from_euler("YXZ", angles).as_matrix()  # upper case: intrinsic
 
 
 def matrix_to_euler_yxz(rotation: np.ndarray) -> np.ndarray:
@@ -384,7 +392,7 @@ def expmap_to_matrix(expmap: np.ndarray) -> np.ndarray:
         (..., 3, 3) rotation matrices.
     """
     e = _check_last("expmap", expmap, (3,))
-    return Rotation.from_rotvec(e).as_matrix()
+    return _rotation().from_rotvec(e).as_matrix()
 
 
 def matrix_to_expmap(rotation: np.ndarray) -> np.ndarray:
@@ -397,7 +405,7 @@ def matrix_to_expmap(rotation: np.ndarray) -> np.ndarray:
         (..., 3) rotation vectors.
     """
     r = _check_last("rotation", rotation, (3, 3))
-    return Rotation.from_matrix(r, assume_valid=True).as_rotvec()  # w >= 0: angle <= pi
+    return _rotation().from_matrix(r, assume_valid=True).as_rotvec()  # w >= 0: angle <= pi
 
 
 def tangent_normal(rotation: np.ndarray) -> np.ndarray:
