@@ -100,6 +100,23 @@ def noisy(f, rng, sigma=10.0, quality=10):
     return cv2.imdecode(jpg, cv2.IMREAD_COLOR)
 
 
+def dissolved(
+    first: list[np.ndarray], then: list[np.ndarray], start: int, end: int
+) -> list[np.ndarray]:
+    """``first`` dissolving into ``then`` over frames ``start`` to ``end``."""
+    steps = end - start + 2
+    return [
+        first[i]
+        if i < start
+        else then[i]
+        if i > end
+        else cv2.addWeighted(
+            first[i], 1 - (i - start + 1) / steps, then[i], (i - start + 1) / steps, 0
+        )
+        for i in range(len(first))
+    ]
+
+
 def shaken(full: list[np.ndarray], amplitude: float, rng) -> list[np.ndarray]:
     """Hand-held shake: a window of 90 % of the frame moved at random by up to ``amplitude`` of
     the width and height each frame."""
@@ -185,25 +202,9 @@ def build_inputs(folder: Path) -> list[tuple[str, str, Path, list, int]]:
         [CUT],
     )
     # dissolves over 5 frames (48..52 blend): any cut found in 47..53 counts
-    mix = [
-        a[i]
-        if i < 48
-        else b[i]
-        if i > 52
-        else cv2.addWeighted(a[i], 1 - (i - 47) / 6, b[i], (i - 47) / 6, 0)
-        for i in range(100)
-    ]
-    add("hidden", "dissolve5_other_camera", mix, [(48, 52)], 1)
+    add("hidden", "dissolve5_other_camera", dissolved(a, b, 48, 52), [(48, 52)], 1)
     blue, red = moving_box_frames(60, (200, 60, 20)), moving_box_frames(60, (20, 40, 210))
-    mixc = [
-        blue[i]
-        if i < 28
-        else red[i]
-        if i > 32
-        else cv2.addWeighted(blue[i], 1 - (i - 27) / 6, red[i], (i - 27) / 6, 0)
-        for i in range(60)
-    ]
-    add("hidden", "dissolve5_two_shot", mixc, [(28, 32)], 1)
+    add("hidden", "dissolve5_two_shot", dissolved(blue, red, 28, 32), [(28, 32)], 1)
     # under compression noise (noise sigma 10 + JPEG q10 per frame, then mp4v)
     add(
         "hidden",
