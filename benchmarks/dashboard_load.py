@@ -10,7 +10,7 @@ kept under ``data/bench/dashboard/`` and reused (``--rebuild`` builds it again).
 Then ``ringside dashboard`` serves it and Debian's Chromium opens every page of
 `dashboards.app.PAGES` (the Stages page once per stage): one warm-up visit, then three timed
 ones. A visit lasts from ``page.goto`` until the page has written its last line
-(`dashboards.app.READ_AT`), every chart is drawn and the layout has held still for
+(`dashboards.widgets.READ_AT`), every chart is drawn and the layout has held still for
 `STEADY_MS`; the time counted ends when that final layout first appeared.
 
 Last line: ``dashboard_load: X s``, the slowest page's best visit. The goal (issue 9): < 2 s.
@@ -36,8 +36,9 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from tiny import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS  # noqa: E402
 
-from dashboards.app import PAGES, READ_AT  # noqa: E402
+from dashboards.app import PAGES  # noqa: E402
 from dashboards.queries import METRIC_STAGES  # noqa: E402
+from dashboards.widgets import READ_AT  # noqa: E402
 from flows.cli.servers import wait_until_serving  # noqa: E402
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.db import connect  # noqa: E402

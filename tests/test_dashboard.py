@@ -36,17 +36,9 @@ from conftest import (
 )
 
 from dashboards import queries
-from dashboards.app import (
-    EVALUATION_TILES,
-    HEADLINES,
-    PAGES,
-    READ_AT,
-    TILES,
-    format_value,
-    output_labels,
-    sample_size,
-    video_labels,
-)
+from dashboards.app import PAGES
+from dashboards.opponent import EVALUATION_TILES, HEADLINES, TILES, sample_size
+from dashboards.widgets import READ_AT, format_value, output_labels, video_labels
 from flows.cli import build_parser, main
 from flows.cli.servers import wait_until_serving
 from flows.config import STAGES

@@ -16,10 +16,11 @@ from datetime import datetime
 
 from conftest import REPO, copy_data, query, render_page
 
-from dashboards.app import PAGES, READ_AT
+from dashboards.app import PAGES
+from dashboards.widgets import READ_AT
 from storage.db import utcnow
 
-# What a page says when it waited for the pipeline in vain (`dashboards.app.read`).
+# What a page says when it waited for the pipeline in vain (`dashboards.widgets.read`).
 GAVE_UP = "held the database"
 # The writer must end well within the test's time; beyond this it is stuck, not slow.
 WRITER_LIMIT_S = 240.0
