@@ -53,6 +53,7 @@ def pose_seconds(data: Path, video: Path, env: dict[str, str], *flags: str) -> f
 
 
 def main() -> None:
+    from dask import config as dask_config
     from distributed import LocalCluster
 
     env = {k: v for k, v in os.environ.items() if k != "RINGSIDE_DASK_ADDRESS"}
@@ -62,9 +63,14 @@ def main() -> None:
         video = looped_sample(Path(tmp), LOOPS)
         threads = pose_seconds(Path(tmp) / "threads", video, env, "--pose-workers", "2")
         print(f"thread pool (pose.workers 2): {threads:.1f} s")
-        with LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
-        ) as cluster:
+        # Dask's scratch folder in ours, not its default /tmp/dask-scratch-space, which
+        # outlives the run.
+        with (
+            dask_config.set({"temporary-directory": str(Path(tmp) / "dask")}),
+            LocalCluster(
+                n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+            ) as cluster,
+        ):
             dask_env = {**env, "RINGSIDE_DASK_ADDRESS": cluster.scheduler_address}
             dask = pose_seconds(Path(tmp) / "dask", video, dask_env)
         print(f"Dask LocalCluster (2 workers x 1 thread): {dask:.1f} s")

@@ -199,13 +199,21 @@ def test_chunks_run_on_a_dask_cluster(tmp_path, capsys, sample_video, monkeypatc
     """Two `dask worker` processes started before the command (as on other machines) track the
     chunks, report them to the command's Prefect server and start no Prefect server of their
     own."""
+    import dask
     from distributed import Client, LocalCluster
 
     data = tmp_path / "data"
     worker_env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
-    with LocalCluster(
-        n_workers=0, processes=False, protocol="tcp", dashboard_address=None
-    ) as cluster:
+    # Dask's scratch folder in the test's, not its default /tmp/dask-scratch-space, which
+    # outlives the test (the scheduler here and the workers each make one).
+    scratch = str(tmp_path / "dask")
+    worker_env["DASK_TEMPORARY_DIRECTORY"] = scratch
+    with (
+        dask.config.set({"temporary-directory": scratch}),
+        LocalCluster(
+            n_workers=0, processes=False, protocol="tcp", dashboard_address=None
+        ) as cluster,
+    ):
         workers = [
             subprocess.Popen(
                 [
