@@ -69,19 +69,16 @@ def export_command(args, paths: DataPaths) -> int:
 
 def evaluate_command(args, paths: DataPaths) -> int:
     from flows.config import load_config
+    from flows.stage import run_stage_flow
     from storage.db import connect
     from storage.records import output_metrics
-    from tasks.errors import BadInput
     from tasks.evaluate.stage import POLICIES
-    from tasks.evaluate.store import evaluation_tables, resolve_run
+    from tasks.evaluate.store import evaluation_tables
+    from tasks.evaluate.task import resolve_training_run
 
     config = load_config(args.config, overrides(args))
     db = paths.db
-    if not db.exists():
-        raise BadInput(str(db), "no database yet: process some footage and train first")
-    with connect(db, read_only=True) as con:  # fail fast, before Prefect starts
-        resolve_run(con, args.run)
-    from flows.stage import run_stage_flow
+    resolve_training_run(db, args.run)  # fail fast, before Prefect starts
 
     with flow_server(paths):
         summary = run_stage_flow(

@@ -59,7 +59,7 @@ def extra_clips_plan(paths: DataPaths, config: DatasetConfig, adversary: str) ->
     ``config.extra_clips``), retargeted onto the bodies of ``adversary``'s fighters, as one
     dataset output."""
     folder = config.extra_clips
-    path = Path(folder)
+    path = Path(folder).resolve()
     if not path.is_dir():
         raise BadInput(folder, "not a folder (dataset.extra_clips)")
     files = {p.name: sha256_file(p) for p in sorted(path.glob("*.txt"))}
@@ -67,13 +67,11 @@ def extra_clips_plan(paths: DataPaths, config: DatasetConfig, adversary: str) ->
         raise BadInput(folder, "no *.txt motion clips in this folder (dataset.extra_clips)")
     with connect(paths.db, read_only=True) as con:
         bones = member_bones(con, candidate_members(con, adversary, config, dataset_code()))
-    spec = extra_clips_spec(path.resolve(), files, bones)
+    spec = extra_clips_spec(path, files, bones)
     return StagePlan(
         spec,
         folder,
-        compute=lambda: extra_clip_output(
-            path.resolve(), bones, key=spec.key, video_id=spec.video_id
-        ),
+        compute=lambda: extra_clip_output(path, bones, key=spec.key, video_id=spec.video_id),
     )
 
 

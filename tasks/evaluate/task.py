@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 from prefect.artifacts import create_table_artifact
 
@@ -14,7 +15,7 @@ from tasks.dataset.store import dataset_info
 from tasks.errors import BadInput
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.stage import STAGE, evaluate, load_inputs
-from tasks.evaluate.store import compared_runs, evaluation_tables, resolve_run
+from tasks.evaluate.store import RunInfo, compared_runs, evaluation_tables, resolve_run
 from tasks.runner import StagePlan, StageSpec
 
 
@@ -34,16 +35,23 @@ def evaluate_spec(config: EvaluateConfig, run_key: str, compared: Sequence[str] 
     return StageSpec(STAGE, run_key, config, evaluate_code(), upstream)
 
 
+def resolve_training_run(db: Path, run_key: str) -> RunInfo:
+    """The finished training run ``run_key`` (or a prefix of its key) names; BadInput naming
+    what is wrong when there is none, or no database."""
+    if not db.exists():
+        raise BadInput(str(db), "no database yet: process some footage and train first")
+    with connect(db) as con:  # writable: brings an older database's schema up to date
+        return resolve_run(con, run_key)
+
+
 def evaluate_plan(
     paths: DataPaths, config: EvaluateConfig, run_key: str, inputs: Mapping[str, str]
 ) -> StagePlan:
     """Evaluate finished training run ``run_key`` (a prefix will do; `ringside metrics --stage
     train` lists them): bouts, tables, export, video. The run is checked before anything is
     computed; the tables are published as Prefect artifacts whether computed or reused."""
-    if not paths.db.exists():
-        raise BadInput(str(paths.db), "no database yet: process some footage and train first")
-    with connect(paths.db) as con:  # writable: brings an older database's schema up to date
-        info = resolve_run(con, run_key)
+    info = resolve_training_run(paths.db, run_key)
+    with connect(paths.db, read_only=True) as con:
         compared = tuple(other.run_key for other in compared_runs(con, info))
         adversary = dataset_info(con, info.dataset_key).adversary
     spec = evaluate_spec(config, info.run_key, compared)
