@@ -1,10 +1,19 @@
 """One chunk of frames through detection, tracking and pose estimation.
 
 Per frame: everyone followed from the previous frame is estimated again in the crop their last
-pose points to (the landmark model re-finds a person the detector misses); every
-``detect_every`` frames, and whenever nobody is followed, the detector searches the frame and
-each person it finds that nobody followed covers is estimated too. Every pose the model accepts
-becomes an observation for the tracker, which gives identities (motion + clothing colour).
+pose points to (the landmark model re-finds a person the detector misses). On every frame whose
+index is a multiple of ``detect_every``, and whenever nobody is followed, the detector searches
+the frame, and everyone it finds is estimated in the crop of their detection, the people already
+followed included. Every pose the model accepts becomes an observation for the tracker, which
+gives identities (motion + clothing colour).
+
+Why followed people start again from their detection: a crop that follows the last pose carries
+the whole history of crops before it, and the landmark model answers a crop shifted by a few
+pixels with keypoints a few pixels off, which never die out (on the sample, two runs that
+started 10 frames apart still differed by a median 5 px per joint 90 frames later). Started
+again at frames fixed by their index, a person's crops depend on at most the ``detect_every``
+frames before, so a chunk that re-reads ``overlap_frames >= detect_every`` frames before its
+start finds the keypoints one long chunk finds (tests/test_pose_chunks.py).
 """
 
 from __future__ import annotations
@@ -16,6 +25,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from models.pose.boxes import box_iou
 from models.pose.types import Detector, Pose, PoseEstimator
@@ -74,6 +84,59 @@ def _clip(box: np.ndarray, width: int, height: int) -> np.ndarray | None:
     return clipped if clipped[2] - clipped[0] >= 2 and clipped[3] - clipped[1] >= 2 else None
 
 
+def _search(
+    frame: np.ndarray,
+    index: int,
+    following: list[Pose],
+    detector: Detector,
+    estimator: PoseEstimator,
+    config: PoseConfig,
+    found: tuple[list, list, list],
+) -> list[Pose]:
+    """The poses of one frame the detector searches: each person it finds is estimated afresh
+    in the crop of its detection, whether followed or not (an anchor: from here on, a followed
+    person's crops no longer depend on the frames before, so a chunk that starts a few frames
+    earlier sees the same poses as one long chunk); someone followed whom it misses is
+    followed on from their last pose. Appends the frame's detections to ``found``."""
+    detections = [d for d in detector(frame) if d.score >= config.detection_score]
+    for det in detections:
+        found[0].append(index)
+        found[1].append(det.box)
+        found[2].append(det.score)
+    boxes = np.array([d.box for d in detections]).reshape(-1, 4)
+    matched: dict[int, int] = {}  # detection -> followed person
+    if following and len(boxes):
+        overlap = np.array([box_iou(p.bbox(), boxes) for p in following])
+        rows, cols = linear_sum_assignment(-overlap)
+        matched = {
+            int(c): int(r)
+            for r, c in zip(rows, cols, strict=True)
+            if overlap[r, c] > config.redetect_iou
+        }
+    poses = {}
+    for d, k in matched.items():
+        pose = estimator(frame, detections[d])
+        # An anchor on someone else, on part of them or on nobody leaves them followed.
+        if pose.score < config.pose_score or not _same_body(pose, following[k], config):
+            pose = estimator(frame, following[k])
+        poses[k] = pose
+    kept = [poses[k] if k in poses else estimator(frame, p) for k, p in enumerate(following)]
+    seen = np.array([p.bbox() for p in kept]).reshape(-1, 4)
+    for d, det in enumerate(detections):
+        if d in matched or (len(seen) and box_iou(det.box, seen).max() > config.redetect_iou):
+            continue
+        kept.append(estimator(frame, det))
+    return kept
+
+
+def _same_body(pose: Pose, previous: Pose, config: PoseConfig) -> bool:
+    """Whether ``pose`` is the body ``previous`` showed a frame before: their keypoints apart
+    by a median of less than `anchor_distance` of its height in the image."""
+    height = np.ptp(previous.keypoints[:, 1])
+    apart = np.median(np.linalg.norm(pose.keypoints - previous.keypoints, axis=-1))
+    return bool(height > 0 and apart < config.anchor_distance * height)
+
+
 def track_chunk(
     frames: Iterable[tuple[int, np.ndarray]],
     *,
@@ -90,30 +153,17 @@ def track_chunk(
     tracker = Tracker(config.tracker, fps, start_frame=start)
     following: list[Pose] = []
     candidates: dict[int, list[tuple[np.ndarray, Pose, np.ndarray]]] = {}
-    det_frame, det_box, det_score = [], [], []
+    found: tuple[list, list, list] = ([], [], [])
     joints = 0
     for index, frame in frames:
         if STOP.is_set():
             raise Stopped(f"chunk of frames {start}-{end} stopped at frame {index}")
         height, width = frame.shape[:2]
-        poses = [
-            p
-            for p in (estimator(frame, prev) for prev in following)
-            if p.score >= config.pose_score
-        ]
-        if not following or (index - start) % config.detect_every == 0:
-            seen = np.array([p.bbox() for p in poses]).reshape(-1, 4)
-            for det in detector(frame):
-                if det.score < config.detection_score:
-                    continue
-                det_frame.append(index)
-                det_box.append(det.box)
-                det_score.append(det.score)
-                if len(seen) and box_iou(det.box, seen).max() > config.redetect_iou:
-                    continue
-                pose = estimator(frame, det)
-                if pose.score >= config.pose_score:
-                    poses.append(pose)
+        if following and index % config.detect_every:
+            poses = [estimator(frame, prev) for prev in following]
+        else:
+            poses = _search(frame, index, following, detector, estimator, config, found)
+        poses = [p for p in poses if p.score >= config.pose_score]
         observations, kept = [], []
         for pose in poses:
             box = _clip(pose.bbox(), width, height)
@@ -134,8 +184,7 @@ def track_chunk(
             ):
                 following.append(pose)
                 taken.append(obs.box)
-    detections = (det_frame, det_box, det_score)
-    return _collect(tracker, candidates, start, end, joints, detections, began)
+    return _collect(tracker, candidates, start, end, joints, found, began)
 
 
 def _collect(tracker, candidates, start, end, joints, detections, began) -> ChunkTracks:

@@ -308,8 +308,9 @@ class PoseConfig:
     )
     detect_every: int = setting(
         3,
-        "Run the person detector every N frames; in between, people are followed from their last "
-        "pose. Frames with nobody followed are always searched.",
+        "Run the person detector on every frame whose index is a multiple of N, and estimate "
+        "everyone it finds in the crop of their detection; in between, people are followed "
+        "from their last pose. Frames with nobody followed are always searched.",
     )
     detector_tiles: int = setting(
         2,
@@ -325,10 +326,19 @@ class PoseConfig:
         "A detection overlapping someone already followed by more than this IoU is the same "
         "person and is not estimated again.",
     )
+    anchor_distance: float = setting(
+        0.1,
+        "A followed person is estimated again in the crop of their detection only if the pose "
+        "found there lies within this share of their height (median over the joints) of their "
+        "last pose; otherwise (the crop held someone else, or part of them) they are followed "
+        "on from their last pose.",
+    )
     num_threads: int = setting(2, "CPU threads per model.")
     workers: int = setting(1, "Chunks processed at the same time (threads).")
     overlap_frames: int = setting(
-        8, "Frames a chunk re-reads before its start, to join its tracks to the previous chunk's."
+        8,
+        "Frames a chunk re-reads before its start, to join its tracks to the previous chunk's; "
+        "at least `detect_every`, so that its keypoints are those of one long chunk.",
     )
     min_fighter_share: float = setting(
         0.2, "A track seen in less than this share of its shot's frames is never a fighter."
@@ -382,11 +392,17 @@ class PoseConfig:
             "detection_score",
             "pose_score",
             "redetect_iou",
+            "anchor_distance",
             "min_fighter_share",
             "min_together_share",
             "min_choice_margin",
         ):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"pose.{name} must be in [0, 1], got {getattr(self, name)}")
+        if self.overlap_frames < self.detect_every:
+            raise ValueError(
+                f"pose.overlap_frames ({self.overlap_frames}) must be at least pose.detect_every "
+                f"({self.detect_every}): a chunk's keypoints would depend on where it starts"
+            )
         if self.backend == "onnx" and not (self.detector_model and self.pose_model):
             raise ValueError("pose.backend 'onnx' needs pose.detector_model and pose.pose_model")
