@@ -227,8 +227,11 @@ def test_a_calibrated_lens_distortion_is_taken_out_before_the_lift(assets, tmp_p
 
 
 def _walking_speeds(data: Path, video_id: str) -> dict[str, tuple[float, float]]:
-    """Per fighter, the pelvis's mean horizontal speed (m/s) before and after 50/60 s, in the
-    video's newest lift (a shared data directory may hold reruns)."""
+    """Per fighter, the pelvis's net horizontal speed (m/s: distance from the first to the last
+    frame over the time between) before and after 50/60 s, in the video's newest lift (a
+    shared data directory may hold reruns). Net, not the length of the path: the opponent
+    barely moves (0.15 m/s net), and the path of a body standing nearly still measures its
+    sway and the lift's jitter, which a re-timing may change by 40 %."""
     rows = query(
         data,
         "SELECT role, time_s, qpos[1], qpos[2] FROM lift_motion WHERE video_id = ? AND key = "
@@ -242,8 +245,8 @@ def _walking_speeds(data: Path, video_id: str) -> dict[str, tuple[float, float]]
         split = int(np.searchsorted(t, 50 / 60))
         parts = []
         for a, b in ((0, split), (split, len(t))):
-            path = np.hypot(np.diff(x[a:b]), np.diff(y[a:b])).sum()
-            parts.append(path / (t[b - 1] - t[a]))
+            net = np.hypot(x[b - 1] - x[a], y[b - 1] - y[a])
+            parts.append(net / (t[b - 1] - t[a]))
         speeds[role] = tuple(parts)
     return speeds
 
@@ -252,18 +255,26 @@ def test_a_camera_dropping_frames_moves_the_fighters_at_their_real_speed(
     sample_run, sample_video, tmp_path, capsys
 ):
     """The sample with one frame in three dropped from frame 50 on (each kept frame at its own
-    time): lifted, the fighters walk as fast as in the sample before and after the drop. Taken
-    as a constant 42.3 fps, as OpenCV reports it, the adversary's 0.62 and 0.76 m/s were 0.43
-    and 1.26 m/s."""
+    time): lifted, the fighters walk as fast as in the sample before and after the drop, within
+    0.1 m/s (measured: 0.02 at most; the adversary walks 0.6 m/s before and 0.48 after). Taken
+    as a constant 42.3 fps, as OpenCV reports it, the adversary was 30 % too slow before the
+    drop and 65 % too fast after it."""
     video = dropped_frames_copy(sample_video, tmp_path / "vfr.mp4", keep_from=50, every=3)
     data = tmp_path / "data"
     code, out, _ = run_cli(capsys, *process_argv(data, video, until="lift"))
     assert code == 0 and "variable frame rate (20 to 60 fps)" in out
     (video_id,) = query(data, "SELECT video_id FROM videos")[0]
     (sample_id,) = query(sample_run, "SELECT video_id FROM videos")[0]
+    # One garbled frame (the first new picture after the dropped ones) once made the refinement
+    # read every later frame as flipped: the adversary's arms swapped for 45 frames, and his
+    # lift swung 1 m in depth.
+    flips = query(
+        data, "SELECT value FROM stage_metrics WHERE stage = 'pose' AND name = 'flips_fixed'"
+    )
+    assert flips == [(0.0,)]
     retimed, truth = _walking_speeds(data, video_id), _walking_speeds(sample_run, sample_id)
     for role in truth:
-        assert np.allclose(retimed[role], truth[role], rtol=0.2), (role, retimed, truth)
+        assert np.allclose(retimed[role], truth[role], rtol=0, atol=0.1), (role, retimed, truth)
 
 
 def test_a_fighter_stepping_out_from_behind_an_occluder_is_lifted_where_she_stands(
@@ -273,7 +284,10 @@ def test_a_fighter_stepping_out_from_behind_an_occluder_is_lifted_where_she_stan
     (25 px a frame): she is seen from frame 48 on, the adversary from frame 0. Before, the
     cleanup filtered her over the whole shot with a stand-in parked 1 km away before she was
     seen: her first frame came out 214 m off, 40 of her 52 frames were dropped as too fast,
-    the fighters stood 3.07 m apart and the dataset refused 2 steps."""
+    the fighters stood 3.07 m apart and the dataset refused 2 steps. The adversary, his right
+    side behind the pillar, may have a frame whose placement jumps (measured: one, at 1.9
+    times his distance from the camera): it is dropped with its neighbours, and the dataset
+    bridges the gap."""
     _, frames = read_video(sample_video)
     for i, frame in enumerate(frames):
         left = 560 + max(0, i - 40) * 25
@@ -283,8 +297,8 @@ def test_a_fighter_stepping_out_from_behind_an_occluder_is_lifted_where_she_stan
     code, out, err = run_cli(capsys, *process_argv(data, video))
     assert code == 0, err
     m = lift_metrics(data)
-    assert m["frames_rejected"] == 0 and "dropped as implausible" not in out
-    assert m["adversary_frames_lifted"] == 100 and m["opponent_frames_lifted"] >= 50
+    assert m["frames_rejected"] <= 3 and "dropped as implausible" not in out
+    assert m["adversary_frames_lifted"] >= 97 and m["opponent_frames_lifted"] >= 50
     assert 0.8 < m["fighter_distance_mean_m"] < 1.6, m["fighter_distance_mean_m"]
     speeds = query(
         data, "SELECT max(abs(qvel[1])), max(abs(qvel[2])) FROM lift_motion WHERE role = 'opponent'"

@@ -13,6 +13,7 @@ smoother picked by name from :data:`SMOOTHERS` (the smoothers are in `tasks.pose
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -178,9 +179,11 @@ def _group_swaps(
     ratio: float,
     max_age: int,
     vetoed: np.ndarray,
+    spikes: np.ndarray,
 ) -> np.ndarray:
     """(T,) bool frames where ``joints``' left/right labels are to be swapped (see fix_flips);
-    never a frame of ``vetoed``."""
+    never a frame of ``vetoed``. ``spikes`` (T, len(joints)): joints that leap away for one
+    frame and come back (`_spikes`)."""
     num_frames = kp.shape[0]
     mirror = perm[joints]
     ref = np.full((len(joints), 2), np.nan)  # last accepted position of each label in the group
@@ -209,8 +212,13 @@ def _group_swaps(
         segment[t] = current
         # The label a point carries after the decision: a swap moves joint j's point to mirror(j).
         label = mirror_k if swap[t] else np.arange(len(joints))
-        ref[label[valid]] = cur[valid]
-        ref_frame[label[valid]] = t
+        # A joint that leaps away for a frame is a reference only where it leapt onto its
+        # mirror (a flip, swapped back): a garbled frame's (shoulders crossed, a hand 300 px
+        # off, neither as-is nor mirrored) made every later frame look flipped, and 45 frames
+        # of a walker's arms came out swapped.
+        keep = valid & (swap[t] | ~spikes[t])
+        ref[label[keep]] = cur[keep]
+        ref_frame[label[keep]] = t
     # A chain's parity is set by its first frame, which may itself be flipped; flips are the
     # exception, so a chain where most frames were swapped started flipped and is inverted.
     for s in range(current + 1):
@@ -220,6 +228,25 @@ def _group_swaps(
         if 2 * swap[in_segment].sum() > in_segment.sum() and not (inverted & vetoed).any():
             swap[in_segment] = ~swap[in_segment]
     return swap
+
+
+# A spike moves a joint further from the midpoint of its two neighbours than both this share
+# of the body's height in the image and the neighbours' distance from each other.
+SPIKE_SHARE = 0.1
+
+
+def _spikes(kp: np.ndarray) -> np.ndarray:
+    """(T, J) bool: joints of (T, J, 2) ``kp`` that leap away for one frame and come back."""
+    spikes = np.zeros(kp.shape[:2], dtype=bool)
+    if len(kp) < 3:
+        return spikes
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # frames with no joint seen
+        height = np.nanmax(kp[..., 1], axis=1) - np.nanmin(kp[..., 1], axis=1)
+        off = np.linalg.norm(kp[1:-1] - (kp[:-2] + kp[2:]) / 2, axis=-1)
+        span = np.linalg.norm(kp[2:] - kp[:-2], axis=-1)
+        spikes[1:-1] = (off > span) & (off > SPIKE_SHARE * height[1:-1, None])
+    return spikes
 
 
 def fix_flips(
@@ -272,6 +299,7 @@ def fix_flips(
         raise ValueError(f"max_age must be >= 1 frame, got {max_age}")
     out_kp, out_conf = kp.copy(), conf.copy()
     any_swap = np.zeros(kp.shape[0], dtype=bool)
+    spikes = _spikes(kp)
     for joints in groups_checked:
         swap = _group_swaps(
             kp,
@@ -282,6 +310,7 @@ def fix_flips(
             ratio=ratio,
             max_age=max_age,
             vetoed=_invents_cross(kp, out_kp, perm, joints, bones),
+            spikes=spikes[:, joints],
         )
         frames = np.flatnonzero(swap)
         out_kp[np.ix_(frames, joints)] = kp[np.ix_(frames, perm[joints])]
