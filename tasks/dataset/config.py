@@ -43,6 +43,13 @@ class DatasetConfig:
     min_clip_s: float = setting(
         1.0, "Shortest clip kept (seconds); clips are cut at shot cuts and at gaps."
     )
+    max_bridge_steps: int = setting(
+        2,
+        "Gaps of at most this many 30 Hz steps inside a fighter's motion (a step the lift or "
+        "the guard below dropped), within one shot and one split, are filled by interpolation "
+        "rather than cutting the clip in two (0: never; tasks/dataset/bridging.py says what it "
+        "costs, benchmarks/gap_bridging.py measures it).",
+    )
     validation_fraction: float = setting(
         0.15, "Share of each video's time, at its end, held out for validation."
     )
@@ -69,6 +76,13 @@ class DatasetConfig:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ValueError(f"dataset.{name} must be a positive number, got {value!r}")
+        if isinstance(self.max_bridge_steps, bool) or not (
+            isinstance(self.max_bridge_steps, int) and self.max_bridge_steps >= 0
+        ):
+            raise ValueError(
+                "dataset.max_bridge_steps must be a whole number >= 0, "
+                f"got {self.max_bridge_steps!r}"
+            )
         if self.min_clip_s <= 0:
             raise ValueError(f"dataset.min_clip_s must be positive, got {self.min_clip_s}")
         if not 0.0 <= self.validation_fraction < 1.0:

@@ -30,6 +30,7 @@ from models.humanoid.motion import RATE, FighterMotion, fighter_distance
 from models.humanoid.observations import OPPONENT_DIM, BodyState, observation, self_observation
 from models.pose.types import BLAZEPOSE_33
 from storage.keys import code_version, digest
+from tasks.dataset.bridging import bridge, gaps
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
@@ -339,6 +340,13 @@ def build_dataset(
     min_steps = max(2, math.ceil(config.min_clip_s * RATE))
     last = max(int(m.step.max()) for m in fighters.values() if len(m.step))
     validation_from = math.ceil((last + 1) * (1 - config.validation_fraction))
+    bridged = 0
+    for role, motion in fighters.items():
+        spans = gaps(
+            motion.step, shot_of(motion.step, shots, fps), validation_from, config.max_bridge_steps
+        )
+        fighters[role] = bridge(motion, spans, _model(motion.bones))
+        bridged += sum(b - a for a, b in spans)
     clips: list[Clip] = []
     for role, motion in fighters.items():
         shot = shot_of(motion.step, shots, fps)
@@ -401,7 +409,11 @@ def build_dataset(
                 for name, values in s.distributions.items()
             ],
         },
-        metrics={**_metrics(clips, transitions, punch_rows, statistics), "steps_rejected": dropped},
+        metrics={
+            **_metrics(clips, transitions, punch_rows, statistics),
+            "steps_rejected": dropped,
+            "steps_bridged": bridged,
+        },
         notes=tuple(notes),
     )
 

@@ -362,6 +362,10 @@ def training_data(con: duckdb.DuckDBPyConnection, dataset_key: str) -> TrainingD
     for video_id, lift_key, clips in _interaction_clips(con, info.members):
         fighters = load_motion(con, video_id, lift_key)
         steps = np.concatenate([np.arange(a, b) for a, b in clips])
+        # Episodes start from lifted steps only: the few a clip bridged
+        # (`tasks.dataset.bridging`) are not in the lift's rows.
+        for role in ROLES:
+            steps = steps[np.isin(steps, fighters[role].step)]
         rows = {role: fighters[role].rows(steps) for role in ROLES}
         frames.append(
             tuple(getattr(fighters[r], f)[rows[r]] for r in ROLES for f in ("qpos", "qvel"))
@@ -371,7 +375,9 @@ def training_data(con: duckdb.DuckDBPyConnection, dataset_key: str) -> TrainingD
         raise BadInput(
             f"dataset {dataset_key}",
             "has no interaction clips in its train split: nothing to learn interactions from "
-            "or to start episodes in (lower dataset.min_clip_s or add footage)",
+            "or to start episodes in. Both fighters must be lifted without a break for "
+            "dataset.min_clip_s; what broke them is in `ringside metrics --stage lift` "
+            "(frames_rejected_*) and `--stage dataset` (steps_rejected); add footage of both",
         )
     q0, v0, q1, v1 = (np.concatenate([f[i] for f in frames]) for i in range(4))
     return TrainingData(motion, interaction, (q0, q1), (v0, v1), bones)
