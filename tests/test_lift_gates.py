@@ -39,7 +39,7 @@ def test_frame_gates():
     far[5] = np.nan
     assert not too_far(roots, camera, GATES).any()
     np.testing.assert_array_equal(too_far(far, np.zeros(3), GATES), [1, 1, 1, 1, 1, 0])
-    np.testing.assert_array_equal(floating(np.array([0.0, 0.3, 0.6]), GATES), [0, 0, 1])
+    np.testing.assert_array_equal(floating(np.array([0.0, 0.6, 1.2]), GATES), [0, 0, 1])
     # Placements 300, 60, 7, 3.1, 3.0, 2.9 m away: the first four frames jump in depth.
     placed = np.array([[0.0, 0.0, d] for d in (300.0, 60.0, 7.0, 3.1, 3.0, 2.9)])
     np.testing.assert_array_equal(depth_jumps(placed, GATES), [1, 1, 1, 1, 0, 0])

@@ -54,18 +54,22 @@ class GateConfig:
     max_root_speed_m_s: float = setting(
         8.0,
         "Fastest pelvis speed believed from one frame to the next (m/s; boxers' steps and "
-        "lunges stay under about 5 m/s, sprinters reach 10-12).",
+        "lunges stay under about 5 m/s, DeepMimic's run reaches 4.4 and the sample's walkers "
+        "1.4 (benchmarks/gate_margins.py), sprinters 10-12).",
     )
     max_depth_ratio: float = setting(
         1.5,
         "Largest factor by which a fighter's distance from the camera may change from one frame "
         "to the next where the skeleton is first placed, before the lift smooths it (that "
-        "placement is noisy: on the sample it changes by up to 1.10 per frame).",
+        "placement is noisy: on the sample it changes by up to 1.11 per frame, "
+        "benchmarks/gate_margins.py).",
     )
     max_floor_settle_m: float = setting(
-        0.5,
+        1.0,
         "A fighter the cleanup has to lower by more than this (m) to stand on the floor is on "
-        "a floor found wrongly, and those frames are dropped.",
+        "a floor found wrongly, and those frames are dropped (a person on a rooftop was lifted "
+        "1.9 m over the floor; the monocular lift places the sample's walkers up to 0.35 m "
+        "high: benchmarks/gate_margins.py).",
     )
     max_camera_height_m: float = setting(
         12.0, "A shot whose camera is found higher than this above the floor (m) is left out."
