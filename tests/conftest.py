@@ -123,6 +123,47 @@ def sample_run(tmp_path_factory, sample_video: Path) -> Path:
     return data
 
 
+def sample_training(data: Path) -> tuple[str, str | None]:
+    """The key of the sample's first dataset (the fixture's own, before any test's rerun) and
+    why training cannot start from it, in words, or None when it can: what training itself
+    says, and what the lift and the dataset dropped on the way."""
+    from storage.db import connect
+    from tasks.dataset.store import training_data
+    from tasks.errors import BadInput
+
+    (key,) = query(data, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1")[0]
+    with connect(data / "ringside.duckdb", read_only=True) as con:
+        try:
+            training_data(con, key)
+            return key, None
+        except BadInput as error:
+            refused = str(error)
+    counts = dict(
+        query(
+            data,
+            "SELECT m.stage || '.' || m.name, m.value FROM stage_metrics m JOIN "
+            "(SELECT stage, key FROM stage_outputs WHERE stage IN ('lift', 'dataset') "
+            "QUALIFY row_number() OVER (PARTITION BY stage ORDER BY created_at) = 1) USING "
+            "(stage, key) WHERE m.name LIKE 'frames_rejected_%' OR m.name IN "
+            "('steps_rejected', 'steps_bridged', 'clips_interaction')",
+        )
+    )
+    said = ", ".join(f"{name} {value:g}" for name, value in sorted(counts.items()) if value)
+    return key, f"{refused}; on the way: {said or 'nothing dropped'}"
+
+
+@pytest.fixture(scope="session")
+def sample_dataset(sample_run: Path) -> str:
+    """The key of the sample's first dataset, which training starts from. When it cannot, the
+    tests that train on it skip, naming why, and one test fails with the same words
+    (tests/test_dataset_stage.py, `test_the_sample_can_be_trained_on`): not one failure for
+    each of them."""
+    key, problem = sample_training(sample_run)
+    if problem is not None:
+        pytest.skip(f"the sample cannot be trained on: {problem}")
+    return key
+
+
 def copy_data(source: Path, data: Path) -> Path:
     """A data directory of a test's own holding ``source``'s results (database and artifacts;
     assets stay shared through ``RINGSIDE_ASSETS``), for tests whose runs must not change a

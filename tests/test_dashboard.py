@@ -70,13 +70,11 @@ TILE_TEXTS = """() => [...document.querySelectorAll('[data-testid="stMetric"]')]
 
 
 @pytest.fixture(scope="module")
-def trained(sample_run: Path) -> tuple[Path, str]:
+def trained(sample_run: Path, sample_dataset: str) -> tuple[Path, str]:
     """The sample's data directory with a tiny training run on its first dataset (three
     iterations: not the two `test_train_stage` trains, so both tests find their run new),
     evaluated."""
-    (dataset_key,) = query(
-        sample_run, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1"
-    )[0]
+    dataset_key = sample_dataset
     argv = ["--data", str(sample_run), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS]
     said = io.StringIO()
     with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):

@@ -32,12 +32,11 @@ def _evaluate(capsys, data: Path, run: str, *flags: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def run_key(sample_run) -> str:
+def run_key(sample_run, sample_dataset) -> str:
     """A tiny training run (2 iterations) on the demo's dataset."""
     from flows.cli import main
 
-    dataset_key = query(sample_run, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1")
-    argv = ["--data", str(sample_run), "train", "--dataset", dataset_key[0][0], *TINY_TRAIN]
+    argv = ["--data", str(sample_run), "train", "--dataset", sample_dataset, *TINY_TRAIN]
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         assert main([*argv, "--json"]) == 0

@@ -45,8 +45,8 @@ TIMING = {"collect_s", "rewards_s", "discriminators_s", "ppo_s", "env_steps_per_
 
 
 @pytest.fixture(scope="module")
-def dataset_key(sample_run) -> str:
-    return query(sample_run, "SELECT dataset_key FROM datasets ORDER BY created_at LIMIT 1")[0][0]
+def dataset_key(sample_dataset) -> str:
+    return sample_dataset
 
 
 def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
