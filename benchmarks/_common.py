@@ -8,11 +8,14 @@ from pathlib import Path
 
 import imageio_ffmpeg
 
+import tasks.lift.stage as lift_stage
 from storage.assets import SAMPLE_VIDEO, pull
 from storage.paths import data_paths
+from tasks.lift.config import LiftStageConfig
 from tasks.lift.stage import FighterTrack, fighter_tracks
 from tasks.pose.config import PoseConfig
 from tasks.pose.stage import assemble, model_files, plan_spans, process_chunk
+from tasks.runner import StageOutput
 
 # The bundled two-person sample (and its other camera views): 100 frames, 60 fps, 1088x1920.
 FPS, FRAMES, SIZE = 60.0, 100, (1088, 1920)
@@ -42,6 +45,24 @@ def sample_fighters(
         artifacts=artifacts,
     )
     return fighter_tracks(out.rows["pose_keypoints"], FRAMES)
+
+
+def lift_sample(
+    fighters: dict[str, FighterTrack], artifacts: Path, calibration: Path | None = None
+) -> StageOutput:
+    """The lift stage's output for a sample video's fighters, default settings (called through
+    the module, so a benchmark may wrap the functions it uses)."""
+    return lift_stage.lift_video(
+        fighters,
+        key="bench",
+        video_id="bench",
+        fps=FPS,
+        size=SIZE,
+        shots=[(0, 0, FRAMES)],
+        config=LiftStageConfig(),
+        calibration=calibration,
+        artifacts=artifacts,
+    )
 
 
 class Timer:

@@ -27,11 +27,10 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # as `ringside` sets it
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tasks.lift.stage as lift_stage  # noqa: E402
-from benchmarks._common import FPS, FRAMES, SIZE, sample_fighters  # noqa: E402
+from benchmarks._common import FPS, FRAMES, lift_sample, sample_fighters  # noqa: E402
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.deepmimic import load_deepmimic, retarget  # noqa: E402
-from tasks.lift.config import LiftStageConfig  # noqa: E402
 from tasks.lift.gates import GateConfig  # noqa: E402
 
 # What each gate function was given, recorded by wrapping it (the lift calls it by this name).
@@ -64,17 +63,7 @@ def main() -> None:
         setattr(lift_stage, name, _recording(name, getattr(lift_stage, name)))
     with tempfile.TemporaryDirectory() as tmp:
         tracks = sample_fighters(assets / SAMPLE_VIDEO, assets, Path(tmp))
-        out = lift_stage.lift_video(
-            tracks,
-            key="gates",
-            video_id="sample",
-            fps=FPS,
-            size=SIZE,
-            shots=[(0, 0, FRAMES)],
-            config=LiftStageConfig(),
-            calibration=None,
-            artifacts=Path(tmp),
-        )
+        out = lift_sample(tracks, Path(tmp))
     rejected = {k: v for k, v in out.metrics.items() if k.startswith("frames_rejected_")}
     print(f"sample: {FRAMES} frames at {FPS:g} fps; frames the gates dropped: {rejected}")
     depth = max(SEEN["depth_jumps"])

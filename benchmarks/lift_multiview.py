@@ -36,14 +36,12 @@ import numpy as np
 os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering, as `ringside` sets it
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks._common import FPS, FRAMES, SIZE, sample_fighters  # noqa: E402
+from benchmarks._common import FPS, FRAMES, lift_sample, sample_fighters  # noqa: E402
 from models.pose.types import BLAZEPOSE_33  # noqa: E402
 from storage.assets import HEAVY_LANDMARKER, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.lift.camera import read_qca, triangulate, write_calibration  # noqa: E402
-from tasks.lift.config import LiftStageConfig  # noqa: E402
 from tasks.lift.metrics import HIPS, mpjpe_mm, pa_mpjpe_mm, procrustes_align  # noqa: E402
-from tasks.lift.stage import lift_video  # noqa: E402
 
 BODY = [0, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28]
 NAMES = [BLAZEPOSE_33[j] for j in BODY]
@@ -111,17 +109,7 @@ def lift(tracks: dict, cam1, tmp: Path) -> tuple[dict, np.ndarray, np.ndarray, f
     and the estimated camera (rotation, translation, height)."""
     calibration = tmp / "cam01.json"
     write_calibration(calibration, cam1.K, cam1.dist, cam1.size, 0.0)
-    out = lift_video(
-        tracks,
-        key="mv",
-        video_id="cam01",
-        fps=FPS,
-        size=SIZE,
-        shots=[(0, 0, FRAMES)],
-        config=LiftStageConfig(),
-        calibration=calibration,
-        artifacts=tmp,
-    )
+    out = lift_sample(tracks, tmp, calibration)
     camera = out.rows["lift_cameras"][0]
     return out.rows["lift_motion"], np.reshape(camera[5], (3, 3)), np.asarray(camera[6]), camera[7]
 

@@ -20,10 +20,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering, as `ringside` 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tasks.lift.stage as lift  # noqa: E402
-from benchmarks._common import FPS, FRAMES, SIZE, Timer, sample_fighters  # noqa: E402
+from benchmarks._common import FRAMES, Timer, lift_sample, sample_fighters  # noqa: E402
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
-from tasks.lift.config import LiftStageConfig  # noqa: E402
 
 
 def main() -> None:
@@ -38,17 +37,7 @@ def main() -> None:
         best, lifted = float("inf"), 0
         for run in range(3):
             start = time.perf_counter()
-            out = lift.lift_video(
-                fighters,
-                key="bench",
-                video_id="bench",
-                fps=FPS,
-                size=SIZE,
-                shots=[(0, 0, FRAMES)],
-                config=LiftStageConfig(),
-                calibration=None,
-                artifacts=Path(tmp),
-            )
+            out = lift_sample(fighters, Path(tmp))
             seconds = time.perf_counter() - start
             if run == 0:
                 first = dict(timer.spent), seconds
