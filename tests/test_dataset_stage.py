@@ -8,7 +8,7 @@ import json
 import mujoco
 import numpy as np
 import pytest
-from conftest import process_argv, query, run_cli, sample_training
+from conftest import process_argv, query, run_cli
 
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.compiled import body_states, humanoid_index, keypoint_positions, velocities
@@ -418,12 +418,3 @@ def test_steps_no_boxer_could_make_never_become_transitions(pair):
     adversary = set(t["step"][t["agent"] == 0].tolist())
     assert not {35, 36, 37} & adversary and {10, 11} <= adversary
     assert out.metrics["steps_bridged"] == 2
-
-
-def test_the_sample_can_be_trained_on(sample_run):
-    """The one test that fails, saying why, when the sample's dataset gives training nothing
-    to start from (the tests that train on it skip with the same words): before, two steps the
-    lift dropped split its only interaction clip and 16 tests failed or errored, each with
-    training's advice to lower dataset.min_clip_s."""
-    _, problem = sample_training(sample_run)
-    assert problem is None, problem
