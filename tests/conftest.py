@@ -120,10 +120,10 @@ def sample_processing(tmp_path_factory, sample_video: Path) -> tuple[Path, str |
     from flows.cli import main
 
     data = tmp_path_factory.mktemp("sample_run") / "data"
-    said = io.StringIO()
-    with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         code = main(process_argv(data, sample_video, "--ingest-chunk-frames", "30"))
-    return data, None if code == 0 else f"exit {code}: {said.getvalue().strip()[-2000:]}"
+    return data, None if code == 0 else f"exit {code}: {err.getvalue().strip()[-2000:]}"
 
 
 @pytest.fixture(scope="session")

@@ -372,12 +372,26 @@ def training_data(con: duckdb.DuckDBPyConnection, dataset_key: str) -> TrainingD
         )
     bones = training_bones(con, dataset_key)
     if bones is None or min(len(x) for x in interaction) == 0:
+        held_out = sum(
+            con.execute(
+                "SELECT count(*) FROM dataset_clips WHERE key = ? AND video_id = ? "
+                "AND kind = 'interaction' AND split = 'validation'",
+                [key, video_id],
+            ).fetchone()[0]
+            for video_id, key in info.members
+        )
+        why = (
+            f"its {held_out} interaction clips are all in the validation split "
+            "(dataset.validation_fraction)"
+            if held_out
+            else "both fighters must be lifted without a break for dataset.min_clip_s; what "
+            "broke them is in `ringside metrics --stage lift` (frames_rejected_*) and "
+            "`--stage dataset` (steps_rejected, steps_bridged); add footage of both"
+        )
         raise BadInput(
             f"dataset {dataset_key}",
             "has no interaction clips in its train split: nothing to learn interactions from "
-            "or to start episodes in. Both fighters must be lifted without a break for "
-            "dataset.min_clip_s; what broke them is in `ringside metrics --stage lift` "
-            "(frames_rejected_*) and `--stage dataset` (steps_rejected); add footage of both",
+            f"or to start episodes in: {why}",
         )
     q0, v0, q1, v1 = (np.concatenate([f[i] for f in frames]) for i in range(4))
     return TrainingData(motion, interaction, (q0, q1), (v0, v1), bones)
