@@ -7,7 +7,7 @@ motion with a known truth: DeepMimic's punch, kick, run and walk, retargeted to 
 the steps are removed, bridged, and the bridged steps' 33 keypoints (the humanoid's sites, as
 the lift stores them) compared with the clip's own: median and 95th percentile over every
 keypoint of every bridged step, and the worst wrist. The yardstick beside it is the lift's own
-error on real footage, PA-MPJPE 64-80 mm per fighter on the sample (benchmarks/lift_multiview.py).
+error on real footage, PA-MPJPE 64-77 mm per fighter on the sample (benchmarks/lift_multiview.py).
 
 Last line: ``bridged_2_steps_p95_cm: N cm`` (the default, `dataset.max_bridge_steps` = 2).
 """

@@ -7,7 +7,7 @@ A gap of at most `dataset.max_bridge_steps` steps, inside one shot and one split
 interpolating the steps either side of it: the root's position linearly, its rotation by slerp,
 each hinge angle linearly. Filled like that, DeepMimic's punch, kick, run and walk are off by a
 median 0.7 cm and a 95th percentile of 5.8 cm over the filled keypoints at 2 steps, under the
-lift's own 6.4-8 cm per joint on the sample (PA-MPJPE, benchmarks/lift_multiview.py); at 3
+lift's own 6.4-7.7 cm per joint on the sample (PA-MPJPE, benchmarks/lift_multiview.py); at 3
 steps the 95th percentile, 8.6 cm, passes it (benchmarks/gap_bridging.py), hence 2 by default.
 What a bridge cannot give back is a fast hand: a gap over a punch's extension cuts its peak (the
 punch's glove up to 22 cm off at 2 steps), so the dataset counts the steps it filled
