@@ -28,7 +28,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from models.pose.boxes import box_iou
-from models.pose.types import Detector, Pose, PoseEstimator
+from models.pose.types import Detection, Detector, Pose, PoseEstimator
 from tasks.pose.config import PoseConfig
 from tasks.pose.tracking import DESCRIPTOR_SIZE, Observation, Tracker, appearance
 
@@ -86,23 +86,17 @@ def _clip(box: np.ndarray, width: int, height: int) -> np.ndarray | None:
 
 def _search(
     frame: np.ndarray,
-    index: int,
     following: list[Pose],
     detector: Detector,
     estimator: PoseEstimator,
     config: PoseConfig,
-    found: tuple[list, list, list],
-) -> list[Pose]:
+) -> tuple[list[Pose], list[Detection]]:
     """The poses of one frame the detector searches: each person it finds is estimated afresh
     in the crop of its detection, whether followed or not (an anchor: from here on, a followed
     person's crops no longer depend on the frames before, so a chunk that starts a few frames
     earlier sees the same poses as one long chunk); someone followed whom it misses is
-    followed on from their last pose. Appends the frame's detections to ``found``."""
+    followed on from their last pose. Returns the poses and the frame's detections."""
     detections = [d for d in detector(frame) if d.score >= config.detection_score]
-    for det in detections:
-        found[0].append(index)
-        found[1].append(det.box)
-        found[2].append(det.score)
     boxes = np.array([d.box for d in detections]).reshape(-1, 4)
     matched: dict[int, int] = {}  # detection -> followed person
     if following and len(boxes):
@@ -126,7 +120,7 @@ def _search(
         if d in matched or (len(seen) and box_iou(det.box, seen).max() > config.redetect_iou):
             continue
         kept.append(estimator(frame, det))
-    return kept
+    return kept, detections
 
 
 def _same_body(pose: Pose, previous: Pose, config: PoseConfig) -> bool:
@@ -153,7 +147,7 @@ def track_chunk(
     tracker = Tracker(config.tracker, fps, start_frame=start)
     following: list[Pose] = []
     candidates: dict[int, list[tuple[np.ndarray, Pose, np.ndarray]]] = {}
-    found: tuple[list, list, list] = ([], [], [])
+    found: list[tuple[int, Detection]] = []
     joints = 0
     for index, frame in frames:
         if STOP.is_set():
@@ -162,7 +156,8 @@ def track_chunk(
         if following and index % config.detect_every:
             poses = [estimator(frame, prev) for prev in following]
         else:
-            poses = _search(frame, index, following, detector, estimator, config, found)
+            poses, detections = _search(frame, following, detector, estimator, config)
+            found += [(index, d) for d in detections]
         poses = [p for p in poses if p.score >= config.pose_score]
         observations, kept = [], []
         for pose in poses:
@@ -184,7 +179,8 @@ def track_chunk(
             ):
                 following.append(pose)
                 taken.append(obs.box)
-    return _collect(tracker, candidates, start, end, joints, found, began)
+    detections = ([i for i, _ in found], [d.box for _, d in found], [d.score for _, d in found])
+    return _collect(tracker, candidates, start, end, joints, detections, began)
 
 
 def _collect(tracker, candidates, start, end, joints, detections, began) -> ChunkTracks:
