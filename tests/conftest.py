@@ -171,8 +171,7 @@ def sample_training(data: Path) -> tuple[str, str | None]:
 def sample_dataset(sample_run: Path) -> str:
     """The key of the sample's first dataset, which training starts from. When it cannot, the
     tests that train on it skip, naming why, and one test fails with the same words
-    (tests/test_sample.py): not one failure for
-    each of them."""
+    (tests/test_sample.py): not one failure for each of them."""
     key, problem = sample_training(sample_run)
     if problem is not None:
         pytest.skip(f"the sample cannot be trained on: {problem}")

@@ -345,8 +345,9 @@ def build_dataset(
         spans = gaps(
             motion.step, shot_of(motion.step, shots, fps), validation_from, config.max_bridge_steps
         )
-        fighters[role] = bridge(motion, spans, _model(motion.bones))
-        bridged += sum(b - a for a, b in spans)
+        if spans:  # the humanoid is compiled only for a fighter with a gap to fill
+            fighters[role] = bridge(motion, spans, _model(motion.bones))
+            bridged += sum(b - a for a, b in spans)
     clips: list[Clip] = []
     for role, motion in fighters.items():
         shot = shot_of(motion.step, shots, fps)
