@@ -6,9 +6,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from prefect import get_run_logger
 from prefect.artifacts import create_table_artifact
 from prefect.runtime import flow_run
 
+from storage.claims import claimed
 from storage.db import connect
 from storage.paths import DataPaths
 from storage.records import record_run, stale_runs
@@ -53,27 +55,46 @@ def settle(paths: DataPaths, result: StageResult) -> str:
 def reuse_or_run(paths: DataPaths, plan: StagePlan, force: bool) -> tuple[StageResult, str]:
     """The committed output of ``plan`` unless ``force``, else the output its ``compute`` makes,
     committed by `run_stage_task`; and its state. The database is the one cache asked; the
-    plan's ``before`` and ``compute`` run only when it has no output.
+    plan's ``before`` and ``compute`` run only when it has no output, and only in one run at a
+    time (`storage.claims`): a second run of the same output waits for the first and reuses
+    what it committed (a forced one too, if it had to wait).
     """
     spec = plan.spec
     key = spec.key
     result = None if force else committed(paths.db, spec.stage, spec.video_id, key)
-    if result is None:
-        if plan.noted:
-            # Seen by `ringside status` and the dashboard while the stage computes.
-            with connect(paths.db) as con:
-                record_run(con, current_run_id(), spec.video_id, spec.stage, key, "running")
-        try:
-            plan.before()
-            result = run_stage_task(paths.db, spec, plan.compute)
-        except BadInput as error:
-            if plan.noted:
-                with connect(paths.db) as con:
-                    record_run(
-                        con, current_run_id(), spec.video_id, spec.stage, key, "failed", str(error)
-                    )
-            raise
+    if result is not None:
+        return result, settle(paths, result)
+
+    def waiting(holder: str) -> None:
+        get_run_logger().info(
+            f"{spec.stage} {key[:12]} of {spec.video_id[:12]} is being computed by "
+            f"{holder.partition('/')[0]}: waiting for it"
+        )
+
+    with claimed(paths.db, spec.stage, spec.video_id, key, waiting) as waited:
+        if waited:
+            result = committed(paths.db, spec.stage, spec.video_id, key)
+        if result is None:
+            result = _compute(paths, plan)
     return result, settle(paths, result)
+
+
+def _compute(paths: DataPaths, plan: StagePlan) -> StageResult:
+    spec = plan.spec
+    if plan.noted:
+        # Seen by `ringside status` and the dashboard while the stage computes.
+        with connect(paths.db) as con:
+            record_run(con, current_run_id(), spec.video_id, spec.stage, spec.key, "running")
+    try:
+        plan.before()
+        return run_stage_task(paths.db, spec, plan.compute)
+    except BadInput as error:
+        if plan.noted:
+            with connect(paths.db) as con:
+                record_run(
+                    con, current_run_id(), spec.video_id, spec.stage, spec.key, "failed", str(error)
+                )
+        raise
 
 
 def crash_stale_flow_runs(db: Path) -> int:
