@@ -237,13 +237,20 @@ def stale_runs(con: duckdb.DuckDBPyConnection) -> list[str]:
 def latest_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
     """Per video and stage, the newest run event whose output still exists, or that failed or is
     running. A ``running`` event whose process has gone (killed, or crashed on a bug) reads as
-    ``interrupted``."""
+    ``interrupted``; one its run saw end is no event of its own (when `check --repair` has
+    removed that output, the stage reads as missing, not interrupted)."""
     rows = con.execute(
         """
         SELECT r.video_id, r.stage, r.key, r.state, r.error, r.created_at, r.worker
         FROM stage_runs r
         LEFT JOIN stage_outputs o USING (stage, video_id, key)
-        WHERE r.state IN ('failed', 'running') OR o.key IS NOT NULL
+        WHERE r.state = 'failed' OR o.key IS NOT NULL OR (
+            r.state = 'running' AND NOT EXISTS (
+                SELECT 1 FROM stage_runs e
+                WHERE e.run_id = r.run_id AND e.stage = r.stage AND e.video_id = r.video_id
+                  AND e.key = r.key AND e.state != 'running'
+            )
+        )
         QUALIFY row_number() OVER (
             PARTITION BY r.video_id, r.stage ORDER BY r.created_at DESC, r.state = 'failed'
         ) = 1
