@@ -7,9 +7,14 @@ from __future__ import annotations
 
 import hashlib
 import re
+import time
 from pathlib import Path
 
-from storage.files import write_atomic
+from storage.files import sha256_file, write_atomic
+
+# Where corrupt files are moved, inside the store: `root/quarantine/<name>.<time>`. Its name is
+# no artifact's two-letter folder, so nothing in it is ever read as an artifact.
+QUARANTINE = "quarantine"
 
 
 def artifact_name(data: bytes, suffix: str = "") -> str:
@@ -35,13 +40,47 @@ def artifact_path(root: Path, name: str) -> Path:
 
 
 def put_bytes(root: Path, data: bytes, suffix: str = "") -> str:
-    """Store ``data`` and return its artifact name; storing the same bytes again is a no-op."""
+    """Store ``data`` and return its artifact name; storing the same bytes again is a no-op,
+    unless the file there is corrupt: it is quarantined and replaced."""
     name = artifact_name(data, suffix)
     target = artifact_path(root, name)
-    if target.exists():
+    if sound(root, name):
         return name
     write_atomic(target, data)
     return name
+
+
+def sound(root: Path, name: str) -> bool:
+    """Whether the artifact ``name`` is there with the bytes its name promises; a corrupt file
+    is quarantined on the way (so the name reads as missing and is computed again)."""
+    path = artifact_path(root, name)
+    if not path.exists():
+        return False
+    if sha256_file(path) == name[:64]:
+        return True
+    quarantine(root, path)
+    return False
+
+
+def quarantine(root: Path, path: Path) -> Path:
+    """Move the corrupt file ``path`` of the store ``root`` aside, named with the time, where
+    nothing reads it but a person can still look; where it went."""
+    aside = root / QUARANTINE / f"{path.name}.{time.strftime('%Y%m%d-%H%M%S')}"
+    aside.parent.mkdir(parents=True, exist_ok=True)
+    path.replace(aside)
+    return aside
+
+
+def corrupt_files(root: Path) -> list[Path]:
+    """Every file of the store ``root`` whose bytes do not hash to its name, whether or not
+    the database names it (the pose stage's chunk files are named by Prefect's cache)."""
+    if not root.exists():
+        return []
+    return sorted(
+        path
+        for path in root.glob("??/*")
+        if NAME.fullmatch(path.name) and sha256_file(path) != path.name[:64]
+    )
 
 
 def read_bytes(root: Path, name: str) -> bytes:

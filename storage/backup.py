@@ -23,26 +23,40 @@ MANIFEST = "backup.json"
 
 def backup(db: Path, out: Path) -> dict:
     """Copy the database at ``db`` into the folder ``out`` (created; a backup already there is
-    replaced only once the new one is complete). Returns the manifest written beside it."""
+    replaced only once the new one is complete). Returns the manifest written beside it.
+
+    The copy is read back as `ringside check` reads a database (every row, every block's
+    checksum) before it replaces anything: a damaged one raises ValueError and is deleted.
+    """
     out.mkdir(parents=True, exist_ok=True)
     partial = out / f".{DATABASE}.partial"
-    with connect(db) as con:  # holds the write lock until the copy is done
-        con.execute("CHECKPOINT")
-        shutil.copyfile(db, partial)
-        tables = {
-            table: con.execute(f"SELECT count(*) FROM {table}").fetchone()[0]
-            for (table,) in con.execute(
-                "SELECT table_name FROM duckdb_tables() ORDER BY table_name"
-            ).fetchall()
+    try:
+        with connect(db) as con:  # holds the write lock until the copy is done
+            con.execute("CHECKPOINT")
+            shutil.copyfile(db, partial)
+            tables = {
+                table: con.execute(f"SELECT count(*) FROM {table}").fetchone()[0]
+                for (table,) in con.execute(
+                    "SELECT table_name FROM duckdb_tables() ORDER BY table_name"
+                ).fetchall()
+            }
+        # Damage copies silently and would otherwise show only at `restore`.
+        broken = scan(partial, None)
+        if broken:
+            raise ValueError(
+                f"no backup written: {db} does not copy whole ({len(broken)} problem(s), "
+                f"`ringside check` names them), first: {broken[0].what}"
+            )
+        manifest = {
+            "source": str(db),
+            "taken_at": utcnow().isoformat(timespec="seconds"),
+            "sha256": sha256_file(partial),
+            "bytes": partial.stat().st_size,
+            "rows": tables,
         }
-    manifest = {
-        "source": str(db),
-        "taken_at": utcnow().isoformat(timespec="seconds"),
-        "sha256": sha256_file(partial),
-        "bytes": partial.stat().st_size,
-        "rows": tables,
-    }
-    partial.rename(out / DATABASE)
+        partial.rename(out / DATABASE)
+    finally:
+        partial.unlink(missing_ok=True)  # left only by a failure: the copy was renamed
     write_atomic(out / MANIFEST, json.dumps(manifest, indent=2).encode())
     return manifest
 

@@ -2,17 +2,21 @@
 
 The database is the source of truth, so a stage output is damaged when any of its rows cannot be
 read back (DuckDB's block checksums surface only on a full read) or a file it names is missing
-from the artifact store or no longer hashes to its name. Repairing removes damaged outputs, as if
-never computed, so that the next `process` or `rerun` computes them again (a stage whose output
-the database no longer has recomputes whatever Prefect's cache remembers): every row that reads
-back is copied into a new file, the damaged one kept beside it (`repair`). Rows of the tables
-that register videos and record runs that sat in a damaged block are lost; the next `process`
-registers its videos again. Run it while no other command uses the data directory.
+from the artifact store or no longer hashes to its name. Every block of the file is also checked
+against its checksum (`storage.blocks`), for damage no query reads (free space), and every file
+of the store is hashed, named by a row or not. Repairing removes damaged outputs, as if never
+computed, so that the next `process` or `rerun` computes them again (a stage whose output the
+database no longer has recomputes whatever Prefect's cache remembers): every row that reads back
+is copied into a new file, the damaged one kept beside it, and corrupt files are quarantined
+(`repair`). Rows of the tables that register videos and record runs that sat in a damaged block
+are lost; the next `process` registers its videos again. Run it while no other command uses the
+data directory.
 """
 
 from __future__ import annotations
 
 import contextlib
+import re
 import shutil
 import sqlite3
 import tempfile
@@ -23,9 +27,10 @@ from pathlib import Path
 
 import duckdb
 
-from storage.artifacts import NotAnArtifact, artifact_path
+from storage.artifacts import NotAnArtifact, artifact_path, corrupt_files, quarantine
+from storage.blocks import UnexpectedLayout, damaged_blocks
 from storage.db import connect, error_line, transaction
-from storage.files import SCRATCH, TEMPORARY, sha256_file
+from storage.files import SCRATCH, TEMPORARY
 from storage.records import process_alive
 
 # Stages whose outputs a rerun recomputes: their tables are named "<stage>_..." and keyed by
@@ -96,14 +101,14 @@ def _outputs(
     return [tuple(row) for row in rows]
 
 
-def _artifact_problem(artifacts: Path, name: str) -> str | None:
+def _artifact_problem(artifacts: Path, corrupt: set[str], name: str) -> str | None:
     try:
         path = artifact_path(artifacts, name)
     except NotAnArtifact:
         return f"names {name!r}, a path outside the artifact store"
     if not path.exists():
         return f"artifact {name[:12]}… is missing"
-    if sha256_file(path) != name[:64]:
+    if name in corrupt:
         return f"artifact {name[:12]}… is corrupt (its bytes do not hash to its name)"
     return None
 
@@ -162,18 +167,25 @@ def scan(
     the database alone, its tables read back but no file looked for) and Prefect's own SQLite
     database ``prefect_db`` (its run history; None: not looked at).
 
-    ``progress(table)`` is called as each table is read.
+    Then every block of the database file is checked against its checksum
+    (`storage.blocks`), for damage no table read reaches: free space, metadata, rows past the
+    first damaged block of a table. ``progress(table)`` is called as each table is read.
     """
     problems: list[Problem] = []
     prefect = _prefect_problems(prefect_db)
     if not db.exists():  # nothing of ours yet, but Prefect's history may be there
         return prefect
+    # Every file is hashed once, named by a row or not (Prefect's cache names pose chunks).
+    corrupt = {path.name for path in corrupt_files(artifacts)} if artifacts is not None else set()
+    named: set[str] = set()
     try:
         with connect(db, read_only=True) as con:
             for table, columns in _tables(con).items():
                 if progress is not None:
                     progress(table)
-                problems += _table_problems(con, artifacts, table, columns)
+                problems += _table_problems(con, artifacts, corrupt, named, table, columns)
+            # Still holding the lock that keeps writers out: every block, read or not by a query.
+            problems += _block_problems(db, problems)
     except duckdb.Error as error:
         what = f"{db} cannot be opened: {error_line(error)}"
         return [Problem("database", None, None, what), *prefect]
@@ -182,12 +194,44 @@ def scan(
             Problem("artifacts", None, None, f"{path} is left over from an interrupted write")
             for path in stale_temporaries(artifacts)
         ]
+        problems += [
+            Problem("artifacts", None, None, f"artifact {name[:12]}… is corrupt (no row names it)")
+            for name in sorted(corrupt - named)
+        ]
     return problems + prefect
 
 
+def _block_problems(db: Path, found: list[Problem]) -> list[Problem]:
+    """The blocks of the file ``db`` whose checksum fails, but for those the ``found`` problems
+    name already (a table read names the block's first byte, `storage.db.error_line`)."""
+    try:
+        damaged = damaged_blocks(db)
+    except UnexpectedLayout as error:
+        return [Problem("database", None, None, f"its blocks cannot be verified: {error}")]
+    named = {int(n) for problem in found for n in re.findall(r"bytes from (\d+)", problem.what)}
+    return [
+        Problem(
+            "database",
+            None,
+            None,
+            f"the block at byte {offset} of {db.name} fails its checksum (free space, metadata "
+            "or rows past a table's first damaged block): --repair copies what reads back",
+        )
+        for offset in damaged
+        if offset not in named
+    ]
+
+
 def _table_problems(
-    con: duckdb.DuckDBPyConnection, artifacts: Path | None, table: str, columns: list[str]
+    con: duckdb.DuckDBPyConnection,
+    artifacts: Path | None,
+    corrupt: set[str],
+    named: set[str],
+    table: str,
+    columns: list[str],
 ) -> list[Problem]:
+    """What is damaged in ``table``: rows that do not read back, and files named by its
+    ``artifact`` column that are missing or among the ``corrupt`` (added to ``named``)."""
     stage = _stage_of(table, columns)
     try:
         _read(con, table)
@@ -211,7 +255,8 @@ def _table_problems(
     for video_id, key, name in con.execute(
         f"SELECT DISTINCT video_id, key, artifact FROM {table} ORDER BY ALL"
     ).fetchall():
-        problem = _artifact_problem(artifacts, name)
+        named.add(name)
+        problem = _artifact_problem(artifacts, corrupt, name)
         if problem is not None:
             found.append(Problem(stage, video_id, key, f"{table}: {problem}"))
     return found
@@ -286,8 +331,18 @@ def repair(
     aside = _set_aside(db, (".wal",))
     fresh.rename(db)
     done.append(f"kept the damaged file as {aside}")
+    done += _quarantine_corrupt(artifacts)
     done += [f"removed {path}" for path in remove_stale_temporaries(artifacts)]
     return done
+
+
+def _quarantine_corrupt(artifacts: Path) -> list[str]:
+    """Move every corrupt file of the store aside, so that recomputing its output writes it
+    anew (a write skips a name that exists)."""
+    return [
+        f"moved the corrupt {path.name[:12]}… aside to {quarantine(artifacts, path)}"
+        for path in corrupt_files(artifacts)
+    ]
 
 
 def _unlink_with_wal(path: Path) -> None:

@@ -12,8 +12,9 @@ from pathlib import Path
 
 import pytest
 from conftest import copy_data, process_argv, query, render_page, run_cli, stage_contents
+from tiny import TINY_EVALUATE_FLAGS, TINY_PIPELINE_FLAGS
 
-from storage.artifacts import NotAnArtifact, artifact_path, read_bytes
+from storage.artifacts import NotAnArtifact, artifact_path, put_bytes, read_bytes
 from storage.check import remove_stale_temporaries, stale_temporaries
 from storage.db import connect
 from storage.paths import data_paths
@@ -82,6 +83,8 @@ def test_damaged_blocks_and_lost_files_are_named_then_repaired(
     assert "repaired: `ringside process`" in out and not stale.exists()
     assert sorted(p.name for p in data.glob("ringside.duckdb.damaged-*"))
     assert check(capsys, data)[0] == 0
+    states = json.loads(run_cli(capsys, "--data", str(data), "status", "--json")[1])
+    assert {r["stage"]: r["state"] for r in states}["pose"] == "missing", states
 
     argv = process_argv(data, sample_video, "--ingest-chunk-frames", "30")
     assert run_cli(capsys, *argv)[0] == 0
@@ -95,6 +98,61 @@ def test_damaged_blocks_and_lost_files_are_named_then_repaired(
     code, _, err = run_cli(capsys, *rerun, "--until", "pose", "--ingest-chunk-frames", "30")
     assert code == 0, err
     assert stage_contents(data) == before
+
+
+def test_truncated_artifacts_are_quarantined_then_recomputed(
+    tmp_path, capsys, sample_run, sample_dataset, sample_video
+):
+    """A checkpoint, a bouts .npz, a review video and a pose chunk's .npz (named by Prefect's
+    cache, not by a row) cut to half their bytes: `check` names them, `--repair` moves them
+    aside, `process` writes them anew (the same names: a write checks what is there), and
+    `check`, `evaluate` and `export` work again."""
+    data = copy_data(sample_run, tmp_path / "data")
+    paths = data_paths(data)
+    argv = process_argv(data, sample_video, "--ingest-chunk-frames", "30", *TINY_PIPELINE_FLAGS)
+    argv[argv.index("--until") + 1] = "evaluate"
+    assert run_cli(capsys, *argv)[0] == 0
+    (run,) = query(data, "SELECT key FROM stage_outputs WHERE stage = 'train'")[0]
+    named = {
+        "checkpoint": "SELECT artifact FROM train_checkpoints ORDER BY iteration DESC LIMIT 1",
+        "bouts": "SELECT artifact FROM evaluate_artifacts WHERE artifact LIKE '%.npz' LIMIT 1",
+        "video": "SELECT artifact FROM lift_media WHERE kind = 'video'",
+    }
+    names = {what: query(data, sql)[0][0] for what, sql in named.items()}
+    chunk = next(p for p in sorted(paths.artifacts.rglob("*.npz")) if p.name not in names.values())
+    names["chunk"] = chunk.name
+    for name in names.values():
+        path = artifact_path(paths.artifacts, name)
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+    code, out = check(capsys, data)
+    assert code == 1, out
+    for name in names.values():
+        assert f"artifact {name[:12]}… is corrupt" in out, out
+    code, out = check(capsys, data, "--repair")
+    assert code == 0, out
+    aside = sorted(p.name.split(".")[0] for p in (paths.artifacts / "quarantine").iterdir())
+    assert aside == sorted(name[:64] for name in names.values())
+
+    assert run_cli(capsys, *argv)[0] == 0
+    assert check(capsys, data)[0] == 0
+    for what in ("checkpoint", "bouts", "video"):
+        assert query(data, named[what])[0][0] == names[what], what
+        assert read_bytes(paths.artifacts, names[what])
+    evaluate = ["--data", str(data), "evaluate", "--run", run[:12], *TINY_EVALUATE_FLAGS]
+    code, _, err = run_cli(capsys, *evaluate)
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "--data", str(data), "export", "--run", run[:12])
+    assert code == 0, err
+
+
+def test_a_write_over_a_corrupt_file_of_the_same_name_replaces_it(tmp_path):
+    name = put_bytes(tmp_path, b"a checkpoint", ".pt")
+    artifact_path(tmp_path, name).write_bytes(b"a check")
+    assert put_bytes(tmp_path, b"a checkpoint", ".pt") == name
+    assert read_bytes(tmp_path, name) == b"a checkpoint"
+    (aside,) = (tmp_path / "quarantine").iterdir()
+    assert aside.read_bytes() == b"a check" and aside.name.startswith(name + ".")
 
 
 @pytest.mark.parametrize("how", ["truncated", "emptied"])

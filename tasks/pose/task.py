@@ -10,7 +10,7 @@ from prefect import task
 from prefect.cache_policies import INPUTS, TASK_SOURCE
 from tqdm import tqdm
 
-from storage.artifacts import artifact_path, put_bytes, read_bytes
+from storage.artifacts import put_bytes, read_bytes, sound
 from storage.db import connect
 from storage.files import sha256_file
 from storage.paths import DataPaths
@@ -105,9 +105,10 @@ def track_chunks(
         ) as bar:
             for span, future in zip(spans, futures, strict=True):
                 name = future.result()
-                if not artifact_path(paths.artifacts, name).exists():
-                    # Prefect's cache names a chunk file that is gone (deleted, a lost disk):
-                    # the store is the truth, so the chunk is tracked again and cached anew.
+                if not sound(paths.artifacts, name):
+                    # Prefect's cache names a chunk file that is gone or corrupt (deleted, a
+                    # lost disk; a corrupt one is quarantined): the store is the truth, so the
+                    # chunk is tracked again and cached anew.
                     name = pose_chunk_task.with_options(refresh_cache=True)(*arguments(span))
                 names.append(name)
                 bar.update(span.end - span.start)
