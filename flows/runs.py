@@ -101,6 +101,16 @@ def crash_stale_flow_runs(db: Path) -> int:
     """Mark as Crashed the flow runs a killed command left RUNNING in Prefect (they stay so for
     ever, in the UI too): those of its stages (`stale_runs`) and the flows above them. Returns
     how many were marked."""
+    if not db.exists():
+        return 0
+    with connect(db, read_only=True) as con:
+        stale = stale_runs(con)
+    return crash_flow_runs(stale, "its process stopped (killed); seen by a later command")
+
+
+def crash_flow_runs(run_ids: list[str], why: str) -> int:
+    """Mark the flow runs ``run_ids`` that are still RUNNING in Prefect, and the RUNNING flows
+    above them, as Crashed with the message ``why``; how many were marked."""
     import uuid
 
     from prefect.client.orchestration import get_client
@@ -113,28 +123,22 @@ def crash_stale_flow_runs(db: Path) -> int:
     from prefect.client.schemas.objects import StateType
     from prefect.states import Crashed
 
-    if not db.exists():
-        return 0
-    with connect(db, read_only=True) as con:
-        stale = [uuid.UUID(run) for run in stale_runs(con)]
-    if not stale:
+    if not run_ids:
         return 0
     running = FlowRunFilterState(type=FlowRunFilterStateType(any_=[StateType.RUNNING]))
     marked: set = set()
     with get_client(sync_client=True) as client:
         runs = client.read_flow_runs(
-            flow_run_filter=FlowRunFilter(id=FlowRunFilterId(any_=stale), state=running)
+            flow_run_filter=FlowRunFilter(
+                id=FlowRunFilterId(any_=[uuid.UUID(run) for run in run_ids]), state=running
+            )
         )
         while runs:
             above = []
             for run in runs:
                 if run.id in marked:
                     continue
-                client.set_flow_run_state(
-                    run.id,
-                    Crashed(message="its process stopped (killed); seen by a later command"),
-                    force=True,
-                )
+                client.set_flow_run_state(run.id, Crashed(message=why), force=True)
                 marked.add(run.id)
                 if run.parent_task_run_id is not None:
                     above.append(client.read_task_run(run.parent_task_run_id).flow_run_id)

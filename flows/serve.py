@@ -296,15 +296,6 @@ def stop_workers(workers: list[subprocess.Popen], timeout_s: float = 10.0) -> No
     """
     import psutil
 
-    def end(processes: list) -> None:
-        for process in processes:
-            with contextlib.suppress(psutil.NoSuchProcess):
-                process.terminate()
-        _, left = psutil.wait_procs(processes, timeout=timeout_s)
-        for process in left:
-            with contextlib.suppress(psutil.NoSuchProcess):
-                process.kill()
-
     runs = []
     for worker in workers:
         with contextlib.suppress(psutil.NoSuchProcess):
@@ -315,7 +306,7 @@ def stop_workers(workers: list[subprocess.Popen], timeout_s: float = 10.0) -> No
             run_ids.add(run.environ().get("PREFECT__FLOW_RUN_ID"))
     run_ids.discard(None)
     if runs:
-        end(runs)
+        _end(runs, timeout_s)
         _wait_until_ended(run_ids, timeout_s)
     for worker in workers:
         if worker.poll() is None:
@@ -325,9 +316,76 @@ def stop_workers(workers: list[subprocess.Popen], timeout_s: float = 10.0) -> No
     for worker in workers:
         with contextlib.suppress(psutil.NoSuchProcess):
             left.append(psutil.Process(worker.pid))
-    end(left)
+    _end(left, timeout_s)
     for worker in workers:
         worker.wait()
+
+
+def _end(processes: list, timeout_s: float) -> None:
+    """SIGTERM to each of ``processes`` (psutil's), SIGKILL to those left after ``timeout_s``."""
+    import psutil
+
+    for process in processes:
+        with contextlib.suppress(psutil.NoSuchProcess):
+            process.terminate()
+    _, left = psutil.wait_procs(processes, timeout=timeout_s)
+    for process in left:
+        with contextlib.suppress(psutil.NoSuchProcess):
+            process.kill()
+
+
+# How often `serve` looks at the workers it started.
+SUPERVISE_S = 1.0
+
+
+@dataclass
+class Supervised:
+    """A worker `serve` started, and the flow-run processes below it when last looked at (with
+    each one's flow run id): once the worker is dead they can no longer be found from it."""
+
+    process: subprocess.Popen
+    runs: dict[Any, str | None]
+
+
+def supervise(data_root: str | Path, workers: list[Supervised]) -> list[str]:
+    """Look at each worker once. A live one: note the flow runs below it. A dead one (killed,
+    crashed): stop the runs it left (they would go on outside anyone's control), mark them
+    Crashed in Prefect, so that the next run recomputes their outputs, and start a new worker
+    in its place. One line per worker replaced."""
+    import psutil
+
+    from flows.runs import crash_flow_runs
+
+    replaced = []
+    for worker in workers:
+        if worker.process.poll() is None:
+            with contextlib.suppress(psutil.Error):
+                below = psutil.Process(worker.process.pid).children(recursive=True)
+                worker.runs = {p: worker.runs.get(p) or _flow_run_id(p) for p in below}
+            continue
+        dead, code = worker.process.pid, worker.process.returncode
+        left = [p for p in worker.runs if p.is_running()]
+        run_ids = sorted({worker.runs[p] for p in left} - {None})
+        # A run stopped by SIGTERM marks itself Crashed; one that could not is marked here.
+        _end(left, 10.0)
+        crash_flow_runs(run_ids, f"its worker (pid {dead}) died")
+        worker.process, worker.runs = start_worker(data_root), {}
+        how = f"signal {-code}" if code < 0 else f"exit {code}"
+        replaced.append(
+            f"worker {dead} died ({how}): its {len(run_ids)} flow run(s) stopped and marked "
+            f"Crashed; started worker {worker.process.pid}"
+        )
+    return replaced
+
+
+def _flow_run_id(process) -> str | None:
+    """The flow run a worker's child process runs (Prefect names it in its environment)."""
+    import psutil
+
+    try:
+        return process.environ().get("PREFECT__FLOW_RUN_ID")
+    except psutil.Error:
+        return None
 
 
 def _wait_until_ended(run_ids: set[str], timeout_s: float) -> None:
@@ -625,7 +683,7 @@ def serve_deployments(found: list, data_root: str | Path, workers: int = 0) -> N
 
     from prefect.runner import Runner
 
-    started: list[subprocess.Popen] = []
+    started: list[Supervised] = []
     if workers:
         ensure_work_pool()
         pipeline, *found = found
@@ -633,11 +691,16 @@ def serve_deployments(found: list, data_root: str | Path, workers: int = 0) -> N
     runner = Runner(name=DEPLOYMENT, limit=RUN_LIMIT, pause_on_shutdown=True)
     for deployment in found:
         runner.add_deployment(deployment)
+
+    def look() -> None:
+        for line in supervise(data_root, started):
+            print(line, file=sys.stderr, flush=True)
+
     try:
-        started.extend(start_worker(data_root) for _ in range(workers))
-        asyncio.run(_run_until_stopped(runner))
+        started.extend(Supervised(start_worker(data_root), {}) for _ in range(workers))
+        asyncio.run(_run_until_stopped(runner, look if workers else None))
     finally:
-        stop_workers(started)
+        stop_workers([worker.process for worker in started])
 
 
 def ensure_work_pool() -> None:
@@ -675,7 +738,9 @@ def start_worker(data_root: str | Path, limit: int = 1) -> subprocess.Popen:
         )
 
 
-async def _run_until_stopped(runner) -> None:
+async def _run_until_stopped(runner, look=None) -> None:
+    """Run ``runner`` until SIGTERM or Ctrl-C, calling ``look()`` (in a thread: it may wait on
+    processes and the API) every `SUPERVISE_S` meanwhile."""
     import asyncio
 
     started = asyncio.create_task(runner.start())
@@ -683,5 +748,18 @@ async def _run_until_stopped(runner) -> None:
     # That handler exits from inside the signal handler (and warns of a coroutine never
     # awaited); cancelling the runner as Ctrl-C does lets it clean up instead.
     asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, started.cancel)
-    with contextlib.suppress(asyncio.CancelledError):
-        await started
+
+    async def supervising() -> None:
+        while True:
+            await asyncio.to_thread(look)
+            await asyncio.sleep(SUPERVISE_S)
+
+    watcher = asyncio.create_task(supervising()) if look is not None else None
+    try:
+        with contextlib.suppress(asyncio.CancelledError):
+            await started
+    finally:
+        if watcher is not None:
+            watcher.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await watcher

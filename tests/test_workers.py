@@ -1,15 +1,18 @@
 """Workers: `ringside serve --workers 1` and a `ringside worker` beside it take four scheduled
 runs from the work pool, two at a time, against a real Prefect server; the DuckDB file ends as a
-serial run leaves it. Slow: `make test-slow` runs it."""
+serial run leaves it (slow: `make test-slow` runs it). A worker killed under `serve` is replaced,
+its run stopped and marked Crashed, and the next run completes."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
 import signal
 import subprocess
 import sys
+import time
 import urllib.error
 from datetime import datetime
 from pathlib import Path
@@ -109,3 +112,89 @@ def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video
     )  # fmt: skip
     assert code == 0, err
     assert stage_contents(data) == stage_contents(serial)
+
+
+def _worker_below(serve: subprocess.Popen) -> psutil.Process | None:
+    """The Prefect worker process `serve` started (the newest one)."""
+    found = []
+    for process in psutil.Process(serve.pid).children():
+        with contextlib.suppress(psutil.Error):  # a dead one, a zombie until `serve` reaps it
+            if process.status() != psutil.STATUS_ZOMBIE and "worker" in process.cmdline():
+                found.append(process)
+    return max(found, key=lambda p: p.create_time()) if found else None
+
+
+def _run_process(worker: psutil.Process, run_id: str) -> psutil.Process | None:
+    for process in worker.children(recursive=True):
+        with contextlib.suppress(psutil.Error):
+            if process.environ().get("PREFECT__FLOW_RUN_ID") == run_id:
+                return process
+    return None
+
+
+def test_a_killed_worker_is_replaced_its_run_crashed_and_the_next_run_completes(
+    tmp_path, capsys, sample_video
+):
+    data = tmp_path / "data"
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_HOME", "PREFECT_API_URL")}
+    ringside = [sys.executable, "-m", "flows.cli", "--data", str(data)]
+    log_path = tmp_path / "serve.log"
+    log = log_path.open("w")
+    serve = subprocess.Popen(
+        [*ringside, "serve", "--port", str(free_port()), "--workers", "1"],
+        cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+
+    def schedule(until: str) -> str:
+        with mock.patch.dict(os.environ):
+            code, out, err = run_cli(
+                capsys, "--data", str(data), "schedule", str(sample_video), "--adversary", "A",
+                "--until", until, "--json",
+            )  # fmt: skip
+        assert code == 0, err
+        return json.loads(out)["flow_run_id"]
+
+    try:
+        api = wait_for("`ringside serve --workers 1`", lambda: served_api(data), log=log_path)
+        wait_for("a worker online on the pool", lambda: online_workers(api) >= 1, log=log_path)
+        worker = _worker_below(serve)
+        first = schedule("lift")
+        run = wait_for(
+            "the run's process below the worker",
+            lambda: _run_process(worker, first),
+            log=log_path,
+        )
+        wait_for("the run to start", lambda: run_progress(data, first).state == "Running")
+        worker.kill()
+        killed = time.monotonic()
+        replacement = wait_for(
+            "a new worker",
+            lambda: (w := _worker_below(serve)) is not None and w.pid != worker.pid and w,
+            timeout_s=10,
+            log=log_path,
+        )
+        assert time.monotonic() - killed < 10
+        # The run the dead worker left is stopped and marked Crashed, not left to go on alone.
+        progress = wait_for(
+            "the killed worker's run to end",
+            lambda: (p := run_progress(data, first)).finished and p,
+            timeout_s=30,
+        )
+        assert progress.state == "Crashed", progress
+        assert not run.is_running() or run.status() == psutil.STATUS_ZOMBIE
+        wait_for("the new worker online", lambda: online_workers(api) >= 1, log=log_path)
+        second = schedule("ingest")
+        progress = wait_for(
+            "the next run to finish",
+            lambda: (p := run_progress(data, second)).finished and p,
+            log=log_path,
+        )
+        assert progress.succeeded, progress.message
+        assert replacement.is_running()
+    finally:
+        serve.send_signal(signal.SIGTERM)
+        assert serve.wait(timeout=60) == 0
+        log.close()
+    said = [line for line in log_path.read_text().splitlines() if f"worker {worker.pid}" in line]
+    assert len(said) == 1 and f"worker {worker.pid} died (signal 9)" in said[0], said
+    assert "its 1 flow run(s) stopped and marked Crashed" in said[0], said
