@@ -5,6 +5,7 @@ formats, videos and the colours of roles and fighters."""
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import sys
 from collections.abc import Callable, Mapping, Sequence
@@ -20,6 +21,7 @@ import streamlit as st
 from dashboards import queries
 from storage.artifacts import NotAnArtifact, artifact_path
 from storage.db import DatabaseBusy, connect, damaged_database, error_line, utcnow
+from storage.files import sha256_file
 from storage.paths import data_paths
 from tasks.errors import BadInput
 
@@ -120,7 +122,8 @@ def finish_page() -> None:
 
 
 def artifact_file(name: str | None) -> Path | None:
-    """Where the artifact ``name`` lives, or None (after saying so) when it is not there."""
+    """Where the artifact ``name`` lives, or None (after saying so) when it is not there or its
+    bytes do not hash to its name."""
     if name is None:
         return None
     try:
@@ -128,10 +131,28 @@ def artifact_file(name: str | None) -> Path | None:
     except NotAnArtifact as error:
         st.error(f"{error}; `ringside check` lists what the database names wrongly.")
         return None
-    if not path.exists():
+    try:
+        stat = path.stat()
+    except FileNotFoundError:
         st.warning(f"Artifact `{name}` is missing from the artifact store.")
         return None
+    if not intact(path, stat.st_size, stat.st_mtime_ns):
+        st.warning(
+            f"Artifact `{name}` is corrupt (its bytes do not hash to its name) and is not shown: "
+            "`ringside check --repair` removes it, and the next `ringside process` computes it "
+            "again."
+        )
+        return None
     return path
+
+
+# Keyed by size and modification time as well as the path, so that each render does not hash
+# the file again (a 500 MB video takes seconds), but a file written anew is.
+@functools.lru_cache(maxsize=4096)
+def intact(path: Path, size: int, mtime_ns: int) -> bool:
+    """Whether the artifact file ``path`` (of ``size`` bytes, modified at ``mtime_ns``) hashes
+    to its name."""
+    return sha256_file(path) == path.name[:64]
 
 
 def show_video(name: str | None, caption: str) -> None:

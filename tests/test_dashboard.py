@@ -507,3 +507,57 @@ def test_a_failed_stage_shows_why_on_the_overview(tmp_path, monkeypatch):
     states = ["failed" if stage == "pose" else "missing" for stage in STAGES]
     assert list(matrix.loc[f"empty.mp4 · {'f' * 12}", list(STAGES)]) == states
     assert list(runs["why it failed"]) == [why if s == "failed" else "" for s in states]
+
+
+def show_artifact(name: str) -> None:
+    """A script for AppTest: where `artifact_file` finds the artifact ``name``, if it serves it."""
+    import streamlit as st
+
+    from dashboards.widgets import artifact_file
+
+    path = artifact_file(name)
+    if path is not None:
+        st.text(f"serving {path.name}")
+
+
+def test_a_corrupt_artifact_is_not_served_but_named_with_the_repair(tmp_path, monkeypatch):
+    from streamlit.testing.v1 import AppTest
+
+    from storage.artifacts import artifact_path, put_bytes
+
+    store = data_paths(tmp_path).artifacts
+    name = put_bytes(store, b"an overlay video's bytes", ".mp4")
+    monkeypatch.setenv("RINGSIDE_DATA", str(tmp_path))
+    app = AppTest.from_function(show_artifact, args=(name,), default_timeout=60).run()
+    assert [t.value for t in app.text] == [f"serving {name}"] and not app.warning
+
+    artifact_path(store, name).write_bytes(b"an overlay video's bytes, flipped")
+    app = AppTest.from_function(show_artifact, args=(name,), default_timeout=60).run()
+    assert not app.exception, app.exception
+    assert not app.text, "the corrupt file was served"
+    (warning,) = app.warning
+    assert f"Artifact `{name}` is corrupt" in warning.value
+    assert "`ringside check --repair`" in warning.value
+
+
+def test_an_artifact_is_hashed_again_only_once_its_file_changes(tmp_path, monkeypatch):
+    from dashboards import widgets
+    from storage.artifacts import artifact_path, put_bytes
+    from storage.files import sha256_file
+
+    hashed = []
+    monkeypatch.setattr(
+        widgets, "sha256_file", lambda path: hashed.append(path) or sha256_file(path)
+    )
+    path = artifact_path(tmp_path, put_bytes(tmp_path, b"stills", ".png"))
+
+    def verdict() -> bool:
+        stat = path.stat()
+        return widgets.intact(path, stat.st_size, stat.st_mtime_ns)
+
+    widgets.intact.cache_clear()
+    assert [verdict() for _ in range(3)] == [True] * 3
+    assert hashed == [path], "each render hashed the file again"
+    path.write_bytes(b"stills, damaged")  # another size: a new verdict even on a coarse clock
+    assert not verdict()
+    assert hashed == [path, path]

@@ -16,6 +16,11 @@ from flows.cli.environment import EXIT_FAILED
 from flows.cli.parser import overrides
 from storage.paths import DataPaths
 
+# How long the dashboard's Streamlit gets to stop on a signal (about 1 s when idle) before it is
+# killed: it only reads, so a kill loses nothing, and whoever stops the dashboard (a service
+# manager, a test) should not wait on Streamlit closing its sessions.
+DASHBOARD_STOP_S = 1.5
+
 
 def streamlit_argv(paths: DataPaths, *, host: str, port: int) -> list[str]:
     """The command line that serves the dashboard of ``paths`` with Streamlit: headless (it
@@ -78,6 +83,8 @@ def sigterm_as_ctrl_c():
 def dashboard_command(args, paths: DataPaths) -> int:
     import webbrowser
 
+    from flows.serve import die_with_parent, stop_process
+
     if not 0 < args.port < 65536:
         raise ValueError(f"--port must be between 1 and 65535, got {args.port}")
     shown_host = "localhost" if args.host in ("127.0.0.1", "0.0.0.0") else args.host
@@ -89,22 +96,26 @@ def dashboard_command(args, paths: DataPaths) -> int:
 
     # A SIGTERM stops the server as Ctrl-C does, not orphaning it.
     with sigterm_as_ctrl_c():
-        server = subprocess.Popen(streamlit_argv(paths, host=args.host, port=args.port))
-        print(f"dashboard of {paths.root} at {url} (Ctrl-C stops it)", flush=True)
+        server = subprocess.Popen(
+            streamlit_argv(paths, host=args.host, port=args.port),
+            # Even if this command is killed, Streamlit goes with it and frees the port.
+            preexec_fn=die_with_parent if sys.platform == "linux" else None,
+        )
         try:
+            print(f"dashboard of {paths.root} at {url} (Ctrl-C stops it)", flush=True)
             if not args.no_browser and graphical and wait_until_serving(url, server):
                 webbrowser.open(url)
             return server.wait()
         except KeyboardInterrupt:
-            # Ctrl-C reached Streamlit too (same process group); a SIGTERM reached only us.
-            server.send_signal(signal.SIGINT)
-            try:
-                server.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                server.kill()
-                server.wait()
+            # A SIGTERM reached only us (Ctrl-C reached Streamlit too, which stops the same on
+            # SIGTERM): pass it on at once.
+            stop_process(server, timeout_s=DASHBOARD_STOP_S)
             print("dashboard stopped", file=sys.stderr)
             return 0
+        finally:
+            if server.poll() is None:  # a second signal while stopping, or an error above
+                server.kill()
+                server.wait()
 
 
 def serve_command(args, paths: DataPaths) -> int:
