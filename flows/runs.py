@@ -68,10 +68,10 @@ def reuse_or_run(paths: DataPaths, plan: StagePlan, force: bool) -> tuple[StageR
     def waiting(holder: str) -> None:
         get_run_logger().info(
             f"{spec.stage} {key[:12]} of {spec.video_id[:12]} is being computed by "
-            f"{holder.partition('/')[0]}: waiting for it"
+            f"{holder}: waiting for it"
         )
 
-    with claimed(paths.db, spec.stage, spec.video_id, key, waiting) as waited:
+    with claimed(paths.claims, spec.stage, spec.video_id, key, waiting) as waited:
         if waited:
             result = committed(paths.db, spec.stage, spec.video_id, key)
         if result is None:

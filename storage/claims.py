@@ -1,88 +1,71 @@
 """One computation per stage output at a time, across threads, processes and workers.
 
-Before computing an output a run claims its key in the database; DuckDB lets one process write
-at a time, so of two runs only one can take a free claim. The other waits until the claim is
-released (the output committed, or the computation failed) and asks the database again. A
-claim whose process is gone (killed) is taken over. A claim of a process on another host is
-trusted as long as it stands (this host cannot see that process): `ringside check --repair`
-clears claims.
+Before computing an output a run takes an exclusive lock (``flock``) on a file named for the
+output in ``DATA/claims``; a second run of the same output waits for that lock, then asks the
+database again and reuses what the first committed. The kernel releases the lock of a process
+that ends however it ends, SIGKILL included, so a killed run's claim passes on at once, with no
+process id to trust or reuse. Claiming writes nothing to the database: a refused input leaves
+its file byte for byte as it was. The lock reaches as far as the file system's locks do, as the
+DuckDB file's own lock: every process of this machine, and of every machine on an NFS share with
+working locks.
 """
 
 from __future__ import annotations
 
-import threading
-import time
+import fcntl
+import hashlib
+import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-import duckdb
-
-from storage.db import connect, transaction, utcnow
-from storage.records import this_worker, worker_alive
-
-POLL_S = 0.5
+from storage.records import this_worker
 
 
-def _owner() -> str:
-    """This thread as ``host:pid/thread``: two threads of one process (a pipeline's videos in
-    parallel) claim apart."""
-    return f"{this_worker()}/{threading.get_ident()}"
-
-
-def _alive(owner: str) -> bool:
-    return worker_alive(owner.partition("/")[0])
-
-
-def take_claim(con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key: str) -> str | None:
-    """Claim the output for this thread: None when taken (free, ours already, or its owner
-    gone), else the live owner that holds it."""
-    me = _owner()
-    with transaction(con):
-        row = con.execute(
-            "SELECT worker FROM stage_claims WHERE stage = ? AND video_id = ? AND key = ?",
-            [stage, video_id, key],
-        ).fetchone()
-        if row is not None and row[0] != me and _alive(row[0]):
-            return row[0]
-        con.execute(
-            "INSERT OR REPLACE INTO stage_claims VALUES (?, ?, ?, ?, ?)",
-            [stage, video_id, key, me, utcnow()],
-        )
-    return None
-
-
-def release_claim(con: duckdb.DuckDBPyConnection, stage: str, video_id: str, key: str) -> None:
-    """Give this thread's claim up (another's is left alone)."""
-    con.execute(
-        "DELETE FROM stage_claims WHERE stage = ? AND video_id = ? AND key = ? AND worker = ?",
-        [stage, video_id, key, _owner()],
-    )
+def claim_file(folder: Path, stage: str, video_id: str, key: str) -> Path:
+    """The lock file of one output (subjects may be paths: the name is a hash of them)."""
+    digest = hashlib.sha256(f"{stage}\0{video_id}\0{key}".encode()).hexdigest()[:32]
+    return folder / f"{stage}-{digest}.lock"
 
 
 @contextmanager
 def claimed(
-    db: Path,
+    folder: Path,
     stage: str,
     video_id: str,
     key: str,
-    waiting: Callable[[str], None] = lambda _owner: None,
+    waiting: Callable[[str], None] = lambda _holder: None,
 ) -> Iterator[bool]:
     """Hold the claim on one output while the block runs; yields whether another run held it
     first (it may have committed the output meanwhile: ask the database again). ``waiting``
-    is told the holder once, when this one has to wait."""
+    is told the holder (``host:pid``) once, when this one has to wait."""
+    path = claim_file(folder, stage, video_id, key)
+    path.parent.mkdir(parents=True, exist_ok=True)
     waited = False
     while True:
-        with connect(db) as con:
-            holder = take_claim(con, stage, video_id, key)
-        if holder is None:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if not waited:
+                waiting(os.pread(fd, 256, 0).decode(errors="replace") or "another run")
+                waited = True
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except BaseException:
+            os.close(fd)
+            raise
+        # The holder removes the file as it lets go; a lock on a removed file is no claim.
+        try:
+            held = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            held = False
+        if held:
             break
-        if not waited:
-            waiting(holder)
-            waited = True
-        time.sleep(POLL_S)
+        os.close(fd)
     try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, this_worker().encode(), 0)
         yield waited
     finally:
-        with connect(db) as con:
-            release_claim(con, stage, video_id, key)
+        path.unlink(missing_ok=True)
+        os.close(fd)

@@ -26,6 +26,11 @@ class DataPaths:
     def prefect_home(self) -> Path:
         return self.root / "prefect"
 
+    @property
+    def claims(self) -> Path:
+        """Lock files of the outputs being computed now (`storage.claims`)."""
+        return self.root / "claims"
+
 
 def data_paths(root: str | Path | None = None) -> DataPaths:
     """The data directory: ``root`` if given, else ``$RINGSIDE_DATA``, else ``./data``.

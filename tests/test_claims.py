@@ -1,6 +1,6 @@
 """One computation per stage output at a time: two commands on one video, or on one dataset's
-training, at the same moment compute each output once; the other waits and reuses it. A claim
-whose process was killed is taken over."""
+training, at the same moment compute each output once; the other waits and reuses it. The claim
+of a killed process passes on at once."""
 
 from __future__ import annotations
 
@@ -14,8 +14,7 @@ from pathlib import Path
 from conftest import copy_data, process_argv, query
 from tiny import TINY_TRAIN_FLAGS
 
-from storage.claims import claimed, take_claim
-from storage.db import connect
+from storage.claims import claimed
 from storage.records import this_worker
 
 REPO = Path(__file__).resolve().parent.parent
@@ -60,7 +59,7 @@ def test_two_process_commands_on_one_video_compute_each_stage_once(tmp_path, sam
     assert keys[0] == keys[1]
     assert [stage for stage, _ in keys[0]] == ["ingest", "lift", "pose"]
     assert computed(data) == {s: [("cached", 1), ("done", 1)] for s in ("ingest", "lift", "pose")}
-    assert query(data, "SELECT count(*) FROM stage_claims") == [(0,)]
+    assert list((data / "claims").iterdir()) == []
 
 
 def test_two_trainings_of_one_run_train_once(tmp_path, sample_run, sample_dataset):
@@ -84,39 +83,53 @@ def test_two_trainings_of_one_run_train_once(tmp_path, sample_run, sample_datase
     assert trained == [("cached", 1), ("done", 1), ("running", 1)]
 
 
-def test_a_claim_held_by_a_live_run_waits_and_one_of_a_killed_process_is_taken_over(tmp_path):
-    db = tmp_path / "ringside.duckdb"
-    # A process that is gone: this one's child, run to its end.
-    gone = subprocess.run(
-        [sys.executable, "-c", "import os; print(os.getpid())"],
-        text=True,
-        capture_output=True,
-        check=True,
-    ).stdout.strip()
-    host = this_worker().rpartition(":")[0]
-    with connect(db) as con:
-        con.execute(
-            "INSERT INTO stage_claims VALUES ('pose', 'v', 'k', ?, now())", [f"{host}:{gone}/1"]
-        )
-        assert take_claim(con, "pose", "v", "k") is None  # taken over
+HOLD = """
+import sys, time
+from pathlib import Path
+from storage.claims import claimed
 
-    order = []
+with claimed(Path(sys.argv[1]), "pose", "v", "k"):
+    print("holding", flush=True)
+    time.sleep(600)
+"""
+
+
+def test_a_claim_held_by_a_live_run_waits_and_one_of_a_killed_process_passes_on(tmp_path):
+    folder = tmp_path / "claims"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(folder)], cwd=REPO, stdout=subprocess.PIPE, text=True
+    )
+    assert holder.stdout.readline().strip() == "holding"
+    said = []
+    done = threading.Event()
 
     def second() -> None:
-        with claimed(db, "pose", "v", "k", lambda holder: order.append(f"waits for {holder}")):
+        with claimed(folder, "pose", "v", "k", said.append) as waited:
+            assert waited
+            done.set()
+
+    thread = threading.Thread(target=second)
+    thread.start()
+    time.sleep(1.0)
+    assert not done.is_set() and said == [f"{this_worker().rpartition(':')[0]}:{holder.pid}"]
+    holder.kill()  # SIGKILL while holding: the kernel lets go of its lock
+    holder.wait()
+    thread.join(timeout=10)
+    assert done.is_set()
+
+    # Threads of one process claim apart too, in turn.
+    order = []
+
+    def another() -> None:
+        with claimed(folder, "pose", "v", "k", lambda _: order.append("waits")):
             order.append("second computes")
 
-    with claimed(db, "pose", "v", "k") as waited:
+    with claimed(folder, "pose", "v", "k") as waited:
         assert not waited
-        thread = threading.Thread(target=second)
+        thread = threading.Thread(target=another)
         thread.start()
-        time.sleep(1.5)
+        time.sleep(1.0)
         order.append("first commits")
     thread.join(timeout=10)
-    assert [line.split(" for ")[0] for line in order] == [
-        "waits",
-        "first commits",
-        "second computes",
-    ]
-    with connect(db, read_only=True) as con:
-        assert con.execute("SELECT count(*) FROM stage_claims").fetchone() == (0,)
+    assert order == ["waits", "first commits", "second computes"]
+    assert list(folder.iterdir()) == []  # no lock file outlives its claim
