@@ -28,6 +28,13 @@ class DatabaseBusy(RuntimeError):
     """Another process held the database's lock for longer than we were willing to wait."""
 
 
+class Interrupted(BaseException):
+    """A signal arrived while DuckDB ran a query. DuckDB stops the query and raises
+    ``RuntimeError("Query interrupted")`` in place of what the signal's handler raised (Prefect's
+    TerminationSignal, a KeyboardInterrupt), so nothing above would know it was a stop; this
+    says so again, and as a BaseException, which no ``except Exception`` swallows."""
+
+
 # What DuckDB says of a file it cannot read: flipped bytes (a block's checksum), a truncated or
 # emptied file.
 _DAMAGE = ("corrupt database file", "not a valid duckdb database", "could not read enough bytes")
@@ -120,6 +127,10 @@ def connect(
             if not read_only:
                 migrate(con)
             yield con
+        except RuntimeError as error:
+            if str(error) == "Query interrupted":
+                raise Interrupted(f"a query on {path} was stopped by a signal") from None
+            raise
         finally:
             con.close()
 

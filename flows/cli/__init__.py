@@ -1,4 +1,5 @@
-"""The ``ringside`` command: process, status, rerun, metrics, assets, dashboard, serve, demo.
+"""The ``ringside`` command: process, status, rerun, metrics, assets, dashboard, serve, demo,
+postgres.
 
 Prefect reads its settings when it is first imported, so ``main`` points Prefect at the data
 directory before anything imports it.
@@ -12,12 +13,14 @@ import logging
 import os
 import signal
 import sys
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
 from flows.cli.environment import (
     EXIT_BAD_INPUT,
     EXIT_FAILED,
+    make_prefect_home,
     prefect_settings_of_this_command,
     prepare_environment,
 )
@@ -31,6 +34,7 @@ from flows.cli.pipeline import (
     rerun_command,
     status_command,
 )
+from flows.cli.postgres import postgres_command
 from flows.cli.servers import dashboard_command, schedule_command, serve_command, worker_command
 from flows.cli.training import (
     curves_command,
@@ -73,6 +77,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace, DataPaths], int]] = {
     "config": config_command,
     "dashboard": dashboard_command,
     "serve": serve_command,
+    "postgres": postgres_command,
     "worker": worker_command,
     "schedule": schedule_command,
 }
@@ -109,6 +114,7 @@ def _command(raw: list[str]) -> int:
 
 def _dispatch(raw: list[str], paths: DataPaths) -> int:
     args = build_parser().parse_args(raw)
+    make_prefect_home()
     import duckdb
 
     from flows.serve import ServerError
@@ -144,7 +150,18 @@ def run() -> None:
     to Prefect's server first, then the exit handlers run (Prefect stops that server in one)."""
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _interrupt)
-    code = main()
+    from storage.db import Interrupted
+
+    try:
+        code = main()
+    except Interrupted:
+        # The signal reached a DuckDB query, which swallowed the handler's stop (inside a flow,
+        # Prefect's): the stop is ours to make, as `_stop` makes any other.
+        _stop(signal.SIGTERM, None)
+    except Exception:
+        # A bug: its traceback, then out without the teardown's leak lines (above).
+        traceback.print_exc()
+        _leave(1)
     if code != 0:
         _leave(code)
     sys.exit(code)
