@@ -516,6 +516,19 @@ def test_every_command_prints_its_help(capsys):
         assert "usage: ringside" in capsys.readouterr().out
 
 
+def test_help_and_a_mistyped_command_create_nothing(tmp_path):
+    """`ringside --help` made ./data/prefect wherever it was typed."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_HOME", "RINGSIDE_DATA")}
+    for argv, code in ((["--help"], 0), (["process", "--help"], 0), (["proces"], 2)):
+        done = subprocess.run(
+            [sys.executable, "-m", "flows.cli", *argv],
+            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == code, done.stderr
+    assert not (tmp_path / "data").exists()
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_error_in_a_flow_is_one_line_and_nothing_after_it(tmp_path):
     """An unknown dataset fails inside the train flow; the user reads one line (no `nanobind:
     leaked` reports at exit from the DuckDB objects the failed run's frames held)."""

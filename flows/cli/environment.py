@@ -21,8 +21,6 @@ def prepare_environment(paths: DataPaths, *, verbose: bool) -> None:
     server database, cached results) inside the data directory, no telemetry, a quiet console."""
     os.environ["RINGSIDE_DATA"] = str(paths.root)
     os.environ.setdefault("PREFECT_HOME", str(paths.prefect_home))
-    # Prefect creates its home with a plain mkdir and cannot start its server without it.
-    Path(os.environ["PREFECT_HOME"]).expanduser().mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
     # FFmpeg's own complaints ("moov atom not found") would bury our one-line errors.
@@ -46,6 +44,12 @@ def prepare_environment(paths: DataPaths, *, verbose: bool) -> None:
         api = served_api(paths.root)
         if api is not None:
             os.environ["PREFECT_API_URL"] = api
+
+
+def make_prefect_home() -> None:
+    """Prefect creates its home with a plain mkdir and cannot start its server without it. Made
+    once the command line has parsed, so that `--help` or a mistyped command creates nothing."""
+    Path(os.environ["PREFECT_HOME"]).expanduser().mkdir(parents=True, exist_ok=True)
 
 
 @contextlib.contextmanager

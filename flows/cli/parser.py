@@ -32,6 +32,7 @@ def overrides(args: argparse.Namespace) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     from flows.config import PIPELINE_STAGES
+    from flows.postgres import DEFAULT_PORT
 
     parser = argparse.ArgumentParser(
         prog="ringside",
@@ -258,6 +259,23 @@ def build_parser() -> argparse.ArgumentParser:
         "a time (default 0: one at a time in this process's runner)",
     )
     config_flags(serve)
+
+    postgres = commands.add_parser(
+        "postgres",
+        help="start a PostgreSQL cluster for Prefect's server in DATA/postgres; print its URL",
+        description="Makes a PostgreSQL cluster in DATA/postgres the first time (as root, owned "
+        "and run by the `postgres` user: PostgreSQL refuses to run as root), starts it on "
+        "127.0.0.1 with a database `prefect`, and prints the setting that gives it to "
+        "`ringside serve`. Run again while it runs, it prints that setting again.",
+    )
+    postgres.add_argument(
+        "--port",
+        type=int,
+        default=DEFAULT_PORT,
+        metavar="N",
+        help=f"the cluster's port (default {DEFAULT_PORT})",
+    )
+    postgres.add_argument("--stop", action="store_true", help="stop the cluster (stop serve first)")
 
     worker = commands.add_parser(
         "worker",
