@@ -88,7 +88,10 @@ def print_opponent(paths: DataPaths, evaluated) -> None:
 def print_problems(problems) -> None:
     """A line per damaged output (its problems counted), then the rest one by one."""
     if not problems:
-        print("no damage found: every table reads back and every artifact matches its name")
+        print(
+            "no damage found: every table reads back, every block of the database file matches "
+            "its checksum and every file of the artifact store its name"
+        )
         return
     by_output: dict = {}
     for problem in problems:

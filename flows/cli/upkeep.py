@@ -47,6 +47,12 @@ def check_command(args, paths: DataPaths) -> int:
         print(f"{paths.db}: no database yet; nothing to check")
     else:
         print_problems(problems)
+        wal = paths.db.with_name(paths.db.name + ".wal")
+        if wal.exists():
+            print(
+                f"not verified block by block: {wal.name}, the log of the last writes; DuckDB "
+                "reads it whole as it opens the database, which opened"
+            )
         for line in done:
             print(f"repair: {line}")
         if done and not left and any(p.stage != "prefect" for p in problems):
