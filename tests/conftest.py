@@ -32,6 +32,7 @@ os.environ.setdefault(
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from outputs import stage_contents  # noqa: E402, F401  (tests import it from here)
 from tiny import (  # noqa: E402, F401  (tests import them from here)
     TINY_EVALUATE,
     TINY_EVALUATE_FLAGS,
@@ -276,42 +277,6 @@ def alive(pid: int) -> bool:
     except OSError:
         return False
     return state != "Z"
-
-
-# The per-stage tables whose rows a rerun must give back identically, and the metrics that are
-# timings (they differ from run to run).
-CONTENT = ("ingest_shots", "pose_keypoints", "lift_motion", "lift_bones", "dataset_transitions")
-PER_VIDEO = ("ingest", "pose", "lift", "dataset")
-TIMINGS = {("ingest", "decode_fps"), ("pose", "fps")}
-
-
-def stage_contents(data: Path) -> dict:
-    """What the per-video stages computed: output keys, content rows (hashed), metrics (timings
-    left out); what a resumed or repaired run must give back identically."""
-    from storage.db import connect
-
-    db = data_paths(data).db
-    with connect(db, read_only=True) as con:
-        found = {
-            table: con.execute(
-                f"SELECT video_id, key, count(*), bit_xor(hash(t)) FROM {table} t "
-                "GROUP BY ALL ORDER BY ALL"
-            ).fetchall()
-            for table in CONTENT
-        }
-        found["outputs"] = con.execute(
-            "SELECT stage, video_id, key FROM stage_outputs "
-            f"WHERE stage IN {PER_VIDEO} ORDER BY ALL"
-        ).fetchall()
-        found["metrics"] = [
-            row
-            for row in con.execute(
-                "SELECT stage, video_id, key, name, value FROM stage_metrics "
-                f"WHERE stage IN {PER_VIDEO} ORDER BY ALL"
-            ).fetchall()
-            if (row[0], row[3]) not in TIMINGS
-        ]
-    return found
 
 
 # Prefect's API, as its UI reads it, and waiting on it (the served-server tests).
