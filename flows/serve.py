@@ -366,10 +366,11 @@ def supervise(data_root: str | Path, workers: list[Supervised]) -> list[str]:
         dead, code = worker.process.pid, worker.process.returncode
         left = [p for p in worker.runs if p.is_running()]
         run_ids = sorted({worker.runs[p] for p in left} - {None})
-        # A run stopped by SIGTERM marks itself Crashed; one that could not is marked here.
+        # The new worker first: the old one's runs may take seconds to stop. A run stopped by
+        # SIGTERM marks itself Crashed; one that could not is marked here.
+        worker.process, worker.runs = start_worker(data_root), {}
         _end(left, 10.0)
         crash_flow_runs(run_ids, f"its worker (pid {dead}) died")
-        worker.process, worker.runs = start_worker(data_root), {}
         how = f"signal {-code}" if code < 0 else f"exit {code}"
         replaced.append(
             f"worker {dead} died ({how}): its {len(run_ids)} flow run(s) stopped and marked "
