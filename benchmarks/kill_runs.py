@@ -67,6 +67,11 @@ def main() -> None:
         if these:
             clean = sum(not r.problems for r in these)
             print(f"{name}: {clean} of {len(these)} rounds clean", flush=True)
+    gone = [r.gone_s for r in rounds]
+    print(
+        f"processes below a stopped command all gone: median {statistics.median(gone):.1f} s, "
+        f"at most {max(gone):.1f} s after the signal"
+    )
     shares = [r.rerun_s / took for r in rounds]
     print(
         f"rerun after a stop: median {statistics.median(shares):.2f}, "
