@@ -7,7 +7,8 @@ the same colours; a fight's footage also pans, shakes and flashes): the tests' c
 motion only, a mirrored view, a 2x crop), hidden cuts (a jump in time, another camera, a 15 %
 pan, a brightness step, 5-frame dissolves, cuts under noise and JPEG, two cuts 13 frames apart,
 a cut during a pan) and inputs with no cut (noise, hand-held shake, pans, a zoom, flashes, a fast
-box). Each input is right when exactly its true cuts are found (within a frame). Ours runs as
+box, flat grey frames, a fade to black and back, a slow fade) and fades from one view to another.
+Each input is right when exactly its true cuts are found (within a frame). Ours runs as
 the ingest stage does (`scan_video`, default settings); PySceneDetect's ContentDetector and
 AdaptiveDetector at their defaults and at one setting each chosen before the first run (its
 HashDetector and HistogramDetector failed the tests' own cases). Then the time of one pass over
@@ -27,7 +28,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))
 
+from fades import fade_gains, faded  # noqa: E402
 from scenedetect import AdaptiveDetector, ContentDetector, SceneManager, open_video  # noqa: E402
 
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
@@ -246,6 +249,16 @@ def build_inputs(folder: Path) -> list[tuple[str, str, Path, list, int]]:
     add("hidden", "cut_during_pan", pan[:CUT] + panned(full_b, 0.04)[CUT:], [CUT])
     # fast motion: the fixture's box, 4x faster (12 px/frame of 128) and bigger
     add("no cut", "fast_box", moving_box_frames(60, (200, 60, 20), step=12, box=(40, 60)), [])
+    # flat frames and fades: black from frame 47 to 51 (a 10-frame fade each way), or never
+    add("no cut", "flat_grey", [np.full((96, 128, 3), 128, np.uint8)] * 60, [])
+    fade = fade_gains(len(a), 38, 10)
+    add("no cut", "fade_to_black_and_back", faded(a, fade), [])
+    add("no cut", "slow_fade_to_5pct", faded(a, 1 - 0.95 * np.sin(np.linspace(0, np.pi, 100))), [])
+    # a fade from cam01 into cam02 (and a 3-frame one): the cut anywhere from the first black
+    # frame to the new view at half brightness
+    add("fades", "fade_other_camera", faded(a[:52] + b[52:], fade), [(47, 56)], 0)
+    fast = fade_gains(len(a), 45, 3)
+    add("fades", "fade3_other_camera", faded(a[:50] + b[50:], fast), [(47, 53)], 0)
     return out
 
 

@@ -6,9 +6,11 @@ On every bundled sample view (8 videos, 100 frames each): the largest distance b
 consecutive frames (no cut), and the distance from frame 49 to frame 50 mirrored and to a 2x crop
 of frame 50's centre (a cut to another view of the same scene), by hue-saturation histogram
 (`ingest.cut_threshold`) and by grey-thumbnail structure (`ingest.structure_threshold`); then
-camera pans and zooms of frame 50 by structure. The numbers in `ingest.structure_threshold`'s
-description come from here. Last line: the smallest mirrored or cropped structure distance over
-the largest between consecutive frames.
+camera pans and zooms of frame 50 by structure; then each view's lowest contrast, and frame 50
+faded to black in steps of a tenth: its contrast, brightness and the colour and structure
+distances to the step before (`ingest.flat_contrast`, `ingest.dark_level`). The numbers in those
+settings' and `ingest.structure_threshold`'s descriptions come from here. Last line: the smallest
+mirrored or cropped structure distance over the largest between consecutive frames.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import sys
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
@@ -40,7 +43,7 @@ def frames_of(path: Path) -> list:
 def distances(a, b) -> tuple[float, float]:
     width = IngestConfig().histogram_width
     colour = histogram_distance(hs_histogram(a, width), hs_histogram(b, width))
-    return colour, structure_distance(grey_thumbnail(a), grey_thumbnail(b))
+    return colour, structure_distance(grey_thumbnail(a)[0], grey_thumbnail(b)[0])
 
 
 def main() -> None:
@@ -66,9 +69,20 @@ def main() -> None:
             for share in (0.01, 0.02, 0.05, 0.1):
                 shift = int(w * share)
                 moved = structure_distance(
-                    grey_thumbnail(frame[:, : w - shift]), grey_thumbnail(frame[:, shift:])
+                    grey_thumbnail(frame[:, : w - shift])[0], grey_thumbnail(frame[:, shift:])[0]
                 )
                 print(f"  pan of {share:.0%} of the width per frame: {moved:.3f}")
+            # Faded in memory, not encoded: a codec's noise on dark frames only adds to it.
+            fades = [(frame * k).round().astype(np.uint8) for k in np.linspace(1, 0.1, 10)]
+            for before, after in zip(fades, fades[1:], strict=False):
+                colour, structure = distances(before, after)
+                print(
+                    f"  fading to black: contrast {grey_thumbnail(after)[2]:.1f}, brightness "
+                    f"{grey_thumbnail(after)[1]:.0f}, colour "
+                    f"{colour:.3f}, structure {structure:.3f} from the step before"
+                )
+        lowest = min(grey_thumbnail(f)[2] for f in frames)
+        print(f"  lowest contrast of a frame: {lowest:.1f} grey levels")
     print(f"structure_cut_margin: {cuts / consecutive:.0f} x")
 
 

@@ -45,6 +45,22 @@ class IngestConfig:
         "benchmarks/cut_distances.py). A whip pan faster than about 9 % of the width per frame "
         "reads as a cut.",
     )
+    flat_contrast: float = setting(
+        10.0,
+        "A frame whose contrast (standard deviation of its grey thumbnail, in grey levels 0-255) "
+        "is below this is flat: its layout is not compared (a flat frame's thumbnail is all "
+        "zeros), only its colours. The sample's views have 35-46.",
+    )
+    dark_level: float = setting(
+        48.0,
+        "A flat frame darker than this mean grey level (0-255) is blank, the middle of a fade to "
+        "black: not compared at all (a dark pixel's hue is noise; faded to black a tenth at a "
+        "time, the sample's consecutive frames' colours differ by 0.27 at contrast 8 and by "
+        "0.47, a cut, at 4: benchmarks/cut_distances.py). The next frame that is not blank is "
+        "compared with the last that was not, so a fade to black and back within a shot is no "
+        "cut and a fade from one shot into another is one, at the new shot's first frame that "
+        "is not blank.",
+    )
     min_shot_frames: int = setting(
         12, "A cut closer than this many frames to the previous one is ignored (flashes, strobes)."
     )
@@ -74,6 +90,9 @@ class IngestConfig:
     )
 
     def __post_init__(self) -> None:
+        for name in ("flat_contrast", "dark_level"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"ingest.{name} must be at least 0, got {getattr(self, name)}")
         if not self.frame_interval_spread > 0.0:
             raise ValueError(
                 f"ingest.frame_interval_spread must be positive, got {self.frame_interval_spread}"

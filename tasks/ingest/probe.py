@@ -87,6 +87,26 @@ def check_file(path: Path) -> None:
         raise BadInput(str(path), "is not readable (permission denied)")
 
 
+def check_duration(path: Path, min_s: float, needed_by: str) -> None:
+    """Raise :class:`BadInput` when the container says ``path`` lasts less than ``min_s`` seconds
+    (``needed_by`` names the setting that asks for them). Read from the header, not decoded: a
+    file whose header gives no frame count or rate is left to ingest, which decodes it all."""
+    check_file(path)
+    capture = cv2.VideoCapture(str(path))
+    try:
+        frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        fps = float(capture.get(cv2.CAP_PROP_FPS))
+    finally:
+        capture.release()
+    if frames > 0 and math.isfinite(fps) and fps > 0 and frames / fps < min_s:
+        raise BadInput(
+            str(path),
+            f"lasts {frames / fps:.2f} s ({frames} frames at {fps:g} fps), shorter than the "
+            f"{min_s:g} s {needed_by} needs: give a longer video, or stop before that stage "
+            "with --until",
+        )
+
+
 def identify(path: Path) -> VideoFile:
     """The checked file and its SHA-256 identity."""
     check_file(path)
@@ -124,16 +144,22 @@ def histogram_distance(a: np.ndarray, b: np.ndarray) -> float:
 STRUCTURE_WIDTH = 64
 
 
-def grey_thumbnail(frame_bgr: np.ndarray, width: int = STRUCTURE_WIDTH) -> np.ndarray:
+def grey_thumbnail(
+    frame_bgr: np.ndarray, width: int = STRUCTURE_WIDTH
+) -> tuple[np.ndarray, float, float]:
     """The frame in grey, ``width`` pixels wide, slightly blurred, with zero mean and unit
-    variance (a flat frame stays all zeros)."""
+    variance (a flat frame stays all zeros), and its brightness and contrast before that: the
+    mean and standard deviation in grey levels (0-255)."""
     h, w = frame_bgr.shape[:2]
     grey = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2GRAY).astype(np.float32)
     small = cv2.resize(grey, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
     small = cv2.GaussianBlur(small, (3, 3), 0)
-    small -= small.mean()
+    brightness = float(small.mean())
+    small -= brightness
     spread = float(small.std())
-    return small / spread if spread > 1e-6 else small
+    # Below a thousandth of a grey level the spread is float32 rounding of the mean, not a
+    # picture: scaled up, it correlated at random with the next flat frame.
+    return (small / spread if spread > 1e-3 else np.zeros_like(small)), brightness, spread
 
 
 def structure_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -142,21 +168,26 @@ def structure_distance(a: np.ndarray, b: np.ndarray) -> float:
     return float((1.0 - (a * b).mean()) / 2.0)
 
 
-# Ours rather than PySceneDetect's detectors (benchmarks/cut_detectors.py, 27 inputs made from
+# Ours rather than PySceneDetect's detectors (benchmarks/cut_detectors.py, 32 inputs made from
 # the sample's views): its ContentDetector and AdaptiveDetector at their defaults pass the tests'
 # cases but drop a cut 13 frames after another, and AdaptiveDetector misses a cut made while
 # the camera pans; tuned, AdaptiveDetector gets more inputs right (it also finds a jump in time
 # and a brightness step, which ours misses) but cuts mild hand-held shake (+-1.5 % of the
 # width) where ours does not, and on fight footage a false cut costs as much as a missed one:
 # it splits the tracks and the world frame. Its HashDetector and HistogramDetector fail the
-# tests' cases (a flat synthetic shot; a mirrored view). PySceneDetect is about twice as fast
-# (one pass over the 100-frame sample: 0.5-0.6 s against 1.0 s for ours, much of it our
-# full-frame grey thumbnail), which matters little: the whole ingest costs a tenth of pose and
-# lift together per minute of footage (docs/scaling.md).
+# tests' cases (a flat synthetic shot; a mirrored view). All four cut a fade to black and back
+# where it turns black (tuned, AdaptiveDetector also a slow fade to 5 % and back, and
+# ContentDetector puts a fade into another view's cut a frame before the black); ours, which
+# leaves blank frames out, does not. PySceneDetect is about twice as fast (one pass over the
+# 100-frame sample: 0.7-1.0 s against 1.8-2.2 s for ours on 2 busy shared cores, 0.5-0.6 s
+# against 1.0 s on an idle machine; much of ours is its full-frame grey thumbnail), which
+# matters little: the whole ingest costs a tenth of pose and lift together per minute of
+# footage (docs/scaling.md).
 class CutDetector:
-    """Declares a cut at frame ``i`` when the histogram distance to frame ``i - 1`` exceeds
-    ``threshold`` or the structure distance exceeds ``structure_threshold``, and the previous
-    cut is at least ``min_shot_frames`` back."""
+    """Declares a cut at frame ``i`` when the histogram distance to the frame it is compared with
+    (the one before, or the last one before it that was not blank) exceeds ``threshold`` or the
+    structure distance exceeds ``structure_threshold``, and the previous cut is at least
+    ``min_shot_frames`` back."""
 
     def __init__(self, threshold: float, min_shot_frames: int, structure_threshold: float = 1.0):
         self.threshold = threshold
@@ -278,17 +309,27 @@ def scan_video(path: Path, config: IngestConfig) -> Scan:
             disable=None,
         )
         for index, frame in enumerate(frames):
-            hist, grey = hs_histogram(frame, config.histogram_width), grey_thumbnail(frame)
+            hist = hs_histogram(frame, config.histogram_width)
+            grey, brightness, contrast = grey_thumbnail(frame)
+            # A flat frame has no layout to compare, only colours; a flat, dark one (the middle
+            # of a fade to black) not even those (a dark pixel's hue is noise): it is blank, and
+            # the next frame that is not is compared with the last that was not, so a fade to
+            # black and back is no cut and a fade from one shot into another is one.
+            flat = contrast < config.flat_contrast
+            blank = flat and brightness < config.dark_level
             distance = 0.0 if previous is None else histogram_distance(previous, hist)
-            structure = 0.0 if previous_grey is None else structure_distance(previous_grey, grey)
+            structure = (
+                0.0 if previous_grey is None or flat else structure_distance(previous_grey, grey)
+            )
             distances.append(distance)
             times_ms.append(capture.get(cv2.CAP_PROP_POS_MSEC))
             if index == 0:
                 size = (frame.shape[1], frame.shape[0])
                 cuts.append((0, math.nan, _thumbnail(frame, config.thumbnail_width)))
-            elif detector.update(index, distance, structure):
+            elif not blank and previous is not None and detector.update(index, distance, structure):
                 cuts.append((index, distance, _thumbnail(frame, config.thumbnail_width)))
-            previous, previous_grey = hist, grey
+            if not blank:
+                previous, previous_grey = hist, None if flat else grey
     finally:
         capture.release()
 
