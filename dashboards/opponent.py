@@ -136,6 +136,8 @@ def dataset_page() -> None:
     if found is None:
         return
     stats, videos = found
+    if chosen["unusable"] is not None:
+        st.error(f"Unusable for training: {chosen['unusable']}")
     st.caption(
         f"Adversary **{chosen['adversary']}**: {plural(chosen['videos'], 'video')}, "
         f"{chosen['transitions']} transitions. Statistics over all its videos, rates and "

@@ -8,6 +8,7 @@ from flows.config import from_tables
 from flows.runs import StageSummary, reuse_or_run
 from storage.paths import data_paths
 from tasks.dataset.task import assemble_task, extra_clips_plan
+from tasks.errors import BadInput
 
 
 @flow(name="dataset-assemble")
@@ -16,7 +17,8 @@ def assemble_flow(
 ) -> StageSummary:
     """Join every processed video of ``adversary`` (and any extra clips) into one dataset.
 
-    The summary's key is the dataset key training takes.
+    The summary's key is the dataset key training takes. Raises BadInput, saying why in one
+    line, when the dataset cannot be trained on (`tasks.dataset.verdict`).
     """
     paths = data_paths(data_root)
     settings = from_tables(config or {}).dataset
@@ -25,7 +27,11 @@ def assemble_flow(
         plan = extra_clips_plan(paths, settings, adversary)
         result, _ = reuse_or_run(paths, plan, force)
         extra = (result.video_id, result.key)
-    key, members, new = assemble_task(paths, adversary, settings, extra)
+    key, members, new, unusable = assemble_task(paths, adversary, settings, extra)
+    if unusable is not None:
+        # Recorded all the same, as is every stage's output (nothing computed is lost): the
+        # run fails here so that it ends saying why, and trains nothing on it.
+        raise BadInput(f"dataset {key} of {adversary}", f"unusable: {unusable}")
     notes = (f"dataset {key} of {adversary}: {len(members)} outputs",)
     return StageSummary(
         "", adversary, "dataset-assemble", key, "done" if new else "cached", 0.0, notes

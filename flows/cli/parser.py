@@ -5,6 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+# Short flags for the settings an analyst gives per video, beside their --SECTION-NAME ones.
+ALIASES: dict[tuple[str, ...], str] = {
+    ("lift", "adversary_height_m"): "--adversary-height",
+    ("lift", "opponent_height_m"): "--opponent-height",
+}
+
 
 def config_flags(parser: argparse.ArgumentParser) -> None:
     from flows.config import SECTIONS
@@ -16,6 +22,7 @@ def config_flags(parser: argparse.ArgumentParser) -> None:
         for path, f in leaf_fields(cls, (section,)):
             group.add_argument(
                 "--" + "-".join(path).replace("_", "-"),
+                *[ALIASES[path]] if path in ALIASES else [],
                 dest="cfg__" + "__".join(path),
                 metavar="VALUE",
                 help=f"{f.metadata['help']} (default {f.default})".replace("%", "%%"),
@@ -186,7 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     restore.add_argument("folder", type=Path, help="a folder `ringside backup` wrote")
 
     datasets = commands.add_parser(
-        "datasets", help="assembled training datasets: key, adversary, videos, transitions"
+        "datasets", help="assembled training datasets: key, adversary, videos, transitions, verdict"
     )
     datasets.add_argument("--json", action="store_true")
 

@@ -63,6 +63,16 @@ def run_pipeline(
 
 
 def process_command(args, paths: DataPaths) -> int:
+    from flows.config import load_config
+    from flows.pipeline import stages_until
+    from tasks.ingest.probe import check_duration
+
+    # A video shorter than the dataset's shortest clip passes ingest, pose and lift and is
+    # refused by the dataset a minute later: refuse it before they run.
+    if "dataset" in stages_until(args.until):
+        min_clip_s = load_config(args.config, overrides(args)).dataset.min_clip_s
+        for video in args.videos:
+            check_duration(Path(video), min_clip_s, "the dataset stage (dataset.min_clip_s)")
     return run_pipeline(args, paths, args.videos, args.adversary, args.adversary_colour, args.notes)
 
 
@@ -75,13 +85,16 @@ def status_command(args, paths: DataPaths) -> int:
     db = paths.db
     videos: list[dict[str, Any]] = []
     opponents: list[dict[str, Any]] = []
+    unusable: list[dict[str, Any]] = []
     # The JSON's documented fields; the dashboard shows the timings too.
     fields = ("video_id", "stage", "key", "state", "error")
     if db.exists():
         with connect(db, read_only=True) as con:
             videos = [{f: r[f] for f in fields} for r in stage_states(con, STAGES)]
-            datasets = [d["dataset_key"] for d in reversed(list_datasets(con))]
+            listed = list_datasets(con)
+            datasets = [d["dataset_key"] for d in reversed(listed)]
             opponents = [{f: r[f] for f in fields} for r in opponent_states(con, datasets)]
+            unusable = [d for d in listed if d["unusable"] is not None]
     if args.json:
         print(json.dumps(videos + opponents))
         return 0
@@ -97,6 +110,11 @@ def status_command(args, paths: DataPaths) -> int:
             [{**r, "of": r["video_id"]} for r in short(opponents)],
             ["of", "stage", "state", "key", "error"],
         )
+    if unusable:
+        # A dataset nobody can train on shows no training row of its own to fail: say why here.
+        print()
+        for d in unusable:
+            print(f"dataset {d['dataset_key'][:12]} of {d['adversary']}: {verdict(d['unusable'])}")
     return 0
 
 
@@ -168,8 +186,16 @@ def datasets_command(args, paths: DataPaths) -> int:
     if args.json:
         print(json.dumps(rows))
     else:
-        print_table(rows, ["dataset_key", "adversary", "videos", "transitions", "created_at"])
+        print_table(
+            [{**r, "verdict": verdict(r["unusable"])} for r in rows],
+            ["dataset_key", "adversary", "videos", "transitions", "created_at", "verdict"],
+        )
     return 0
+
+
+def verdict(unusable: str | None) -> str:
+    """A dataset's verdict as `datasets` and `status` print it."""
+    return "usable" if unusable is None else f"unusable: {unusable}"
 
 
 def demo_command(args, paths: DataPaths) -> int:

@@ -35,6 +35,7 @@ from tasks.dataset.config import DatasetConfig
 from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
 from tasks.dataset.store import STAGE
+from tasks.dataset.verdict import unusable_reason
 from tasks.deepmimic import load_deepmimic, retarget
 from tasks.errors import BadInput
 from tasks.roles import AGENTS, ROLES
@@ -368,6 +369,11 @@ def build_dataset(
             f"no fighter was lifted for {config.min_clip_s} s without a break "
             f"(dataset.min_clip_s); no clips to learn from",
         )
+    # Said here as well as when the dataset is assembled: with other videos of the adversary
+    # the dataset may be usable, and this video's share of it none.
+    alone = unusable_reason((c.kind, c.role, c.split, c.end - c.start) for c in clips)
+    if alone is not None:
+        notes.append(f"this video alone cannot be trained on: {alone}")
     states = fighter_states(fighters)
     parts = []
     for number, clip in enumerate(clips):

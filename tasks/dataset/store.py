@@ -21,6 +21,7 @@ from storage.db import transaction, utcnow
 from storage.keys import digest, stable_json
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.statistics import FighterStatistics, combine_videos
+from tasks.dataset.verdict import unusable_reason
 from tasks.errors import BadInput
 from tasks.lift.store import load_bones, load_motion
 from tasks.roles import AGENTS, ROLES
@@ -167,8 +168,25 @@ def member_statistics(
     return scalars, combine_videos(scalars, samples)
 
 
+def dataset_verdicts(con: duckdb.DuckDBPyConnection) -> dict[str, str | None]:
+    """Per assembled dataset, why it cannot be trained on (`verdict.unusable_reason` of its
+    members' clips), None when it can."""
+    clips: dict[str, list] = {
+        key: [] for (key,) in con.execute("SELECT dataset_key FROM datasets").fetchall()
+    }
+    for key, *clip in con.execute(
+        """
+        SELECT m.dataset_key, c.kind, c.role, c.split, c.end_step - c.start_step
+        FROM dataset_members m JOIN dataset_clips c ON c.key = m.key AND c.video_id = m.video_id
+        """
+    ).fetchall():
+        clips[key].append(clip)
+    return {key: unusable_reason(found) for key, found in clips.items()}
+
+
 def list_datasets(con: duckdb.DuckDBPyConnection) -> list[dict]:
-    """Every assembled dataset, newest first, with its size."""
+    """Every assembled dataset, newest first, with its size and, when it cannot be trained on,
+    why (``unusable``; None when it can)."""
     rows = con.execute(
         """
         SELECT d.dataset_key, d.adversary, d.created_at, count(DISTINCT m.video_id) AS videos,
@@ -180,7 +198,8 @@ def list_datasets(con: duckdb.DuckDBPyConnection) -> list[dict]:
         """
     ).fetchall()
     names = ("dataset_key", "adversary", "created_at", "videos", "transitions")
-    return [dict(zip(names, r, strict=True)) for r in rows]
+    verdicts = dataset_verdicts(con)
+    return [{**dict(zip(names, r, strict=True)), "unusable": verdicts[r[0]]} for r in rows]
 
 
 @dataclass(frozen=True, eq=False)
@@ -353,9 +372,13 @@ def training_data(con: duckdb.DuckDBPyConnection, dataset_key: str) -> TrainingD
 
     Raises:
         UnknownDataset: no such dataset.
-        BadInput: the dataset has no interaction clip to learn from or start episodes in.
+        BadInput: the dataset cannot be trained on (no interaction clip in its train split to
+            learn from or start episodes in), naming why (`dataset_verdicts`).
     """
     info = dataset_info(con, dataset_key)
+    unusable = dataset_verdicts(con)[info.dataset_key]
+    if unusable is not None:
+        raise BadInput(f"dataset {info.dataset_key}", f"cannot be trained on: {unusable}")
     motion = _pairs(con, dataset_key, "single", None)
     interaction = tuple(_pairs(con, dataset_key, "interaction", a) for a in (0, 1))
     frames: list[tuple[np.ndarray, ...]] = []
@@ -371,27 +394,7 @@ def training_data(con: duckdb.DuckDBPyConnection, dataset_key: str) -> TrainingD
             tuple(getattr(fighters[r], f)[rows[r]] for r in ROLES for f in ("qpos", "qvel"))
         )
     bones = training_bones(con, dataset_key)
-    if bones is None or min(len(x) for x in interaction) == 0:
-        held_out = sum(
-            con.execute(
-                "SELECT count(*) FROM dataset_clips WHERE key = ? AND video_id = ? "
-                "AND kind = 'interaction' AND split = 'validation'",
-                [key, video_id],
-            ).fetchone()[0]
-            for video_id, key in info.members
-        )
-        why = (
-            f"its {held_out} interaction clips are all in the validation split "
-            "(dataset.validation_fraction)"
-            if held_out
-            else "both fighters must be lifted without a break for dataset.min_clip_s; what "
-            "broke them is in `ringside metrics --stage lift` (frames_rejected_*) and "
-            "`--stage dataset` (steps_rejected, steps_bridged); add footage of both"
-        )
-        raise BadInput(
-            f"dataset {dataset_key}",
-            "has no interaction clips in its train split: nothing to learn interactions from "
-            f"or to start episodes in: {why}",
-        )
+    # The verdict found interaction clips in the train split, so these exist.
+    assert bones is not None and min(len(x) for x in interaction) > 0, dataset_key
     q0, v0, q1, v1 = (np.concatenate([f[i] for f in frames]) for i in range(4))
     return TrainingData(motion, interaction, (q0, q1), (v0, v1), bones)

@@ -21,7 +21,12 @@ from tasks.dataset.stage import (
     extra_clip_output,
     extra_clips_spec,
 )
-from tasks.dataset.store import candidate_members, member_bones, record_dataset
+from tasks.dataset.store import (
+    candidate_members,
+    dataset_verdicts,
+    member_bones,
+    record_dataset,
+)
 from tasks.errors import BadInput
 from tasks.ingest.store import load_ingest
 from tasks.lift.store import load_motion
@@ -78,14 +83,16 @@ def extra_clips_plan(paths: DataPaths, config: DatasetConfig, adversary: str) ->
 @task(name="dataset-assemble", cache_policy=NO_CACHE)
 def assemble_task(
     paths: DataPaths, adversary: str, config: DatasetConfig, extra: tuple[str, str] | None
-) -> tuple[str, list[tuple[str, str]], bool]:
+) -> tuple[str, list[tuple[str, str]], bool, str | None]:
     """Record the dataset of ``adversary``'s footage (plus the ``extra`` clips' output).
 
-    Returns its key, its members and whether it is new.
+    Returns its key, its members, whether it is new and why it cannot be trained on (None when
+    it can: `store.dataset_verdicts`).
     """
     with connect(paths.db) as con:
         members = candidate_members(con, adversary, config, dataset_code())
         if extra is not None:
             members.append(extra)
         key, new = record_dataset(con, adversary, config, members)
-    return key, members, new
+        unusable = dataset_verdicts(con)[key]
+    return key, members, new, unusable
