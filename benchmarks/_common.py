@@ -48,10 +48,13 @@ def sample_fighters(
 
 
 def lift_sample(
-    fighters: dict[str, FighterTrack], artifacts: Path, calibration: Path | None = None
+    fighters: dict[str, FighterTrack],
+    artifacts: Path,
+    calibration: Path | None = None,
+    config: LiftStageConfig | None = None,
 ) -> StageOutput:
-    """The lift stage's output for a sample video's fighters, default settings (called through
-    the module, so a benchmark may wrap the functions it uses)."""
+    """The lift stage's output for a sample video's fighters, with the default settings or
+    ``config`` (called through the module, so a benchmark may wrap the functions it uses)."""
     return lift_stage.lift_video(
         fighters,
         key="bench",
@@ -59,7 +62,7 @@ def lift_sample(
         fps=FPS,
         size=SIZE,
         shots=[(0, 0, FRAMES)],
-        config=LiftStageConfig(),
+        config=config or LiftStageConfig(),
         calibration=calibration,
         artifacts=artifacts,
     )

@@ -15,6 +15,12 @@ by a hundred pixels or more, the reference is not a truth. What limits the lift 
 them: each view's keypoints against the triangulation of the other three (camera 1's are the
 lift's only input) and each fighter's worst joints.
 
+The people's true statures are measured on the reference (`tasks.lift.camera.stature` on the
+points whose views agree), and camera 1 is lifted again given both, then each alone
+(`lift.adversary_height_m`, `lift.opponent_height_m`): the camera's height, each lifted body's
+stature, PA-MPJPE and placement error are printed beside the default lift's, whose scale is
+BlazePose's average body.
+
 Why the heavy model for the reference: a reference triangulated from the lift's own detector
 inherits that detector's mistakes, and the full model puts the man's raised elbows and wrists
 100-200 px off in views 2 and 4. The heavy model's four views agree better (its reprojection
@@ -40,7 +46,8 @@ from benchmarks._common import FPS, FRAMES, lift_sample, sample_fighters  # noqa
 from models.pose.types import BLAZEPOSE_33  # noqa: E402
 from storage.assets import HEAVY_LANDMARKER, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
-from tasks.lift.camera import read_qca, triangulate, write_calibration  # noqa: E402
+from tasks.lift.camera import read_qca, stature, triangulate, write_calibration  # noqa: E402
+from tasks.lift.config import LiftStageConfig  # noqa: E402
 from tasks.lift.metrics import HIPS, mpjpe_mm, pa_mpjpe_mm, procrustes_align  # noqa: E402
 
 BODY = [0, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28]
@@ -104,14 +111,21 @@ def labelled_reference(tracks: list, cams: list) -> tuple[dict, dict, float]:
     return reference, agree, error / 2, left_out
 
 
-def lift(tracks: dict, cam1, tmp: Path) -> tuple[dict, np.ndarray, np.ndarray, float]:
-    """Camera 1's fighters lifted by the lift stage with its default settings: the motion rows
-    and the estimated camera (rotation, translation, height)."""
+def lift(
+    tracks: dict, cam1, tmp: Path, config: LiftStageConfig | None = None
+) -> tuple[dict, np.ndarray, np.ndarray, float]:
+    """Camera 1's fighters lifted by the lift stage with its default settings (or ``config``):
+    the motion rows and the estimated camera (rotation, translation, height)."""
     calibration = tmp / "cam01.json"
     write_calibration(calibration, cam1.K, cam1.dist, cam1.size, 0.0)
-    out = lift_sample(tracks, tmp, calibration)
+    out = lift_sample(tracks, tmp, calibration, config)
     camera = out.rows["lift_cameras"][0]
     return out.rows["lift_motion"], np.reshape(camera[5], (3, 3)), np.asarray(camera[6]), camera[7]
+
+
+def lifted_joints(motion: dict, role: str) -> np.ndarray:
+    """(T, 33, 3) a fighter's lifted joints, world frame."""
+    return motion["joints"][motion["role"] == role].reshape(-1, 33, 3)
 
 
 def in_camera(motion: dict, role: str, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -121,6 +135,25 @@ def in_camera(motion: dict, role: str, R: np.ndarray, t: np.ndarray) -> tuple[np
     frames = np.round(motion["time_s"][mine] * FPS).astype(int)  # 30 Hz steps -> 60 fps
     ours[frames] = motion["joints"][mine].reshape(-1, 33, 3)
     return (ours @ R.T + t)[frames][:, BODY], frames
+
+
+def true_statures(reference: dict, agree: dict) -> dict[str, float]:
+    """Each person's standing height (m) from the triangulated joints whose views agree."""
+    return {
+        role: stature(np.where(agree[role][..., None], reference[role], np.nan)) for role in ROLES
+    }
+
+
+def lift_errors(motion: dict, R: np.ndarray, t: np.ndarray, reference: dict, cam1) -> dict:
+    """Per fighter, (PA-MPJPE mm, median placement error of the hip centre mm) in camera 1."""
+    body_hips = [BODY.index(h) for h in HIPS]
+    out = {}
+    for role in ROLES:
+        ours, frames = in_camera(motion, role, R, t)
+        ref = (reference[role] @ cam1.R.T + cam1.t)[frames][:, BODY]
+        placed = np.linalg.norm(ours[:, body_hips].mean(1) - ref[:, body_hips].mean(1), axis=-1)
+        out[role] = (pa_mpjpe_mm(ours, ref), float(np.nanmedian(placed)) * 1000)
+    return out
 
 
 def main() -> None:
@@ -138,6 +171,16 @@ def main() -> None:
         reference, agree, error, left_out = labelled_reference(heavy, cams)
         full_reference, full_agree, full_error, _ = labelled_reference(full, cams)
         motion, R_est, t_est, height = lift(full[0], cam1, tmp)
+        statures = true_statures(reference, agree)
+        sized = {
+            f"{', '.join(given)} known": lift(
+                full[0],
+                cam1,
+                tmp,
+                LiftStageConfig(**{f"{r}_height_m": statures[r] for r in given}),
+            )
+            for given in (ROLES, ROLES[:1], ROLES[1:])
+        }
         heavy_motion, heavy_R, heavy_t, heavy_height = lift(heavy[0], cam1, tmp)
 
     def shares(agreeing: dict) -> str:
@@ -155,6 +198,24 @@ def main() -> None:
             f"px (views 1-4): {shown}"
         )
     print(f"camera 1 height: lift {height:.2f} m, calibration {cam1.centre[2]:.2f} m")
+    print(
+        "statures on the reference (views agreeing): "
+        + ", ".join(f"{r} {statures[r]:.3f} m" for r in ROLES)
+    )
+    for name, (m_, R_, t_, camera_height) in {
+        "no stature known": (motion, R_est, t_est, height),
+        **sized,
+    }.items():
+        errors = lift_errors(m_, R_, t_, reference, cam1)
+        print(
+            f"{name:26s} camera height {camera_height:.3f} m "
+            f"({(camera_height - cam1.centre[2]) * 100:+.1f} cm); lifted stature, PA-MPJPE, "
+            "placement error: "
+            + "; ".join(
+                f"{r} {stature(lifted_joints(m_, r)):.3f} m, {pa:.1f} mm, {placed:.0f} mm"
+                for r, (pa, placed) in errors.items()
+            )
+        )
     results, hips = [], {}
     for role in ROLES:
         ours_cam, frames = in_camera(motion, role, R_est, t_est)

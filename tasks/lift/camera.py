@@ -8,6 +8,8 @@ frame's metric 3D skeleton (BlazePose's world landmarks) is placed along the cam
 translation that best reprojects it onto the 2D keypoints, which puts the feet in camera
 coordinates; a plane through the lowest foot points over time is the floor, and the floor gives
 the camera's height and pitch. Both fighters then share that world, at their metric distance.
+BlazePose's skeletons have an average body's size; a fighter's known stature rescales his, and
+with it the camera's height and the distances (`stature_scales`).
 """
 
 from __future__ import annotations
@@ -39,6 +41,13 @@ FOOT_POINTS = np.array(
 )
 ANKLES = np.array([BLAZEPOSE_33.index("left_ankle"), BLAZEPOSE_33.index("right_ankle")])
 SHOULDERS = np.array([BLAZEPOSE_33.index("left_shoulder"), BLAZEPOSE_33.index("right_shoulder")])
+KNEES = np.array([BLAZEPOSE_33.index("left_knee"), BLAZEPOSE_33.index("right_knee")])
+HIP_JOINTS = np.array([BLAZEPOSE_33.index("left_hip"), BLAZEPOSE_33.index("right_hip")])
+EARS = np.array([BLAZEPOSE_33.index("left_ear"), BLAZEPOSE_33.index("right_ear")])
+# The part of a standing body's height between its ankles and its ears: ankle 0.039 H, eye (the
+# ears' level) 0.936 H in Drillis and Contini's proportions (Winter, Biomechanics and Motor
+# Control of Human Movement, fig. 4.1).
+STATURE_SHARE = 0.936 - 0.039
 
 
 @dataclass(frozen=True, eq=False)
@@ -303,6 +312,108 @@ def world_from_floor(normal: np.ndarray, d: float) -> tuple[np.ndarray, np.ndarr
     return cam_from_world, origin
 
 
+def stature(points: np.ndarray) -> float:
+    """A body's standing height (m) from its joints, whatever its pose.
+
+    The chain from the ankles to the ears straightened: shin, thigh (both sides), mid-hip to
+    mid-shoulder and mid-shoulder to mid-ear, each the median of its lengths over the frames,
+    summed and divided by `STATURE_SHARE`, the part of standing height between ankle and ear.
+    Bending, crouching and walking leave it unchanged; only the foot below the ankle and the
+    skull above the ear are taken from average proportions.
+
+    points (F, 33, 3) metres, any frame and origin; NaN where unseen. Raises ValueError when a
+    segment is never seen.
+    """
+
+    def middle(pair: np.ndarray) -> np.ndarray:
+        return points[:, pair].mean(1)
+
+    total = 0.0
+    for name, a, b in (
+        ("shin", points[:, ANKLES], points[:, KNEES]),
+        ("thigh", points[:, KNEES], points[:, HIP_JOINTS]),
+        ("trunk", middle(HIP_JOINTS), middle(SHOULDERS)),
+        ("neck", middle(SHOULDERS), middle(EARS)),
+    ):
+        lengths = np.linalg.norm(a - b, axis=-1).ravel()
+        lengths = lengths[np.isfinite(lengths)]
+        if not len(lengths):
+            raise ValueError(f"the body's {name} is never seen: its stature cannot be measured")
+        total += float(np.median(lengths))
+    return total / STATURE_SHARE
+
+
+def _lowest_feet(world: np.ndarray, roots: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """(F, 3) per frame, a placed fighter's lowest foot point along `up` (camera coordinates),
+    the likeliest on the floor. world (F, 33, 3) about the hip centre, roots (F, 3)."""
+    points = world[:, FOOT_POINTS] + roots[:, None]
+    heights = np.where(np.isfinite(points).all(2), points @ up, np.inf)
+    return points[np.arange(len(points)), np.argmin(heights, axis=1)]
+
+
+def stature_scales(
+    fighters: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    K: np.ndarray,
+    statures: list[float | None],
+) -> list[float]:
+    """Per fighter, the factor that scales its metric skeleton to a known stature.
+
+    BlazePose's world landmarks have an average body's size, and the camera's height and every
+    distance of the scene follow from them. A fighter of known stature (m) is scaled to it
+    (`stature`). A fighter of unknown stature beside a known one is scaled so that its feet
+    stand on the floor the known one's define: scaling a skeleton by s moves its placement
+    along the camera rays by s (`root_translations` is linear in both), so s is the camera's
+    height over the known floor divided by its height over the floor this fighter alone gives
+    (the known fighters' mean factor where that floor cannot be found). With no stature known,
+    every factor is 1.
+
+    fighters: per fighter (keypoints_2d (F, 33, 2), confidence (F, 33), world_landmarks
+    (F, 33, 3)), as `ground_fighters` takes them; statures: per fighter, metres or None.
+    """
+    if len(statures) != len(fighters):
+        raise ValueError(f"got {len(statures)} statures for {len(fighters)} fighters")
+    scales = [
+        None if height is None else height / stature(world)
+        for (_, _, world), height in zip(fighters, statures, strict=True)
+    ]
+    if all(s is None for s in scales) or None not in scales:
+        return [1.0 if s is None else s for s in scales]
+    up = body_up(np.concatenate([w for _, _, w in fighters]))
+    feet = [_lowest_feet(w, root_translations(k, c, w, K), up) for k, c, w in fighters]
+    known = [s for s in scales if s is not None]
+    _, height = fit_floor(
+        np.concatenate([f * s for f, s in zip(feet, scales, strict=True) if s is not None]), up
+    )
+    out = []
+    for f, s in zip(feet, scales, strict=True):
+        if s is None:
+            try:
+                own = fit_floor(f, up)[1]
+            except ValueError:  # too few placed feet
+                own = 0.0
+            s = height / own if own > 0 else float(np.mean(known))
+        out.append(s)
+    return out
+
+
+def stature_notes(known: dict[str, float | None], joints: dict[str, np.ndarray]) -> list[str]:
+    """Where one fighter's stature is known and another's is not, a note per unknown one saying
+    how tall its lifted body came out. known: role -> metres or None; joints: role -> its lifted
+    joints (F, 33, 3)."""
+    given = [role for role, height in known.items() if height is not None]
+    if not given:
+        return []
+    notes = []
+    for role, points in joints.items():
+        if known.get(role) is None and np.isfinite(points).any():
+            notes.append(
+                f"the {role}'s height is unknown (lift.{role}_height_m): scaled to stand on the "
+                f"floor that the {given[0]}'s known height sets, the {role} comes out "
+                f"{stature(points):.2f} m tall"
+            )
+    return notes
+
+
 def ground_fighters(
     fighters: list[tuple[np.ndarray, np.ndarray, np.ndarray]], K: np.ndarray, size: tuple[int, int]
 ) -> tuple[Camera, list[np.ndarray]]:
@@ -314,13 +425,7 @@ def ground_fighters(
     """
     roots_cam = [root_translations(k, c, w, K) for k, c, w in fighters]
     up = body_up(np.concatenate([w for _, _, w in fighters]))
-    # Per frame, each fighter's lowest foot point along `up` is the likeliest on the floor.
-    feet = []
-    for (_, _, world), roots in zip(fighters, roots_cam, strict=True):
-        points = world[:, FOOT_POINTS] + roots[:, None]
-        heights = np.where(np.isfinite(points).all(2), points @ up, np.inf)
-        lowest = np.argmin(heights, axis=1)
-        feet.append(points[np.arange(len(points)), lowest])
+    feet = [_lowest_feet(w, r, up) for (_, _, w), r in zip(fighters, roots_cam, strict=True)]
     normal, d = fit_floor(np.concatenate(feet), up)
     R, t = world_from_floor(normal, d)
     camera = Camera(K, np.zeros(5), R, t, size)

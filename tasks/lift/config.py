@@ -9,6 +9,10 @@ from dataclasses import dataclass, field, fields
 from models.settings import setting
 from tasks.lift.gates import GateConfig
 
+# Standing heights a fighter can have (m): the shortest and tallest boxers on record are well
+# inside; a number outside is a typo or centimetres.
+MIN_STATURE_M, MAX_STATURE_M = 1.2, 2.5
+
 
 @dataclass(frozen=True)
 class LiftConfig:
@@ -160,6 +164,16 @@ class LiftStageConfig:
     min_frames: int = setting(
         10, "A fighter seen in fewer frames of a shot is not lifted in that shot."
     )
+    adversary_height_m: float = setting(
+        0.0,
+        "The adversary's standing height (m, from the tale of the tape; 0 = unknown): his "
+        "lifted body is scaled to it, and with it the scene and the camera's height. Where one "
+        "fighter's height is known and the other's is not, the other is scaled to stand on the "
+        "same floor; where neither is, the scale is BlazePose's average body's.",
+    )
+    opponent_height_m: float = setting(
+        0.0, "The opponent's standing height (m; 0 = unknown), as adversary_height_m."
+    )
     solve: LiftConfig = field(default_factory=LiftConfig)
     gates: GateConfig = field(default_factory=GateConfig)
 
@@ -168,3 +182,17 @@ class LiftStageConfig:
             raise ValueError(f"lift.fov_deg must be in (1, 179), got {self.fov_deg}")
         if self.min_frames < 3:
             raise ValueError(f"lift.min_frames must be at least 3, got {self.min_frames}")
+        for name in ("adversary_height_m", "opponent_height_m"):
+            value = getattr(self, name)
+            if value != 0 and not MIN_STATURE_M <= value <= MAX_STATURE_M:
+                raise ValueError(
+                    f"lift.{name} must be 0 (unknown) or a standing height in metres between "
+                    f"{MIN_STATURE_M} and {MAX_STATURE_M}, got {value}"
+                )
+
+    def statures(self) -> dict[str, float | None]:
+        """Each role's known standing height (m), None where unknown."""
+        return {
+            "adversary": self.adversary_height_m or None,
+            "opponent": self.opponent_height_m or None,
+        }

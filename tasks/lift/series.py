@@ -14,7 +14,7 @@ resampling changes.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import mujoco
 import numpy as np
@@ -32,31 +32,38 @@ from models.humanoid.motion import (
 from tasks.lift.cleanup import contact_slide, floor_depth, sole_positions
 
 
-def _fighter_series(motion: FighterMotion, steps: int, rate: float) -> FighterSeries:
+def _fighter_series(
+    motion: FighterMotion, steps: int, rate: float, cuts: Sequence[int]
+) -> FighterSeries:
     model = mujoco.MjModel.from_xml_string(single_scene_mjcf(motion.bones))
     soles = motion.on_grid(sole_positions(Skeleton.from_model(model), motion.qpos), steps)
     contacts = motion.on_grid(motion.contacts, steps)
     speed = np.full((steps, 2), np.nan)
     # A step the fighter is missing at has no contacts, so no slide is measured across it.
     speed[1:] = contact_slide(soles, contacts) * rate
+    # A foot "moves" between two shots' worlds at a cut: no slide is measured across one.
+    speed[[c for c in cuts if 0 < c < steps]] = np.nan
     return FighterSeries(
         contact_slide_m_s=speed,
         floor_penetration_m=motion.on_grid(floor_depth(model, motion.qpos), steps),
     )
 
 
-def cleanup_series(fighters: Mapping[str, FighterMotion], *, rate: float = RATE) -> LiftSeries:
+def cleanup_series(
+    fighters: Mapping[str, FighterMotion], *, rate: float = RATE, cuts: Sequence[int] = ()
+) -> LiftSeries:
     """Per-step foot skating, floor penetration and distance between the fighters.
 
     Args:
         fighters: role -> its motion on the ``rate`` grid (`tasks.lift.store.load_motion`).
         rate: steps per second of the grid.
+        cuts: the first step of each shot after the first (no slide is taken across a cut).
 
     Returns:
         The series over steps 0 .. (last step of either fighter); see `LiftSeries`.
     """
     steps = grid_steps(fighters)
-    series = {role: _fighter_series(m, steps, rate) for role, m in fighters.items()}
+    series = {role: _fighter_series(m, steps, rate, cuts) for role, m in fighters.items()}
     distance = np.full(steps, np.nan)
     if len(fighters) == 2:
         a, b = (m.on_grid(m.qpos, steps) for m in fighters.values())

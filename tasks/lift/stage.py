@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +32,8 @@ from tasks.lift.camera import (
     ground_fighters,
     read_calibration,
     root_translations,
+    stature_notes,
+    stature_scales,
     undistort,
 )
 from tasks.lift.cleanup import Cleaned, cleanup, cleanup_pair, floor_depth
@@ -290,6 +292,10 @@ def lift_video(
             r: (gated[r].keypoints[a:b], gated[r].confidence[a:b], gated[r].world[a:b])
             for r, (a, b) in spans.items()
         }
+        # Known statures set the scene's metric scale (BlazePose's is an average body's).
+        known = [config.statures()[r] for r in inputs]
+        scales = dict(zip(inputs, stature_scales(list(inputs.values()), K, known), strict=True))
+        inputs = {r: (k, c, w * scales[r]) for r, (k, c, w) in inputs.items()}
         camera, roots = ground_fighters(list(inputs.values()), K, size)
         problem = shot_problem(float(camera.centre[2]), _median_distance(spans, roots), gates)
         if problem is not None:
@@ -370,9 +376,18 @@ def lift_video(
     metrics.update({f"frames_rejected_{reason}": float(n) for reason, n in rejected.items()})
     metrics["frames_rejected"] = float(sum(rejected.values()))
     notes += gate_notes(rejected, fighter_frames, gates)
+    notes += stature_notes(config.statures(), {r: joints[r] for r in bones})
+    # Each shot has its own camera and world: nothing on the grid is taken across a cut.
+    cuts = sorted(start for _, start, _ in shots if start > 0)
     motion = {
         role: resample(
-            qpos[role], joints[role], contacts[role], fps=fps, rate=RATE, bones=bones[role][1]
+            qpos[role],
+            joints[role],
+            contacts[role],
+            fps=fps,
+            rate=RATE,
+            bones=bones[role][1],
+            cuts=cuts,
         )
         for role in bones
     }
@@ -395,7 +410,7 @@ def lift_video(
             )
             for shot, source, camera in camera_rows
         ],
-        "lift_motion": _motion_columns(motion),
+        "lift_motion": _motion_columns(motion, [math.ceil(c / fps * RATE - 1e-9) for c in cuts]),
         "lift_bones": [
             (key, video_id, role, name, float(value))
             for role, (_, lengths) in bones.items()
@@ -412,8 +427,12 @@ def _pitch_deg(camera: Camera) -> float:
     return float(math.degrees(math.asin(-np.clip(forward_world[2], -1, 1))))
 
 
-def _motion_columns(motion: Mapping[str, FighterMotion]) -> dict[str, np.ndarray]:
-    series = cleanup_series(motion)
+def _motion_columns(
+    motion: Mapping[str, FighterMotion], cut_steps: Sequence[int] = ()
+) -> dict[str, np.ndarray]:
+    """The ``lift_motion`` columns of each fighter's motion; ``cut_steps`` are the first step
+    of each shot after the first."""
+    series = cleanup_series(motion, cuts=cut_steps)
     parts: dict[str, list[np.ndarray]] = {}
     for role, m in motion.items():
         measured = series.fighters[role]

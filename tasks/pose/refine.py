@@ -384,20 +384,24 @@ def fill_gaps(
 # Metric
 
 
-def jitter_px(keypoints: np.ndarray) -> float:
+def jitter_px(keypoints: np.ndarray, *, cuts: Sequence[int] = ()) -> float:
     """Mean magnitude of the 2D second difference x[t+1] - 2 x[t] + x[t-1] (px / frame²).
 
-    Taken over every joint and frame t whose three frames are all observed; NaN if there is none.
-    This is the pose stage's ``jitter_px`` metric. Real motion has some (a punch's turn-around),
-    so lower is better only down to the truth's own value.
+    Taken over every joint and frame t whose three frames are all observed and in one shot;
+    NaN if there is none. This is the pose stage's ``jitter_px`` metric. Real motion has some
+    (a punch's turn-around), so lower is better only down to the truth's own value.
 
     Args:
         keypoints: (T, J, 2) pixels, NaN where missing.
+        cuts: frames where a shot starts: no difference is taken across them.
     """
     kp, _ = checked(keypoints)
     if kp.shape[0] < 3:
         return float("nan")
-    second = kp[2:] - 2.0 * kp[1:-1] + kp[:-2]
+    second = kp[2:] - 2.0 * kp[1:-1] + kp[:-2]  # centred on frames 1 .. T-2
+    centre = np.arange(1, len(kp) - 1)
+    for cut in cuts:
+        second[(centre == cut - 1) | (centre == cut)] = np.nan
     size = np.linalg.norm(second, axis=2)
     size = size[np.isfinite(size)]
     return float(size.mean()) if size.size else float("nan")
@@ -511,8 +515,15 @@ def refine(
     *,
     groups: Sequence[np.ndarray] | None = None,
     bones: Sequence[tuple[int, int]] = (),
+    cuts: Sequence[int] = (),
 ) -> RefineResult:
     """Fix left/right flips, fill short gaps and smooth one fighter's keypoints.
+
+    Each shot is refined on its own: ``cuts`` are the frames where a new shot starts, and no
+    flip, gap or smoother reaches across one (after a cut the fighter is elsewhere in the
+    picture, seen by another camera; smoothed across it, the frames by the cut were drawn
+    towards the other shot's place, and the sample's adversary was lifted up to 34 cm off in
+    depth: tests/test_shot_cuts.py).
 
     Args:
         keypoints: (T, J, 2) pixels, NaN where missing.
@@ -523,9 +534,40 @@ def refine(
         groups: limb groups deciding flips separately; pass ``flip_groups(BLAZEPOSE_33)`` for
             BlazePose, whose leg-only swaps a single whole-body group (the default) cannot see.
         bones: bones a swap may not cross (`fix_flips`); ``flip_bones(BLAZEPOSE_33)``.
+        cuts: frames (0 < cut < T) where a shot starts.
     """
     kp, conf = checked(keypoints, confidence)
     check_positive("fps", fps)
+    bounds = sorted({int(c) for c in cuts})
+    if any(not 0 < c < len(kp) for c in bounds):
+        raise ValueError(f"cuts must lie inside the {len(kp)} frames, got {list(cuts)}")
+    parts = [
+        _refine_shot(kp[a:b], conf[a:b], fps, config, perm, groups, bones)
+        for a, b in zip([0, *bounds], [*bounds, len(kp)], strict=True)
+    ]
+    smoothed = np.concatenate([p[0] for p in parts])
+    filled = np.concatenate([p[2] for p in parts])
+    return RefineResult(
+        keypoints=smoothed,
+        confidence=np.concatenate([p[1] for p in parts]),
+        filled_mask=filled,
+        flips_fixed=sum(p[3] for p in parts),
+        filled=int(filled.sum()),
+        jitter_before=jitter_px(kp, cuts=bounds),
+        jitter_after=jitter_px(smoothed, cuts=bounds),
+    )
+
+
+def _refine_shot(
+    kp: np.ndarray,
+    conf: np.ndarray,
+    fps: float,
+    config: RefineConfig,
+    perm: np.ndarray,
+    groups: Sequence[np.ndarray] | None,
+    bones: Sequence[tuple[int, int]],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """:func:`refine`'s work on one shot: smoothed keypoints, confidence, filled mask, flips."""
     unflipped, unflipped_conf, flips = fix_flips(
         kp,
         conf,
@@ -540,12 +582,4 @@ def refine(
         unflipped, unflipped_conf, max_gap=config.max_gap, min_confidence=config.min_confidence
     )
     smoothed = SMOOTHERS[config.smoother](gapless, gapless_conf, fps, config)
-    return RefineResult(
-        keypoints=smoothed,
-        confidence=gapless_conf,
-        filled_mask=filled,
-        flips_fixed=flips,
-        filled=int(filled.sum()),
-        jitter_before=jitter_px(kp),
-        jitter_after=jitter_px(smoothed),
-    )
+    return smoothed, gapless_conf, filled, flips
