@@ -194,6 +194,21 @@ def test_link_fragments_joins_one_person_and_keeps_others_apart():
         link_fragments([a], max_gap_frames=0)
 
 
+def test_link_fragments_reaches_further_the_longer_someone_was_unseen():
+    """Red stands, is lost, and comes back 1.5 heights (295 px) away, lower down: after a
+    third of the link gap (reach 1 + 3 / 3 = 2 heights) it is red again; 3 frames later it is
+    not (reach 1.15: nobody moves that far that fast), nor is a blue newcomer that far away
+    after the same third of the gap (issue 33: a man who jumped down was never linked)."""
+    red, blue = descriptor(SKIN, RED), descriptor(SKIN, BLUE)
+    a = make_track(0, 0, np.full(30, 200.0), 200, 200, colour=red)
+    for gap, colour, linked in [(20, red, True), (3, red, False), (20, blue, False)]:
+        b = make_track(1, 29 + gap, np.full(30, 320.0), 470, 200, colour=colour)
+        _, mapping = link_fragments([a, b], max_gap_frames=60)
+        assert (mapping[1] == 0) == linked, (gap, mapping)
+    with pytest.raises(ValueError, match="max_distance"):
+        link_fragments([a], max_gap_frames=60, max_distance=5.0)
+
+
 def test_the_choice_says_how_clear_it_was():
     """Two fighters and a spectator: a clear choice. Two similar pairs side by side (a crowd, or
     two bouts in one frame): a choice barely better than the next. A pair seen together a
@@ -221,4 +236,37 @@ def test_the_choice_says_how_clear_it_was():
 
     apart = [fighters[0], make_track(3, 0, 380 - 20 * np.sin(t / 7), 318, 195, seen=t < 30)]
     assert rank_pairs(apart, (WIDTH, HEIGHT))[0].together == pytest.approx(1 / 3)
-    assert choice_margin([]) == 0.0 and choice_margin(rank_pairs(fighters, (WIDTH, HEIGHT))) == 1.0
+    assert choice_margin([]) == 0.0
+
+
+def test_one_candidate_pair_has_no_margin_and_gets_no_barely_note():
+    """issue 33: fighter_choice_margin read 1.0 when only one pair qualified."""
+    from tasks.pose.stage import Roles, ShotChoice
+
+    t = np.arange(90)
+    fighters = [
+        make_track(1, 0, 270 + 20 * np.sin(t / 9), 320, 200),
+        make_track(3, 0, 380 - 20 * np.sin(t / 7), 318, 195),
+    ]
+    ranked = rank_pairs(fighters, (WIDTH, HEIGHT))
+    assert len(ranked) == 1 and np.isnan(choice_margin(ranked))
+    roles = Roles({1: "adversary", 3: "opponent"}, "guess", (ShotChoice(0, 90, tuple(ranked)),))
+    assert "fighter_choice_margin" not in roles.choice_metrics()
+    assert roles.choice_metrics()["fighters_together_share"] == 1.0
+    assert roles.choice_notes(0.5, 0.1) == []
+
+
+def test_a_pair_on_one_body_is_noted():
+    """Two tracks on one person (boxes a few pixels apart) rank as a pair; the choice says so."""
+    n = 60
+    xs = 300 + 2 * np.arange(n)
+    twice = [make_track(0, 0, xs, 320, 200), make_track(1, 0, xs + 3, 320, 200)]
+    ranked = rank_pairs(twice, (WIDTH, HEIGHT))
+    assert ranked[0].one_body == 1.0
+    apart = rank_pairs([twice[0], make_track(2, 0, xs + 150, 320, 200)], (WIDTH, HEIGHT))
+    assert apart[0].one_body == 0.0
+    from tasks.pose.stage import Roles, ShotChoice
+
+    roles = Roles({0: "adversary", 1: "opponent"}, "guess", (ShotChoice(0, n, tuple(ranked)),))
+    (note,) = roles.choice_notes(0.5, 0.1)
+    assert "one body in 100%" in note and "tracks 0 and 1" in note

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from tasks.pose.config import TrackerConfig
+from tasks.pose.fighters import link_fragments
 from tasks.pose.tracking import (
     DESCRIPTOR_SIZE,
     BoxKalman,
@@ -278,10 +279,31 @@ def test_people_who_meet_and_turn_back_keep_their_ids_by_colour():
     assert_clean(history, {"red", "blue"})
 
 
-def test_without_colour_the_turn_back_scene_swaps_ids():
-    # The control for the test above: position alone follows red's predicted path into blue.
+def test_a_person_lost_behind_another_is_sought_where_they_were_lost():
+    """Without colour too (alpha 1): red's blind prediction walks on into blue, but red comes
+    back where it was lost, and a coasting track is also sought at its last box (before, this
+    scene swapped ids without colour)."""
     tracker = Tracker(TrackerConfig(alpha=1.0), FPS)
     history = play(tracker, meet_and_turn_back(), np.random.default_rng(5))
+    assert_clean(history, {"red", "blue"})
+
+
+def swap_unseen():
+    """Red and blue stand 120 px apart, go unseen for 16 frames (a flash, a blur) while they
+    swap places, and stand again: each comes back 20 px from where the other was lost."""
+    t = np.arange(40)
+    red_x = np.interp(t, [0, 15, 25, 40], [260, 260, 360, 360])
+    blue_x = np.interp(t, [0, 15, 25, 40], [380, 380, 280, 280])
+    unseen = range(12, 28)
+    return [actor("red", RED, red_x, 300, unseen), actor("blue", BLUE, blue_x, 305, unseen)]
+
+
+def test_people_who_swap_places_unseen_keep_their_ids_by_colour_only():
+    tracker = Tracker(TrackerConfig(), FPS)
+    assert_clean(play(tracker, swap_unseen(), np.random.default_rng(5)), {"red", "blue"})
+    # The control: position alone gives each the other's id.
+    tracker = Tracker(TrackerConfig(alpha=1.0), FPS)
+    history = play(tracker, swap_unseen(), np.random.default_rng(5))
     assert count_identity_switches(history) > 0
 
 
@@ -366,6 +388,61 @@ def test_new_tracks_wait_min_hits_before_getting_an_id():
     assert [pairs[0][1] for pairs in ids] == [None, None, 0, 0, 0, 0]
     (track,) = tracker.tracks()
     assert (track.first_frame, track.frames_observed) == (1, 6)
+
+
+def test_two_tracks_never_keep_one_body():
+    """Red hides behind blue and a second pose of blue (the one red's follower slid onto, same
+    keypoints) comes in every frame: red's track must not take blue's body, and takes red
+    back when red steps out (issue 33: both tracks followed one pedestrian)."""
+    frames = 50
+    red_x = np.full(frames, 300.0)
+    red_x[:15] = np.linspace(200, 300, 15)
+    red_x[35:] = np.linspace(300, 200, 15)
+    actors = [
+        actor("red", RED, red_x, 300, unseen=range(15, 35)),
+        actor("blue", BLUE, np.full(frames, 320.0), 305),
+    ]
+    keypoints = np.array([[0.0, 0.0], [10.0, 50.0], [20.0, 100.0]])
+
+    def extra(f, detections):
+        if not 15 <= f < 35:
+            return []
+        (blue,) = [box for truth, box, _ in detections if truth == "blue"]
+        return [("blue again", blue + 1.0, 0.9)]
+
+    tracker = Tracker(TrackerConfig(), FPS)
+    rng = np.random.default_rng(11)
+    history = []
+    for f in range(frames):
+        before = len(history)
+        history += play_with_keypoints(tracker, actors, rng, f, extra, keypoints)
+        assert len(history) == before + 1
+    found = ids_of(history)
+    assert found["blue"] == {1} and found["blue again"] == {1}, found
+    assert not found["red"] & found["blue"], found
+    # Red comes back as a track of its own, which the fighters' linking joins to the first.
+    assert count_identity_switches([[(t, i) for t, i in f if t == "red"] for f in history]) <= 1
+    _, head_of = link_fragments(tracker.tracks(), max_gap_frames=30)
+    assert {head_of[i] for i in found["red"]} == {0}, head_of
+
+
+def play_with_keypoints(tracker, actors, rng, f, extra, keypoints):
+    """One frame of :func:`play` whose observations carry keypoints drawn from their boxes (a
+    duplicate of a box gets the same keypoints, give or take a pixel)."""
+    present = [a for a in actors if not np.isnan(a.path[f, 0])]
+    image = draw([(a.person, a.person.box(*a.path[f])) for a in present])
+    detections = [
+        (a.truth, a.person.box(*a.path[f]) + rng.normal(0, 1.0, 4), 0.9)
+        for a in present
+        if a.seen[f]
+    ]
+    detections += extra(f, detections)
+    obs = [
+        Observation(box, score, appearance(image, box), box[:2] + keypoints)
+        for _, box, score in detections
+    ]
+    ids = tracker.update(obs)
+    return [[(truth, i) for (truth, _, _), i in zip(detections, ids, strict=True)]]
 
 
 # --- metric, config and input checks ---------------------------------------------------------

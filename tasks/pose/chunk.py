@@ -30,7 +30,7 @@ from scipy.optimize import linear_sum_assignment
 from models.pose.boxes import box_iou
 from models.pose.types import Detection, Detector, Pose, PoseEstimator
 from tasks.pose.config import PoseConfig
-from tasks.pose.tracking import DESCRIPTOR_SIZE, Observation, Tracker, appearance
+from tasks.pose.tracking import DESCRIPTOR_SIZE, Observation, Tracker, appearance, one_body
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,9 +117,20 @@ def _search(
     kept = [poses[k] if k in poses else estimator(frame, p) for k, p in enumerate(following)]
     seen = np.array([p.bbox() for p in kept]).reshape(-1, 4)
     for d, det in enumerate(detections):
-        if d in matched or (len(seen) and box_iou(det.box, seen).max() > config.redetect_iou):
+        if d in matched:
             continue
-        kept.append(estimator(frame, det))
+        if not len(seen) or box_iou(det.box, seen).max() <= config.redetect_iou:
+            kept.append(estimator(frame, det))
+            continue
+        # A detection overlapping someone followed may be a second person they half hide (a
+        # clinch, a crossing): estimated, it is kept if it is a body of its own.
+        pose = estimator(frame, det)
+        if pose.score >= config.pose_score and not any(
+            one_body(pose.bbox(), pose.keypoints, p.bbox(), p.keypoints, config.tracker)
+            or _same_body(pose, p, config)
+            for p in kept
+        ):
+            kept.append(pose)
     return kept, detections
 
 
@@ -165,7 +176,9 @@ def track_chunk(
             if box is None:
                 continue
             joints = len(pose.keypoints)
-            observations.append(Observation(box, pose.score, appearance(frame, box)))
+            observations.append(
+                Observation(box, pose.score, appearance(frame, box), pose.keypoints)
+            )
             kept.append(pose)
         ids = tracker.update(observations)
         candidates[index] = [(o.box, p, o.colour) for o, p in zip(observations, kept, strict=True)]

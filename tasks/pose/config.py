@@ -198,6 +198,18 @@ class TrackerConfig:
         "An unmatched detection overlapping an already used one by more than this IoU is a "
         "duplicate of it and starts no track.",
     )
+    same_body_iou: float = setting(
+        0.7,
+        "Two observations whose boxes overlap by more than this IoU and whose keypoints lie "
+        "within same_body_gap of each other are one body seen twice (two followed poses that "
+        "slid onto one person in an overlap): only the track whose motion and colour fit it "
+        "best keeps it, the other coasts until its own person is found again.",
+    )
+    same_body_gap: float = setting(
+        0.05,
+        "Median keypoint distance, as a share of the box height, under which two overlapping "
+        "observations are one body (see same_body_iou).",
+    )
     position_noise: float = setting(
         1 / 20,
         "Kalman standard deviation of box position and size, as a share of box size per frame "
@@ -211,7 +223,8 @@ class TrackerConfig:
 
     def __post_init__(self) -> None:
         unit = ("alpha", "max_colour_distance", "max_cost", "colour_rate", "occlusion_overlap")
-        unit += ("high_score", "low_score", "new_track_score", "duplicate_iou")
+        unit += ("high_score", "low_score", "new_track_score", "duplicate_iou", "same_body_iou")
+        unit += ("same_body_gap",)
         for name in unit:
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"tracker.{name} must be in [0, 1], got {getattr(self, name)}")
@@ -352,7 +365,8 @@ class PoseConfig:
     min_choice_margin: float = setting(
         0.1,
         "A shot whose chosen pair scores less than this share above the next pair gets the same "
-        "note (metric fighter_choice_margin: 1 with a single candidate pair).",
+        "note (metric fighter_choice_margin; a shot with a single candidate pair has no margin "
+        "and is left out of it).",
     )
     link_gap_s: float = setting(
         2.0,

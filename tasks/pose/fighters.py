@@ -68,14 +68,41 @@ def pair_terms(
     return float(similar), float(together), float(near)
 
 
+# Two boxes overlapping this much in one frame sit on one body (issue 33: two tracks that
+# collapsed onto one pedestrian overlapped by a median IoU of 0.988).
+ONE_BODY_IOU = 0.8
+
+
 @dataclass(frozen=True)
 class PairScore:
-    """A candidate pair of fighters: its score, its two track ids (ascending) and the share of
-    the span's frames in which both are seen."""
+    """A candidate pair of fighters: its score, its two track ids (ascending), the share of
+    the span's frames in which both are seen, and the share of those in which their boxes sit
+    on one body (IoU above ONE_BODY_IOU: one person tracked twice, not two fighters)."""
 
     score: float
     track_ids: tuple[int, int]
     together: float
+    one_body: float = 0.0
+
+
+def one_body_share(a: TrackSummary, b: TrackSummary) -> float:
+    """Share of the frames where both tracks are observed in which their boxes overlap by more
+    than ONE_BODY_IOU; 0 if never seen together."""
+    start, stop = max(a.first_frame, b.first_frame), min(a.last_frame, b.last_frame) + 1
+    if stop <= start:
+        return 0.0
+    boxes_a = a.boxes[start - a.first_frame : stop - a.first_frame]
+    boxes_b = b.boxes[start - b.first_frame : stop - b.first_frame]
+    both = ~np.isnan(boxes_a[:, 0]) & ~np.isnan(boxes_b[:, 0])
+    if not both.any():
+        return 0.0
+    low = np.maximum(boxes_a[both, :2], boxes_b[both, :2])
+    high = np.minimum(boxes_a[both, 2:], boxes_b[both, 2:])
+    inter = np.prod(np.clip(high - low, 0, None), axis=1)
+    area = np.prod(boxes_a[both, 2:] - boxes_a[both, :2], axis=1) + np.prod(
+        boxes_b[both, 2:] - boxes_b[both, :2], axis=1
+    )
+    return float(np.mean(inter / (area - inter) > ONE_BODY_IOU))
 
 
 def rank_pairs(
@@ -112,7 +139,8 @@ def rank_pairs(
             continue
         bonus = np.dot(terms, pair_weights) / pair_weights.sum() if pair_weights.sum() else 0.0
         ids = sorted([tracks[i].track_id, tracks[j].track_id])
-        ranked.append(PairScore(float((single[i] + single[j]) / 2 + bonus), tuple(ids), terms[1]))
+        score = float((single[i] + single[j]) / 2 + bonus)
+        ranked.append(PairScore(score, tuple(ids), terms[1], one_body_share(tracks[i], tracks[j])))
     # Ties keep the order of the tracks, as the first pair found used to win.
     return sorted(ranked, key=lambda p: -p.score)
 
@@ -152,12 +180,15 @@ def _span(tracks: list[TrackSummary], num_frames: int | None) -> int:
 
 
 def choice_margin(ranked: list[PairScore]) -> float:
-    """How clearly the best pair beat the next: (best - second) / best score, 1 with no second
-    pair, 0 with no pair at all."""
+    """How clearly the best pair beat the next: (best - second) / best score; NaN when only
+    one pair qualified (there was nothing to beat, which is no sign of a clear choice), 0 with
+    no pair at all."""
     if not ranked:
         return 0.0
-    if len(ranked) == 1 or ranked[0].score <= 0:
-        return 1.0 if len(ranked) == 1 else 0.0
+    if len(ranked) == 1:
+        return float("nan")
+    if ranked[0].score <= 0:
+        return 0.0
     return float((ranked[0].score - ranked[1].score) / ranked[0].score)
 
 
@@ -166,26 +197,32 @@ def link_fragments(
     *,
     max_gap_frames: int,
     max_distance: float = 1.0,
+    far_distance: float = 4.0,
     max_colour_distance: float = 0.3,
     alpha: float = 0.5,
 ) -> tuple[list[TrackSummary], dict[int, int]]:
     """Join tracks that are one person broken in pieces (the tracker lost them too long).
 
     A track that ends at frame e may continue as one that starts at frame s, e < s <= e +
-    max_gap_frames, when the later one's first box is within ``max_distance`` box heights of the
-    earlier one's last centre or of that centre carried on at its final velocity, and their mean
-    colours differ by at most ``max_colour_distance``. Among such candidates, ends are paired
-    with starts by :func:`~tasks.pose.tracking.hungarian` on ``alpha * distance / max_distance
-    + (1 - alpha) * colour distance``; chains of pieces become one track with the first piece's
-    id.
+    max_gap_frames, when the later one's first box is near the earlier one's last centre or
+    that centre carried on at its final velocity, and their mean colours differ by at most
+    ``max_colour_distance``. Near is within a reach of ``max_distance`` box heights at once,
+    widening linearly to ``far_distance`` at a gap of ``max_gap_frames``: someone unseen for a
+    while may have gone further (jumped down from a box, run behind the others), where no
+    velocity from before says. Among such candidates, ends are paired with starts by
+    :func:`~tasks.pose.tracking.hungarian` on ``alpha * distance / reach + (1 - alpha) * colour
+    distance``; chains of pieces become one track with the first piece's id.
 
     Returns:
         The tracks after joining, by id, and a mapping from every input id to its id after.
     """
     if max_gap_frames < 1:
         raise ValueError(f"max_gap_frames must be at least 1, got {max_gap_frames}")
-    if not max_distance > 0:
-        raise ValueError(f"max_distance must be positive, got {max_distance}")
+    if not 0 < max_distance <= far_distance:
+        raise ValueError(
+            f"max_distance must be positive and at most far_distance ({far_distance}), "
+            f"got {max_distance}"
+        )
     ordered = sorted(tracks, key=lambda t: t.track_id)
     n = len(ordered)
     cost = np.full((n, n), np.inf)
@@ -202,8 +239,9 @@ def link_fragments(
             min(np.linalg.norm(start - last), np.linalg.norm(start - (last + velocity * gap)))
             / earlier.mean_size[1]
         )
-        if distance <= max_distance:
-            cost[i, j] = alpha * distance / max_distance + (1 - alpha) * colour[i, j]
+        reach = max_distance + (far_distance - max_distance) * gap / max_gap_frames
+        if distance <= reach:
+            cost[i, j] = alpha * distance / reach + (1 - alpha) * colour[i, j]
     rows, cols = hungarian(cost)
     after = dict(zip(rows.tolist(), cols.tolist(), strict=True))
     heads = sorted(set(range(n)) - set(after.values()))

@@ -41,6 +41,9 @@ from tasks.roles import ROLES
 from tasks.runner import StageOutput, StageSpec
 
 STAGE = "pose"
+# A chosen pair whose boxes sit on one body in more than this share of their frames together
+# gets a note (`PairScore.one_body`).
+ONE_BODY_NOTE = 0.1
 JOINTS = len(BLAZEPOSE_33)
 # Settings that change what happens after the chunks, not inside them.
 NOT_IN_CHUNKS = (
@@ -176,7 +179,7 @@ class Roles:
     """Each track's role, how the adversary was told apart, and how the fighters were chosen."""
 
     by_track: dict[int, str]
-    source: str  # 'pick', 'colour', 'appearance' or 'guess'
+    source: str  # 'pick', 'colour' or 'guess'
     choices: tuple[ShotChoice, ...] = ()
 
     def choice_metrics(self) -> dict[str, float]:
@@ -187,14 +190,23 @@ class Roles:
         weights = np.array([c.frames for c in chosen], dtype=float)
         if not chosen or weights.sum() <= 0:
             return {}
-        return {
-            "fighter_choice_margin": float(
-                np.average([choice_margin(list(c.ranked)) for c in chosen], weights=weights)
-            ),
+        found = {
             "fighters_together_share": float(
                 np.average([c.ranked[0].together for c in chosen], weights=weights)
             ),
+            "fighters_one_body_share": float(
+                np.average([c.ranked[0].one_body for c in chosen], weights=weights)
+            ),
         }
+        # A shot where only one pair qualified has no margin (NaN): it is left out, and the
+        # metric is absent when no shot had a second pair.
+        margins = np.array([choice_margin(list(c.ranked)) for c in chosen])
+        known = np.isfinite(margins) & (weights > 0)
+        if known.any():
+            found["fighter_choice_margin"] = float(
+                np.average(margins[known], weights=weights[known])
+            )
+        return found
 
     def choice_notes(self, min_together: float, min_margin: float) -> list[str]:
         """A note per shot whose chosen pair is unconvincing: seen together in less than
@@ -205,8 +217,16 @@ class Roles:
             if not choice.ranked:
                 continue
             best, others = choice.ranked[0], choice.ranked[1:3]
+            if best.one_body > ONE_BODY_NOTE:
+                notes.append(
+                    f"shot {choice.shot}: the fighters (tracks {best.track_ids[0]} and "
+                    f"{best.track_ids[1]}) sit on one body in {best.one_body:.0%} of the frames "
+                    "they are seen together: they may be one person tracked twice. Check the "
+                    "overlay, and set the adversary with `ringside pick`"
+                )
             margin = choice_margin(list(choice.ranked))
-            if best.together >= min_together and margin >= min_margin:
+            # With a single candidate pair there is no margin (NaN): not "barely better".
+            if best.together >= min_together and not margin < min_margin:
                 continue
             why = (
                 f"seen together in only {best.together:.0%} of its frames"
@@ -243,7 +263,7 @@ def assign_roles(
     first (:func:`link_fragments`), so a fighter hidden for a while is still one fighter. The
     analyst's pick wins; else the declared colour; else, in later shots, whoever looks most like
     the adversary of the first shot; else (no pick, no colour) the first fighter found is taken
-    as the adversary and the source says it is a guess.
+    as the adversary and the source says it is a guess, in every shot the guess is carried to.
     """
     all_tracks = {s.track_id: s for s in summaries(tracks)}
     if pick is not None and pick not in all_tracks:
@@ -283,11 +303,12 @@ def assign_roles(
         elif colour:
             adversary = adversary_by_colour(candidates, fighters, colour)
         elif reference:
+            # Found by the first shot's look; with no pick or colour that was a guess, and
+            # a guess carried to the next shot stays one (the source stays 'guess').
             adversary = min(
                 fighters,
                 key=lambda f: colour_distance(people[f].colour, reference["adversary"]),
             )
-            source = "appearance" if source == "guess" else source
         else:
             adversary = fighters[0]
         for piece, head in head_of.items():
@@ -339,6 +360,9 @@ def gather_fighter(
     conf[at] = tracks.confidence[mine]
     world[at] = tracks.world[mine]
     box[at] = tracks.obs_box[mine]
+    # Where the fighter is next seen in another shot: no refinement reaches across a cut.
+    order = np.argsort(at)
+    shot = tracks.track_shot[tracks.obs_track[mine]][order]
     refined = refine(
         raw,
         conf,
@@ -347,6 +371,7 @@ def gather_fighter(
         flip_permutation(BLAZEPOSE_33),
         groups=flip_groups(BLAZEPOSE_33),
         bones=flip_bones(BLAZEPOSE_33),
+        cuts=at[order][1:][np.diff(shot) != 0].tolist(),
     )
     return Fighter(
         role,

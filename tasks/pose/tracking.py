@@ -16,6 +16,7 @@ T tracks, O observations, D colour descriptor length (:data:`DESCRIPTOR_SIZE`).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Hashable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -273,15 +274,25 @@ class Observation:
         box: (4,) float x0, y0, x1, y1 in pixels, x1 > x0 and y1 > y0.
         score: detector confidence in 0..1.
         colour: (DESCRIPTOR_SIZE,) clothing-colour descriptor from :func:`appearance`.
+        keypoints: (J, 2) the pose's keypoints in pixels, or None (a detection without a pose):
+            with them two overlapping observations are told to be one body or two.
     """
 
     box: np.ndarray
     score: float
     colour: np.ndarray
+    keypoints: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "box", _check_box("Observation.box", self.box))
         object.__setattr__(self, "colour", _check_colour("Observation.colour", self.colour))
+        if self.keypoints is not None:
+            keypoints = np.asarray(self.keypoints, dtype=np.float64)
+            if keypoints.ndim != 2 or keypoints.shape[1] != 2:
+                raise ValueError(
+                    f"Observation.keypoints must be (J, 2) pixels, got shape {keypoints.shape}"
+                )
+            object.__setattr__(self, "keypoints", keypoints)
         if not math.isfinite(self.score):
             raise ValueError(f"Observation.score must be a finite number, got {self.score}")
 
@@ -398,7 +409,8 @@ class Tracker:
     Per frame (:meth:`update`): every live track's Kalman state is predicted one frame on;
     observations scoring at least ``high_score`` are matched to all live tracks, then those in
     ``[low_score, high_score)`` to the confirmed tracks left over, each by :func:`hungarian` on
-    :func:`association_cost`; matched tracks take a Kalman update; unmatched strong
+    :func:`association_cost` (a track placed at its prediction or its last box, whichever
+    fits better: :meth:`_cost`); matched tracks take a Kalman update; unmatched strong
     observations that duplicate no used one start tentative tracks; a tentative track missed
     once is dropped, a confirmed one unseen for more than ``max_coast_s`` ends. Call
     :meth:`cut` at a shot cut.
@@ -459,18 +471,24 @@ class Tracker:
         left = [k for k in range(len(self._live)) if k not in matches.values()]
         left = [k for k in left if self._live[k].track_id is not None]
         matches |= self._associate(left, weak, boxes, colours)
+        matches = self._one_track_per_body(matches, observations, boxes, colours)
 
         occluded = _covered_share(boxes).max(axis=1, initial=0.0) > cfg.occlusion_overlap
         given = {o: self._live[k] for o, k in matches.items()}  # observation -> its track
         for o in sorted(given):
             self._observe(given[o], frame, observations[o], occluded[o])
 
-        # Unmatched strong observations, best first, start tracks unless they repeat a used box.
+        # Unmatched strong observations, best first, start tracks unless they repeat a used box
+        # or a body already taken.
         used = [boxes[o] for o in given]
+        taken = [observations[o] for o in given]
         starters = []
         for o in sorted(set(strong) - set(given), key=lambda i: (-scores[i], i)):
             if used and _iou(boxes[o][None], np.array(used)).max() > cfg.duplicate_iou:
                 continue
+            if any(same_body(observations[o], t, cfg) for t in taken):
+                continue
+            taken.append(observations[o])
             used.append(boxes[o])
             if scores[o] >= cfg.new_track_score:
                 starters.append(o)
@@ -511,18 +529,61 @@ class Tracker:
         """Optimal matching of the given observations to the given live tracks: obs -> track."""
         if not track_index or not obs_index:
             return {}
-        tracks = [self._live[k] for k in track_index]
-        cost = association_cost(
-            np.array([t.state.box() for t in tracks]),
-            np.array([self._frame - t.last_frame for t in tracks]),
-            np.array([t.colour for t in tracks]),
-            boxes[obs_index],
-            colours[obs_index],
-            self.config,
-            self.fps,
+        cost = self._cost(
+            [self._live[k] for k in track_index], boxes[obs_index], colours[obs_index]
         )
         rows, cols = hungarian(cost)
         return {obs_index[c]: track_index[r] for r, c in zip(rows, cols, strict=True)}
+
+    def _cost(self, tracks: list[_Track], boxes: np.ndarray, colours: np.ndarray) -> np.ndarray:
+        """(T, O) :func:`association_cost` of ``tracks`` against observations, each track
+        placed where its Kalman filter predicts it or where it was last seen, whichever fits
+        better. A track coasting blind carries its last velocity on, and a person lost behind
+        someone (a clinch) or standing still is found again where they were lost, not where
+        that velocity drifted to (as OC-SORT, Cao et al. 2023, recovers a lost track at its last
+        observation)."""
+        unseen = np.array([self._frame - t.last_frame for t in tracks])
+        track_colours = np.array([t.colour for t in tracks])
+        cost = [
+            association_cost(placed, unseen, track_colours, boxes, colours, self.config, self.fps)
+            for placed in (
+                np.array([t.state.box() for t in tracks]),
+                np.array([t.boxes[-1] for t in tracks]),
+            )
+        ]
+        return np.minimum(*cost)
+
+    def _one_track_per_body(
+        self,
+        matches: dict[int, int],
+        observations: Sequence[Observation],
+        boxes: np.ndarray,
+        colours: np.ndarray,
+    ) -> dict[int, int]:
+        """``matches`` (obs -> live track) with no two tracks on one body.
+
+        Two followed poses slide onto one person when the other is hidden behind them, and the
+        matching, which pairs as many as it can, would give both to two tracks. Where two
+        matched observations are one body (:func:`same_body`), the track whose motion and
+        colour fit that body best (least :func:`association_cost`, its other candidate costing
+        inf if gated out) keeps it; the other goes unmatched and coasts, so that it can take its
+        own person back when they are seen again.
+        """
+        cfg = self.config
+        kept = dict(matches)
+        pairs = sorted(kept)
+        for a, b in itertools.combinations(pairs, 2):
+            if a not in kept or b not in kept:
+                continue
+            if not same_body(observations[a], observations[b], cfg):
+                continue
+            ka, kb = kept[a], kept[b]
+            cost = self._cost([self._live[ka], self._live[kb]], boxes[[a, b]], colours[[a, b]])
+            # Each track's best fit to the body (either view of it); ties keep the older track.
+            fit = cost.min(axis=1)
+            loser = b if (fit[0], ka) <= (fit[1], kb) else a
+            del kept[loser]
+        return kept
 
     def _observe(self, track: _Track, frame: int, obs: Observation, occluded: bool) -> None:
         """Record ``obs`` as ``track``'s observation in ``frame`` and confirm it when due."""
@@ -612,6 +673,32 @@ def _covered_share(boxes: np.ndarray) -> np.ndarray:
     share = _intersection(boxes, boxes) / _area(boxes)[:, None]
     np.fill_diagonal(share, 0.0)
     return share
+
+
+def same_body(a: Observation, b: Observation, config: TrackerConfig) -> bool:
+    """Whether two observations of one frame are one body: boxes overlapping by more than
+    ``config.same_body_iou`` and, where both have keypoints, keypoints apart by a median of
+    less than ``config.same_body_gap`` of the mean box height (two people in a clinch overlap
+    as much, but their joints do not coincide)."""
+    return one_body(a.box, a.keypoints, b.box, b.keypoints, config)
+
+
+def one_body(
+    box_a: np.ndarray,
+    keypoints_a: np.ndarray | None,
+    box_b: np.ndarray,
+    keypoints_b: np.ndarray | None,
+    config: TrackerConfig,
+) -> bool:
+    """:func:`same_body` on (4,) boxes and (J, 2) keypoints (or None)."""
+    box_a, box_b = np.asarray(box_a, np.float64), np.asarray(box_b, np.float64)
+    if _iou(box_a[None], box_b[None])[0, 0] <= config.same_body_iou:
+        return False
+    if keypoints_a is None or keypoints_b is None or np.shape(keypoints_a) != np.shape(keypoints_b):
+        return True
+    height = (box_a[3] - box_a[1] + box_b[3] - box_b[1]) / 2
+    gap = np.median(np.linalg.norm(np.subtract(keypoints_a, keypoints_b), axis=1))
+    return bool(gap < config.same_body_gap * height)
 
 
 def count_identity_switches(
