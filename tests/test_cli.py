@@ -288,11 +288,13 @@ def bad_input(kind: str, folder: Path, sample: Path) -> tuple[Path, str]:
     if kind == "faststart_third":
         return _faststart_third(sample, folder), "declares 100 frames but only"
     if kind == "no_frames":
-        written = write_video(folder / "written.mp4", moving_box_frames(20, (200, 60, 20)))
+        # Longer than dataset.min_clip_s, so that its header lets it reach ingest's decoding.
+        written = write_video(folder / "written.mp4", moving_box_frames(40, (200, 60, 20)))
         return _zeroed_frames(written), "has no decodable video frames"
     if kind == "one_frame":
+        # Refused from its header before any stage runs (ingest's own refusal: the next test).
         return write_video(folder / "one.mp4", moving_box_frames(1, (200, 60, 20))), (
-            "has 1 frame; at least 10 are needed (ingest.min_frames)"
+            "(1 frame at 30 fps), shorter than the 1 s the dataset stage (dataset.min_clip_s) needs"
         )
     raise AssertionError(kind)
 
@@ -334,6 +336,20 @@ def test_bad_input_is_one_clear_line_and_changes_nothing(
     assert db_snapshot(db) == before
     if kind in ("missing", "directory", "empty"):  # found without decoding: no server waited for
         assert server_log_size(populated) == log, "a Prefect server was started for it"
+
+
+def test_a_video_of_too_few_frames_is_refused_by_ingest(tmp_path, capsys, populated):
+    video = write_video(tmp_path / "one.mp4", moving_box_frames(1, (200, 60, 20)))
+    db = populated / "ringside.duckdb"
+    before = db_snapshot(db)
+    code, _, err = run_cli(
+        capsys, "--data", str(populated), "process", str(video), "--adversary", "A",
+        "--until", "ingest",
+    )  # fmt: skip
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code != 0 and len(lines) == 1, err
+    assert "has 1 frame; at least 10 are needed (ingest.min_frames)" in lines[0]
+    assert db_snapshot(db) == before
 
 
 def test_two_processes_at_once_register_one_video(tmp_path, two_shot_video):

@@ -101,7 +101,8 @@ def check_duration(path: Path, min_s: float, needed_by: str) -> None:
     if frames > 0 and math.isfinite(fps) and fps > 0 and frames / fps < min_s:
         raise BadInput(
             str(path),
-            f"lasts {frames / fps:.2f} s ({frames} frames at {fps:g} fps), shorter than the "
+            f"lasts {frames / fps:.2f} s ({frames} frame{'s' if frames != 1 else ''} at "
+            f"{fps:g} fps), shorter than the "
             f"{min_s:g} s {needed_by} needs: give a longer video, or stop before that stage "
             "with --until",
         )
