@@ -19,9 +19,8 @@ import pandas as pd
 import streamlit as st
 
 from dashboards import queries
-from storage.artifacts import NotAnArtifact, artifact_path
+from storage.artifacts import NotAnArtifact, artifact_path, hashes_to_name
 from storage.db import DatabaseBusy, connect, damaged_database, error_line, utcnow
-from storage.files import sha256_file
 from storage.paths import data_paths
 from tasks.errors import BadInput
 
@@ -152,7 +151,7 @@ def artifact_file(name: str | None) -> Path | None:
 def intact(path: Path, size: int, mtime_ns: int) -> bool:
     """Whether the artifact file ``path`` (of ``size`` bytes, modified at ``mtime_ns``) hashes
     to its name."""
-    return sha256_file(path) == path.name[:64]
+    return hashes_to_name(path)
 
 
 def show_video(name: str | None, caption: str) -> None:

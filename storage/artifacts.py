@@ -56,10 +56,16 @@ def sound(root: Path, name: str) -> bool:
     path = artifact_path(root, name)
     if not path.exists():
         return False
-    if sha256_file(path) == name[:64]:
+    if hashes_to_name(path):
         return True
     quarantine(root, path)
     return False
+
+
+def hashes_to_name(path: Path) -> bool:
+    """Whether the artifact file ``path``'s bytes hash to its name, read in blocks (a
+    checkpoint may be hundreds of MB)."""
+    return sha256_file(path) == path.name[:64]
 
 
 def quarantine(root: Path, path: Path) -> Path:
@@ -77,9 +83,7 @@ def corrupt_files(root: Path) -> list[Path]:
     if not root.exists():
         return []
     return sorted(
-        path
-        for path in root.glob("??/*")
-        if NAME.fullmatch(path.name) and sha256_file(path) != path.name[:64]
+        path for path in root.glob("??/*") if NAME.fullmatch(path.name) and not hashes_to_name(path)
     )
 
 

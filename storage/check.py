@@ -21,7 +21,7 @@ import shutil
 import sqlite3
 import tempfile
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,6 +52,8 @@ class Problem:
     video_id: str | None
     key: str | None
     what: str
+    # A corrupt artifact file: what `repair` quarantines (found once, by `scan`'s hashing).
+    path: Path | None = None
 
     @property
     def output(self) -> tuple[str, str, str] | None:
@@ -101,7 +103,7 @@ def _outputs(
     return [tuple(row) for row in rows]
 
 
-def _artifact_problem(artifacts: Path, corrupt: set[str], name: str) -> str | None:
+def _artifact_problem(artifacts: Path, corrupt: Mapping[str, Path], name: str) -> str | None:
     try:
         path = artifact_path(artifacts, name)
     except NotAnArtifact:
@@ -176,7 +178,7 @@ def scan(
     if not db.exists():  # nothing of ours yet, but Prefect's history may be there
         return prefect
     # Every file is hashed once, named by a row or not (Prefect's cache names pose chunks).
-    corrupt = {path.name for path in corrupt_files(artifacts)} if artifacts is not None else set()
+    corrupt = {p.name: p for p in corrupt_files(artifacts)} if artifacts is not None else {}
     named: set[str] = set()
     try:
         with connect(db, read_only=True) as con:
@@ -195,8 +197,11 @@ def scan(
             for path in stale_temporaries(artifacts)
         ]
         problems += [
-            Problem("artifacts", None, None, f"artifact {name[:12]}… is corrupt (no row names it)")
-            for name in sorted(corrupt - named)
+            Problem(
+                "artifacts", None, None, f"artifact {name[:12]}… is corrupt (no row names it)", path
+            )
+            for name, path in sorted(corrupt.items())
+            if name not in named
         ]
     return problems + prefect
 
@@ -225,7 +230,7 @@ def _block_problems(db: Path, found: list[Problem]) -> list[Problem]:
 def _table_problems(
     con: duckdb.DuckDBPyConnection,
     artifacts: Path | None,
-    corrupt: set[str],
+    corrupt: Mapping[str, Path],
     named: set[str],
     table: str,
     columns: list[str],
@@ -258,7 +263,7 @@ def _table_problems(
         named.add(name)
         problem = _artifact_problem(artifacts, corrupt, name)
         if problem is not None:
-            found.append(Problem(stage, video_id, key, f"{table}: {problem}"))
+            found.append(Problem(stage, video_id, key, f"{table}: {problem}", corrupt.get(name)))
     return found
 
 
@@ -294,9 +299,11 @@ def repair(
     db: Path, artifacts: Path, problems: Iterable[Problem], prefect_db: Path | None = None
 ) -> list[str]:
     """A new database file holding every row that reads back, but for the damaged outputs among
-    ``problems``; the damaged file is kept beside it (``<name>.damaged-<time>``). Stale
-    temporary files go too. A damaged Prefect database (``prefect_db``) is set aside the same
-    way, and Prefect starts a new one. One line per thing done.
+    ``problems``; the damaged file is kept beside it (``<name>.damaged-<time>``). The corrupt
+    artifact files among ``problems`` are quarantined, so that recomputing their outputs
+    writes them anew, and stale temporary files go too. A damaged Prefect database
+    (``prefect_db``) is set aside the same way, and Prefect starts a new one. One line per thing
+    done.
 
     The rows are copied rather than the damaged file written to: DuckDB stops with a fatal
     error when a write touches a damaged block (seen on a file with 19 flipped blocks). A
@@ -331,18 +338,13 @@ def repair(
     aside = _set_aside(db, (".wal",))
     fresh.rename(db)
     done.append(f"kept the damaged file as {aside}")
-    done += _quarantine_corrupt(artifacts)
+    done += [
+        f"moved the corrupt {path.name[:12]}… aside to {quarantine(artifacts, path)}"
+        for path in sorted({p.path for p in problems if p.path is not None})
+        if path.exists()
+    ]
     done += [f"removed {path}" for path in remove_stale_temporaries(artifacts)]
     return done
-
-
-def _quarantine_corrupt(artifacts: Path) -> list[str]:
-    """Move every corrupt file of the store aside, so that recomputing its output writes it
-    anew (a write skips a name that exists)."""
-    return [
-        f"moved the corrupt {path.name[:12]}… aside to {quarantine(artifacts, path)}"
-        for path in corrupt_files(artifacts)
-    ]
 
 
 def _unlink_with_wal(path: Path) -> None:

@@ -542,12 +542,11 @@ def test_a_corrupt_artifact_is_not_served_but_named_with_the_repair(tmp_path, mo
 
 def test_an_artifact_is_hashed_again_only_once_its_file_changes(tmp_path, monkeypatch):
     from dashboards import widgets
-    from storage.artifacts import artifact_path, put_bytes
-    from storage.files import sha256_file
+    from storage.artifacts import artifact_path, hashes_to_name, put_bytes
 
     hashed = []
     monkeypatch.setattr(
-        widgets, "sha256_file", lambda path: hashed.append(path) or sha256_file(path)
+        widgets, "hashes_to_name", lambda path: hashed.append(path) or hashes_to_name(path)
     )
     path = artifact_path(tmp_path, put_bytes(tmp_path, b"stills", ".png"))
 
