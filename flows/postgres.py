@@ -12,11 +12,11 @@ import glob
 import os
 import pwd
 import shutil
-import socket
 import subprocess
 from collections.abc import Sequence
 from pathlib import Path
 
+from flows.serve import port_free
 from storage.records import process_alive
 
 # Not 5432, the port of a system PostgreSQL (Debian's own cluster) where there is one.
@@ -66,7 +66,7 @@ def start(folder: Path, port: int = DEFAULT_PORT) -> tuple[int, bool]:
         return running, True
     programs = server_programs()
     run_as = _run_as()
-    if not _port_free(port):
+    if not port_free(port):
         raise PostgresError(
             f"port {port} on 127.0.0.1 is in use (another PostgreSQL?); choose another with --port"
         )
@@ -161,14 +161,3 @@ def _run(program: Path, *args: str | Path, run_as: Sequence[str] = ()) -> str:
         why = (done.stderr.strip().splitlines() or [f"exit status {done.returncode}"])[-1]
         raise PostgresError(f"{program.name}: {why}")
     return done.stdout
-
-
-def _port_free(port: int) -> bool:
-    with socket.socket() as s:
-        # As PostgreSQL binds: a closed connection waiting out TIME_WAIT does not count.
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True

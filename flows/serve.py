@@ -141,6 +141,8 @@ def server_command(port: int) -> list[str]:
 def port_free(port: int) -> bool:
     """Whether nothing listens on ``127.0.0.1:port``."""
     with socket.socket() as s:
+        # As servers bind (uvicorn, PostgreSQL): a closed connection in TIME_WAIT does not count.
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind(("127.0.0.1", port))
         except OSError:
