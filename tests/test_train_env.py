@@ -21,7 +21,7 @@ from models.humanoid.observations import observation, self_observation
 from models.maaip.arena import DAMAGE_BODIES, arena_index, arena_mjcf
 from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions, facing_reference
-from models.maaip.env import ArenaEnv, centred_pair, geom_bottoms
+from models.maaip.env import ArenaEnv, Puppet, centred_pair, geom_bottoms
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
 
 SMALL = BoneLengths().scaled(0.9)
@@ -463,3 +463,46 @@ def test_bad_inputs_raise_clear_errors(punch):
         EnvConfig(substeps=0)
     with pytest.raises(ValueError, match="stepping"):
         EnvConfig(stepping="gpu")
+
+
+def test_a_puppet_follows_its_poses_and_pushes_the_other_fighter(punch):
+    """A puppet agent (live sparring's partner) is exactly at each pose after a step, moving to
+    it at constant velocity; its contacts move the other fighter; `place` puts an agent at rest
+    on the floor and leaves the other alone."""
+    env = _env(num_envs=1, stepping="threads")
+    env.reset([0], punch, frames=[0])
+    agents = env.index.agents
+    start = env.datas[0].qpos[agents[1].qpos].copy()
+    other = env.datas[0].qpos[agents[0].qpos].copy()
+    pose = start.copy()
+    pose[0] -= 0.02  # 2 cm towards the other fighter: 0.6 m/s
+    pose[7 + HINGE_NAMES.index("right_knee")] = 0.3
+    actions = np.zeros((1, 2, len(HINGE_NAMES)))
+    result = env.step(actions, Puppet(1, pose[None]))
+    data = env.datas[0]
+    assert np.allclose(data.qpos[agents[1].qpos], pose, atol=1e-12)
+    assert data.qvel[agents[1].qvel][0] == pytest.approx(-0.6, abs=1e-9)
+    assert np.isfinite(result.observation).all()
+    # Walked through where the other fighter stands, the puppet shoves it back.
+    for _ in range(40):
+        pose[0] -= 0.03
+        env.step(actions, Puppet(1, pose[None]))
+    assert env.datas[0].qpos[agents[0].qpos][0] < other[0] - 0.1
+    # Placed: at rest, its lowest point on the floor, the other fighter where it was.
+    before = env.datas[0].qpos[agents[1].qpos].copy()
+    floating = other.copy()
+    floating[2] += 0.5
+    env.place(0, 0, floating)
+    data = env.datas[0]
+    mine = np.flatnonzero(env.index.agent_of_geom == 0)
+    assert geom_bottoms(env.model, data, mine).min() == pytest.approx(0.0, abs=1e-9)
+    assert not data.qvel[agents[0].qvel].any()
+    assert np.array_equal(data.qpos[agents[1].qpos], before)
+    with pytest.raises(ValueError, match="puppet.qpos must be finite"):
+        env.step(actions, Puppet(1, np.full((1, 35), np.nan)))
+    rollout = _env(num_envs=1)
+    rollout.reset([0], punch, frames=[0])
+    with pytest.raises(ValueError, match='a puppet needs EnvConfig.stepping "threads"'):
+        rollout.step(actions, Puppet(1, pose[None]))
+    env.close()
+    rollout.close()

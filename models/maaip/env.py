@@ -56,6 +56,13 @@ the contacts from Python between substeps. The observations are gathered once pe
 vectorised pass: 1.1 ms per step for 64 environments, 15 % of the raw physics (computing
 `body_state` per environment and agent cost 72 %).
 
+A puppet (`Puppet`, for live sparring): one agent moved through given poses instead of by its
+actuators. Before every substep its qpos and qvel are set on the path from where it is to the
+step's pose at constant velocity (`mj_differentiatePos`, `mj_integratePos`), and after the last
+it is exactly at that pose; the solver still computes its contacts, so the other fighter is
+pushed and struck by it, and damage and falls are read as for any agent. Only "threads"
+stepping takes one ("rollout" steps in C without a hook between substeps).
+
 Shape letters: N environments, M reference frames, 2 agents.
 """
 
@@ -72,6 +79,7 @@ from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import (
+    NQ,
     NUM_ACTUATED,
     ROOT_POS,
     ROOT_QUAT,
@@ -133,6 +141,19 @@ class StepResult:
 # --------------------------------------------------------------------------
 # Pure helpers
 # --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Puppet:
+    """An agent moved kinematically for one `ArenaEnv.step` (module docstring).
+
+    Attributes:
+        agent: which agent (0 or 1).
+        qpos: (N, 35) its pose at the end of the step, per environment (a jump is `place`'s).
+    """
+
+    agent: int
+    qpos: np.ndarray
 
 
 def joint_targets(actions: np.ndarray, ctrlrange: np.ndarray) -> np.ndarray:
@@ -276,6 +297,21 @@ def _read_contacts(
         for a in range(NUM_AGENTS):
             if bits & (1 << (2 + a)):
                 floor[a] = True
+
+
+def _place(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    paths: tuple[slice, slice, np.ndarray, np.ndarray],
+    i: int,
+    elapsed_s: float,
+) -> None:
+    """Put environment i's puppet where its path is `elapsed_s` into the step."""
+    qpos_slice, qvel_slice, starts, velocities = paths
+    here = starts[i].copy()
+    mujoco.mj_integratePos(model, here, velocities[i], elapsed_s)
+    data.qpos[qpos_slice] = here[qpos_slice]
+    data.qvel[qvel_slice] = velocities[i, qvel_slice]
 
 
 def sensor_contacts(sensordata: np.ndarray, layout: SensorLayout) -> tuple[np.ndarray, np.ndarray]:
@@ -485,6 +521,27 @@ class ArenaEnv:
         self.elapsed[ids] = 0
         return self.observe(ids)
 
+    def place(
+        self, env_id: int, agent: int, qpos: np.ndarray, *, ground: bool = True
+    ) -> np.ndarray:
+        """Put one agent of one environment at rest at ``qpos`` (35,), with `ground` moved up
+        or down until its lowest point touches the floor (as `reset` does), the other agent
+        left as it is. Returns that environment's observations (2, 274)."""
+        q = np.asarray(qpos, dtype=np.float64)
+        if q.shape != (NQ,) or not np.isfinite(q).all():
+            raise ValueError(f"qpos must be {NQ} finite numbers, got shape {q.shape}")
+        (i,) = _check_ids([env_id], self.num_envs)
+        index = self.index.agents[agent]
+        data = self.datas[i]
+        data.qpos[index.qpos] = q
+        data.qvel[index.qvel] = 0.0
+        if ground:
+            mujoco.mj_kinematics(self.model, data)
+            mine = np.flatnonzero(self.index.agent_of_geom == agent)
+            data.qpos[index.qpos_start + 2] -= geom_bottoms(self.model, data, mine).min()
+        _refresh(self.model, data)
+        return self.observe(np.array([i]))[0]
+
     # ---------------------------------------------------------------- observe
 
     def body_states(self, env_ids: np.ndarray | None = None) -> BodyState:
@@ -519,11 +576,13 @@ class ArenaEnv:
 
     # ---------------------------------------------------------------- step
 
-    def step(self, actions: np.ndarray) -> StepResult:
+    def step(self, actions: np.ndarray, puppet: Puppet | None = None) -> StepResult:
         """Advance every environment by one policy step.
 
         Args:
-            actions: (N, 2, 28) finite actions of agent 0 and agent 1 (MAAIP §4.2).
+            actions: (N, 2, 28) finite actions of agent 0 and agent 1 (MAAIP §4.2); a
+                puppet's are ignored.
+            puppet: an agent to move through given poses instead (module docstring).
 
         Returns:
             StepResult for every environment (module docstring: damage, falls, time-outs).
@@ -542,7 +601,8 @@ class ArenaEnv:
         ctrl = np.zeros((self.num_envs, self.model.nu))
         for agent in range(NUM_AGENTS):
             ctrl[:, self.index.actuators[agent]] = targets[:, agent]
-        damage, floor = self._advance(ctrl, contacts=True)
+        paths = None if puppet is None else self._puppet_paths(puppet)
+        damage, floor = self._advance(ctrl, contacts=True, paths=paths)
         unstable = ~self._stable
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
             obs = _observations(self._states(self._frames))
@@ -577,10 +637,41 @@ class ArenaEnv:
             )
         self._advance(np.asarray(ctrl, dtype=np.float64), contacts=False)
 
-    def _advance(self, ctrl: np.ndarray, *, contacts: bool) -> tuple[np.ndarray, np.ndarray]:
+    def _puppet_paths(self, puppet: Puppet) -> tuple[slice, slice, np.ndarray, np.ndarray]:
+        """The puppet's qpos and qvel slices, and per environment the whole model's qpos at the
+        step's start (N, nq) and a qvel (N, nv) that is the puppet's velocity to its pose."""
+        if self._rollout is not None:
+            raise ValueError('a puppet needs EnvConfig.stepping "threads"')
+        if puppet.agent not in (0, 1):
+            raise ValueError(f"puppet.agent must be 0 or 1, got {puppet.agent!r}")
+        qpos = np.asarray(puppet.qpos, dtype=np.float64)
+        if qpos.shape != (self.num_envs, NQ) or not np.isfinite(qpos).all():
+            raise ValueError(f"puppet.qpos must be finite with shape ({self.num_envs}, {NQ})")
+        agent = self.index.agents[puppet.agent]
+        starts = np.empty((self.num_envs, self.model.nq))
+        velocities = np.zeros((self.num_envs, self.model.nv))
+        step_s = self.config.timestep * self.config.substeps
+        for i, data in enumerate(self.datas):
+            starts[i] = data.qpos
+            end = data.qpos.copy()
+            end[agent.qpos] = qpos[i]
+            mujoco.mj_differentiatePos(self.model, velocities[i], step_s, starts[i], end)
+        mine = np.zeros(self.model.nv, dtype=bool)
+        mine[agent.qvel] = True
+        velocities[:, ~mine] = 0.0
+        return agent.qpos, agent.qvel, starts, velocities
+
+    def _advance(
+        self,
+        ctrl: np.ndarray,
+        *,
+        contacts: bool,
+        paths: tuple[slice, slice, np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Hold `ctrl` (N, nu) for `substeps` physics steps in every environment. With
         `contacts`, also refresh the kinematics, fill `_frames` and `_head_z` and return each
-        agent's damage (N, 2) and floor touches (N, 2); without, only step."""
+        agent's damage (N, 2) and floor touches (N, 2); without, only step. `paths`
+        (`_puppet_paths`) moves a puppet along its path before every substep."""
         if self._rollout is not None:
             return self._advance_rollout(ctrl, contacts=contacts)
         damage = np.zeros((self.num_envs, NUM_AGENTS))
@@ -592,10 +683,14 @@ class ArenaEnv:
             for i in chunk:
                 data = self.datas[i]
                 data.ctrl[:] = ctrl[i]
-                for _ in range(substeps):
+                for k in range(substeps):
+                    if paths is not None:
+                        _place(model, data, paths, i, k * model.opt.timestep)
                     mujoco.mj_step(model, data)
                     if contacts:
                         _read_contacts(model, data, tables, damage[i], floor[i], force)
+                if paths is not None:
+                    _place(model, data, paths, i, substeps * model.opt.timestep)
             if contacts:
                 # In the worker, so that this work overlaps with the other workers' mj_step
                 # (which runs without the GIL); after the chunk's physics, which then runs back
