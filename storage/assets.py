@@ -88,6 +88,32 @@ WHEELS: tuple[Wheel, ...] = (
         ),
         npm=True,
     ),
+    # three.js for the live-sparring viewer (flows/spar_viewer), which `ringside spar-server`
+    # serves from here under /three/: the page must work offline, so nothing comes from a CDN.
+    # three.module.js imports three.core.js; OrbitControls imports "three" (the importmap's).
+    Wheel(
+        requirement="three@0.187.0",
+        licence="MIT",
+        licence_member="package/LICENSE",
+        assets=(
+            Asset(
+                "package/build/three.module.js",
+                "three/three.module.js",
+                "104f56145899722094556490d787aae0617cc2fc3382f31df02d724ea1aee341",
+            ),
+            Asset(
+                "package/build/three.core.js",
+                "three/three.core.js",
+                "613e370f76638fdef83926642bf256dc9615684922de1ce1f63a8583e5d78578",
+            ),
+            Asset(
+                "package/examples/jsm/controls/OrbitControls.js",
+                "three/addons/controls/OrbitControls.js",
+                "e7fca2fe9e7670a828af9b28084669a5909445b7f36f1f26cee9bf8f2961c32c",
+            ),
+        ),
+        npm=True,
+    ),
     Wheel(
         requirement="pose2sim==0.10.49",
         licence="BSD-3-Clause",

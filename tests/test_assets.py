@@ -22,6 +22,7 @@ def test_pulled_assets_match_their_pins(assets: Path):
         "mediapipe-pose-Apache-2.0.txt",
         "pose2sim-BSD-3-Clause.txt",
         "pybullet-Zlib.txt",
+        "three-MIT.txt",
     ]
 
 
