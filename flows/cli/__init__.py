@@ -42,6 +42,7 @@ from flows.cli.training import (
     export_command,
     export_motion_command,
     spar_command,
+    spar_server_command,
     train_command,
 )
 from flows.cli.upkeep import (
@@ -69,6 +70,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace, DataPaths], int]] = {
     "evaluate": evaluate_command,
     "export-motion": export_motion_command,
     "spar": spar_command,
+    "spar-server": spar_server_command,
     "check": check_command,
     "backup": backup_command,
     "restore": restore_command,

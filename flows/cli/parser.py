@@ -153,6 +153,29 @@ def build_parser() -> argparse.ArgumentParser:
     spar.add_argument("--pace", action="store_true", help="no faster than real time")
     spar.add_argument("--json", action="store_true")
 
+    live = commands.add_parser(
+        "spar-server",
+        help="serve an exported opponent live over WebSocket, with a viewer in the browser "
+        "(docs/spar-protocol.md)",
+    )
+    live.add_argument("opponent", type=Path, help="an opponent folder (`ringside export`)")
+    live.add_argument(
+        "--host",
+        default="127.0.0.1",
+        metavar="ADDRESS",
+        help="address to listen on (default 127.0.0.1; any other needs a token)",
+    )
+    live.add_argument("--port", type=int, default=8765, metavar="N", help="default 8765; 0: any")
+    live.add_argument(
+        "--token",
+        metavar="TEXT",
+        help="what clients must send in their hello (default: none on 127.0.0.1, a random "
+        "one printed at start on any other address)",
+    )
+    live.add_argument(
+        "--max-sessions", type=int, default=8, metavar="N", help="concurrent sessions (8)"
+    )
+
     evaluate = commands.add_parser(
         "evaluate",
         help="judge a training run: damage, style and boxing tables, ONNX export, a rendered bout",

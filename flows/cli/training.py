@@ -236,3 +236,42 @@ def spar_command(args, _paths: DataPaths) -> int:
             print(f"video: {result.video} ({result.frames_rendered} frames)")
     print(f"realtime_factor: {result.realtime_factor:.1f} x")
     return 0
+
+
+def spar_server_command(args, paths: DataPaths) -> int:
+    import asyncio
+    import secrets
+    import signal
+
+    from flows.spar_server import PATH, SparServer, needs_token, run_server, warm_up
+    from tasks.evaluate.opponent import load_opponent
+
+    if not 0 <= args.port < 65536:
+        raise ValueError(f"--port must be between 0 and 65535, got {args.port}")
+    if args.max_sessions < 1:
+        raise ValueError(f"--max-sessions must be at least 1, got {args.max_sessions}")
+    token = args.token
+    if token is None and needs_token(args.host):
+        token = secrets.token_urlsafe(16)
+    opponent = load_opponent(args.opponent)
+    warm_up(opponent)
+    server = SparServer(opponent, assets=paths.assets, token=token, max_sessions=args.max_sessions)
+
+    def ready(port: int) -> None:
+        query = f"?token={token}" if token else ""
+        print(
+            f"spar server: ws://{args.host}:{port}{PATH}  viewer: http://{args.host}:{port}/"
+            f"{query}  (opponent {opponent.folder}; Ctrl-C stops it)",
+            flush=True,
+        )
+
+    async def serve() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(signum, stop.set)
+        await run_server(server, args.host, args.port, ready, stop)
+
+    asyncio.run(serve())
+    print("spar server stopped", file=sys.stderr)
+    return 0

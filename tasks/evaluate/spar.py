@@ -87,7 +87,7 @@ def env_config(opponent: Opponent) -> EnvConfig:
     return EnvConfig(**{k: v for k, v in settings.items() if k in known})
 
 
-def _standing(env: ArenaEnv, guards: np.ndarray) -> ReferenceMotions:
+def standing_start(env: ArenaEnv, guards: np.ndarray) -> ReferenceMotions:
     """Both fighters standing still in their ``guards`` (2, 28) where the arena puts them."""
     q = env.model.qpos0
     zero = np.zeros((1, NV))
@@ -127,7 +127,7 @@ def spar(
         bones[1 - slot] = partner.opponent.bones[partner.opponent.agent]
         guards[1 - slot] = partner.opponent.guard[partner.opponent.agent]
     env = ArenaEnv(config, np.random.default_rng(0), (bones[0], bones[1]))
-    start_pose = _standing(env, guards)
+    start_pose = standing_start(env, guards)
     steps = max(1, round(seconds * config.policy_hz))
     renderer = writer = None
     if video is not None:
