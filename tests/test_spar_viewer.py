@@ -1,0 +1,208 @@
+"""The live-sparring viewer (flows/spar_viewer) in headless Chromium against a real
+`ringside spar-server` on an untrained guard opponent (tests/opponents.py): the page draws
+both fighters from the server's states and steers the partner with the keyboard.
+
+It saves a screenshot to ``data/test-artifacts/spar/viewer.png`` (git-ignored), to be looked at
+by eye.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from conftest import REPO
+from opponents import guard_opponents, spar_server
+
+CHROMIUM = Path("/usr/bin/chromium")
+SCREENSHOT = REPO / "data" / "test-artifacts" / "spar" / "viewer.png"
+TOKEN = "test-token"
+TURN = math.pi / 2  # the viewer's TURN_STEP: one press of an arrow
+# The partner turns kinematically at `max_turn_rate` (pi rad/s, 0.105 rad a 30 Hz step) and
+# stops on the commanded heading, so 0.1 rad (6 degrees), under one step's turn, is reached
+# with the turn's last step; a turn missed, doubled or the wrong way is 1.5 rad off or more.
+HEADING_TOLERANCE = 0.1
+# The turn itself takes 0.5 s; the rest is the command's way to the server and the states'
+# way back through a page drawing in software (0.49 to 0.72 s in 20 runs here).
+TURN_WITHIN_S = 1.0
+PARTNER = "() => window.spar.last.fighters.find(f => f.role === 'partner')"
+TURNED = """([target, tolerance]) => {
+  const h = window.spar.last.fighters.find(f => f.role === 'partner').heading;
+  return Math.abs(Math.atan2(Math.sin(h - target), Math.cos(h - target))) < tolerance;
+}"""
+REFUSED = "() => window.spar && document.getElementById('status').className === 'closed'"
+FELL = "() => window.spar.last.fighters.find(f => f.role === 'opponent').falls > 0"
+# Each fighter's damage summed and falls, as the page has them and as its table shows them.
+NUMBERS = """() => Object.fromEntries(window.spar.last.fighters.map(f => {
+  const row = document.getElementById(`fighter-${f.role}`);
+  const shown = [row.querySelector('.total').textContent, row.querySelector('.falls').textContent];
+  const total = window.spar.totals[f.role];
+  return [f.role, {total, falls: f.falls, shown, flashed: row.className}];
+}))"""
+SEEN = """() => [window.spar.states, window.spar.totals, window.spar.last.contacts,
+  window.spar.last.fighters.map(f => [f.role, f.bodies.pelvis, f.heading, f.falls])]"""
+
+
+def _wrap(angle: float) -> float:
+    return math.atan2(math.sin(angle), math.cos(angle))
+
+
+@pytest.fixture
+def viewer_url(assets: Path, tmp_path: Path) -> str:
+    """The viewer's URL as `ringside spar-server` on agent 0 prints it, with a token, on a data
+    directory of its own whose assets hold only three.js (linked from the pulled ones)."""
+    agent0, _ = guard_opponents(assets, tmp_path / "opponents")
+    data = tmp_path / "data"
+    (data / "assets").mkdir(parents=True)
+    (data / "assets" / "three").symlink_to(assets / "three", target_is_directory=True)
+    # The suite shares its assets through RINGSIDE_ASSETS: the server must find three.js under
+    # --data instead.
+    env = {k: v for k, v in os.environ.items() if k != "RINGSIDE_ASSETS"}
+    # With a token, so that the viewer's way of sending it is tested.
+    with spar_server(agent0, data, "--token", TOKEN, env=env) as served:
+        port = served.url.split(":")[2].split("/")[0]
+        assert served.viewer == f"http://127.0.0.1:{port}/?token={TOKEN}", served
+        yield served.viewer
+
+
+def _bodies(state: dict, role: str) -> np.ndarray:
+    fighter = next(f for f in state["fighters"] if f["role"] == role)
+    return np.array([pose[:3] for pose in fighter["bodies"].values()])
+
+
+def drive_viewer(url: str, screenshot: Path) -> dict[str, float]:
+    """Open the viewer at ``url`` (its ``?token=`` included), check it draws and steers;
+    what it measured."""
+    from playwright.sync_api import sync_playwright
+
+    measured = {}
+    origin = url.split("?")[0]
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(
+            executable_path=str(CHROMIUM), args=["--no-sandbox", "--enable-unsafe-swiftshader"]
+        )
+        try:
+            # Small: Chromium draws WebGL in software here, and a large canvas slows the page's
+            # handling of states and keys (at 1280x800 a command's round trip took 0.26 s).
+            page = browser.new_page(viewport={"width": 960, "height": 600})
+            problems: list[str] = []
+            page.on("console", lambda m: m.type == "error" and problems.append(m.text))
+            page.on("pageerror", lambda error: problems.append(str(error)))
+            # Everything the page loads comes from the server: no CDN.
+            elsewhere: list[str] = []
+
+            def only_the_server(route):
+                if route.request.url.startswith(origin):
+                    return route.continue_()
+                elsewhere.append(route.request.url)
+                return route.abort()
+
+            page.route("**/*", only_the_server)
+            # Without the token: refused, and the page says so.
+            page.goto(origin)
+            page.wait_for_function(REFUSED, timeout=30_000)
+            assert page.evaluate("() => window.spar.errors")[0].startswith("unauthorized: ")
+            assert "1008" in page.inner_text("#status")
+            page.goto(url)
+            page.wait_for_function("() => window.spar && window.spar.states >= 5", timeout=60_000)
+
+            # The opponent is simulated: its bodies move from step to step, if only a little.
+            first = page.evaluate("() => window.spar.last")
+            page.wait_for_timeout(1000)
+            later = page.evaluate("() => window.spar.last")
+            assert later["step"] - first["step"] >= 20, "about 30 states a second"
+            shift = np.linalg.norm(_bodies(later, "opponent") - _bodies(first, "opponent"), axis=1)
+            measured["opponent_moved_m"] = float(shift.max())
+            assert shift.max() > 1e-3, f"the opponent's bodies stood still: {shift}"
+
+            # Two presses up: 0.5 m/s straight at the opponent, 1.2 m ahead, into it.
+            heading = page.evaluate(PARTNER)["heading"]
+            commanded = page.evaluate("() => window.spar.heading")
+            assert abs(_wrap(heading - commanded)) < HEADING_TOLERANCE, "starts where it faces"
+            start = np.array(page.evaluate(PARTNER)["bodies"]["pelvis"][:2])
+            page.keyboard.press("ArrowUp")
+            page.keyboard.press("ArrowUp")
+            assert page.evaluate("() => window.spar.speed") == 0.5
+            page.wait_for_timeout(1500)
+            moved = np.array(page.evaluate(PARTNER)["bodies"]["pelvis"][:2]) - start
+            along = float(moved @ [math.cos(commanded), math.sin(commanded)])
+            across = float(moved @ [-math.sin(commanded), math.cos(commanded)])
+            measured |= {"partner_along_m": along, "partner_across_m": across}
+            # 0.75 m at 0.5 m/s for 1.5 s, less the command's way to the server and back. The
+            # partner is kinematic: the opponent in its way does not hold it up.
+            assert 0.5 < along < 0.9 and abs(across) < 0.1, moved
+            # Walked into, the opponent is shoved over (within 2 to 3 s here). Whether it
+            # takes damage on the way is up to where the two first touch (legs, gloves and
+            # arms are not hit), so the damage is checked against the states, not for being
+            # there.
+            try:
+                page.wait_for_function(FELL, timeout=5_000)
+            except Exception as error:  # Playwright's TimeoutError
+                raise AssertionError(f"the opponent never fell: {page.evaluate(SEEN)}") from error
+            page.keyboard.press("s")
+            assert page.evaluate("() => window.spar.speed") == 0
+            page.wait_for_timeout(300)
+            stopped = page.evaluate(PARTNER)["bodies"]["pelvis"][:2]
+            page.wait_for_timeout(500)
+            still = page.evaluate(PARTNER)["bodies"]["pelvis"][:2]
+            assert np.linalg.norm(np.subtract(still, stopped)) < 0.02, "it stops on 's'"
+
+            # The numbers: each fighter's damage summed and its falls as the server counts
+            # them, and the opponent's row flashed for its fall (and any damage).
+            numbers = page.evaluate(NUMBERS)  # at once: a state may come in between calls
+            for role, seen in numbers.items():
+                measured |= {f"{role}_damage_n": seen["total"], f"{role}_falls": seen["falls"]}
+                assert seen["shown"] == [f"{seen['total']:.0f}", str(seen["falls"])], seen
+            flashed = numbers["opponent"]["flashed"]
+            assert "fell" in flashed, flashed
+            assert ("hit" in flashed) == (numbers["opponent"]["total"] > 0), flashed
+
+            # A quarter turn to the right: the partner's own heading gets there within 1 s.
+            heading = page.evaluate(PARTNER)["heading"]
+            target = _wrap(commanded - TURN)
+            pressed = time.monotonic()
+            page.keyboard.press("ArrowRight")
+            assert page.evaluate("() => window.spar.heading") == pytest.approx(target, abs=1e-9)
+            left_ms = max(1.0, (TURN_WITHIN_S - (time.monotonic() - pressed)) * 1000)
+            try:
+                page.wait_for_function(
+                    TURNED, arg=[target, HEADING_TOLERANCE], polling=10, timeout=left_ms
+                )
+            except Exception as error:  # Playwright's TimeoutError
+                got = page.evaluate(PARTNER)["heading"]
+                raise AssertionError(
+                    f"the partner's heading was {got:.3f} rad {TURN_WITHIN_S} s after the key "
+                    f"press, not {target:.3f} (from {heading:.3f})"
+                ) from error
+            measured["turn_s"] = time.monotonic() - pressed
+            page.wait_for_timeout(300)
+            settled = page.evaluate(PARTNER)["heading"]
+            assert abs(_wrap(settled - target)) < HEADING_TOLERANCE, f"overshot to {settled}"
+            assert abs(_wrap(settled - heading + TURN)) < HEADING_TOLERANCE, "turned by 90 deg"
+
+            screenshot.parent.mkdir(parents=True, exist_ok=True)
+            png = page.screenshot(path=str(screenshot))
+            picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+            assert picture.std() > 10, "the screenshot is one flat colour: nothing was drawn"
+
+            status = page.inner_text("#status")
+            assert status.startswith("connected"), status
+            assert page.evaluate("() => window.spar.errors") == []
+            assert problems == [] and elsewhere == [], (problems, elsewhere)
+        finally:
+            browser.close()
+    return measured
+
+
+@pytest.mark.skipif(
+    not CHROMIUM.exists(), reason=f"Debian's chromium is not installed ({CHROMIUM}): `make setup`"
+)
+def test_the_viewer_draws_both_fighters_and_steers_the_partner(viewer_url: str):
+    measured = drive_viewer(viewer_url, SCREENSHOT)
+    print(measured)  # shown with -s, or when it fails
+    assert measured["turn_s"] < TURN_WITHIN_S
