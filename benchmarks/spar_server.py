@@ -3,13 +3,14 @@
     python benchmarks/spar_server.py
 
 Starts a real `ringside spar-server` subprocess on a port the system picks (`--port 0`,
-`--max-sessions 8`) on an opponent folder made as the tests make theirs (tests/opponents.py:
+`--max-sessions 32`) on an opponent folder made as the tests make theirs (tests/opponents.py:
 an untrained policy exported as agent 1, standing in its guard; speed does not depend on how
-well it boxes). Then 1, 4 and 8 concurrent sessions, all in "commands" mode, each a WebSocket
-client in this process (one asyncio loop): every step a session sends a `command` (a slowly
-turning heading at 0.3 m/s, so the partner circles near the opponent) with a fresh `seq`, and
-takes each pose's round trip as the time from sending it to the arrival of the first `state`
-whose `ack` reaches that `seq` (examples/spar_client.py's `round_trips`). The sessions open together
+well it boxes). Then 1, 4, 8, 16 and 32 concurrent sessions, all in "commands" mode, each a
+WebSocket client in this process, on one asyncio loop (the clients take CPU from the server on
+this 2-core machine): every step a session sends a `command` (a slowly turning heading at
+0.3 m/s, so the partner circles near the opponent) with a fresh `seq`, and takes each pose's
+round trip as the time from sending it to the arrival of the first `state` whose `ack` reaches
+that `seq` (examples/spar_client.py's `round_trips`). The sessions open together
 and start sending once all have their welcome; each sends its command half a step after each
 of its states arrives (each session has its own 30 Hz clock on the server, which shifts when it
 lets a missed slot go), so that a command waits about half a step to be read rather than
@@ -32,11 +33,8 @@ import asyncio
 import json
 import math
 import os
-import re
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -52,7 +50,7 @@ sys.path.insert(0, str(REPO / "examples"))
 # As `ringside` sets it (flows/cli/environment.py).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from opponents import guard_opponents  # noqa: E402
+from opponents import guard_opponents, spar_server  # noqa: E402
 from spar_client import percentiles_ms, round_trips  # noqa: E402
 from websockets.asyncio.client import connect  # noqa: E402
 from websockets.exceptions import ConnectionClosed  # noqa: E402
@@ -60,40 +58,12 @@ from websockets.exceptions import ConnectionClosed  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 
-SESSIONS = (1, 4, 8)
+SESSIONS = (1, 4, 8, 16, 32)
 SECONDS = 10.0
 WARMUP_S = 1.0
 RATE_HZ = 30.0
 REAL_TIME_LATE_SHARE = 0.01
 SETTLE_S = 2.0
-RINGSIDE = Path(sys.executable).parent / "ringside"
-
-
-def start_server(opponent: Path) -> tuple[subprocess.Popen, str]:
-    """`ringside spar-server` on ``opponent``: the process and the URL it printed."""
-    process = subprocess.Popen(
-        [str(RINGSIDE), "spar-server", str(opponent), "--port", "0", "--max-sessions", "8"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    found = threading.Event()
-    url: list[str] = []
-    lines: list[str] = []
-
-    def read() -> None:
-        for line in process.stdout:
-            lines.append(line)
-            match = re.match(r"spar server: (ws://\S+)", line)
-            if match and not url:
-                url.append(match.group(1))
-                found.set()
-
-    threading.Thread(target=read, daemon=True).start()
-    if not found.wait(120):
-        process.kill()
-        raise SystemExit("the server printed no 'spar server: ws://' line:\n" + "".join(lines))
-    return process, url[0]
 
 
 async def session(url: str, number: int, ready: asyncio.Barrier) -> dict:
@@ -178,8 +148,8 @@ def main() -> None:
     rows = {}
     with tempfile.TemporaryDirectory(prefix="ringside-spar-server-") as tmp:
         _, opponent = guard_opponents(assets, Path(tmp))
-        process, url = start_server(opponent)
-        try:
+        most = str(max(SESSIONS))
+        with spar_server(opponent, Path(tmp) / "data", "--max-sessions", most) as (url, _, _):
             for count in SESSIONS:
                 # A session closed a moment ago still counts towards --max-sessions while the
                 # server tidies it away (8 opened at once right after 4 closed got a too_many).
@@ -195,12 +165,6 @@ def main() -> None:
                     "rate": min(r["states_per_s"] for r in results),
                     "opened": max(r["opened_s"] for r in results),
                 }
-        finally:
-            process.terminate()
-            try:
-                process.wait(10)
-            except subprocess.TimeoutExpired:
-                process.kill()
     print(
         f"ringside spar-server, commands mode at {RATE_HZ:.0f} Hz, {SECONDS:.0f} s measured per "
         f"session count after {WARMUP_S:.0f} s of warm-up, {os.cpu_count()} CPUs, loopback"
