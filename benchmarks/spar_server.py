@@ -22,8 +22,9 @@ opponent's policy and the physics, and any wait for one of the server's step thr
 loopback round trip p50/p99 (half a 30 Hz step, 17 ms, of it is the wait for the next step),
 states per second per session (the slowest session's), the share of late states (computed
 after their 30 Hz slot had passed), and the longest wait from hello to welcome (the bout's
-creation).
-Then how many sessions hold real time (late share under 1 %), and, last,
+creation). Then the states' mean size, a step's and its JSON encoding's time measured in this
+process, how many sessions hold real time (late share under
+1 %), and, last,
 ``spar_round_trip_p99_1_session: <ms> ms``.
 """
 
@@ -83,12 +84,18 @@ async def session(url: str, number: int, ready: asyncio.Barrier) -> dict:
 
         async def receive() -> None:  # from the welcome on: a client that stops reading is closed
             while True:
-                message = json.loads(await ws.recv())
+                text = await ws.recv()
+                message = json.loads(text)
                 if message.get("type") == "state":
                     arrived = time.perf_counter()
                     received.append((arrived, message.get("ack")))
                     states.append(
-                        {"arrived": arrived, "step_ms": message["step_ms"], "late": message["late"]}
+                        {
+                            "arrived": arrived,
+                            "step_ms": message["step_ms"],
+                            "late": message["late"],
+                            "bytes": len(text),
+                        }
                     )
                 elif message.get("type") == "error":
                     errors.append(message)
@@ -133,8 +140,30 @@ async def session(url: str, number: int, ready: asyncio.Barrier) -> dict:
         "step_ms": np.array([s["step_ms"] for s in kept]),
         "late": np.array([s["late"] for s in kept], dtype=bool),
         "states_per_s": len(kept) / SECONDS,
+        "bytes": np.array([s["bytes"] for s in kept]),
         "errors": errors,
     }
+
+
+def step_and_encoding_ms(opponent: Path, steps: int = 300) -> tuple[float, float, int]:
+    """In this process: a commands-mode step and its state's JSON encoding, mean milliseconds,
+    and the state's bytes (is JSON the limit?)."""
+    from flows.spar_server import state_message
+    from tasks.evaluate.live import LiveBout
+    from tasks.evaluate.opponent import load_opponent
+
+    with LiveBout(load_opponent(opponent), "commands") as bout:
+        bout.command(1.0, 0.5)
+        for _ in range(20):
+            bout.step()
+        begin = time.perf_counter()
+        for _ in range(steps):
+            step = bout.step()
+        stepped = time.perf_counter()
+        for _ in range(steps):
+            text = json.dumps(state_message(step, 1, False, 1.0))
+        encoded = time.perf_counter()
+    return (stepped - begin) / steps * 1e3, (encoded - stepped) / steps * 1e3, len(text)
 
 
 async def load(url: str, count: int) -> list[dict]:
@@ -146,8 +175,10 @@ def main() -> None:
     assets = data_paths().assets
     pull(assets, dev=True, log=lambda _line: None)
     rows = {}
+    sizes: list[int] = []
     with tempfile.TemporaryDirectory(prefix="ringside-spar-server-") as tmp:
         _, opponent = guard_opponents(assets, Path(tmp))
+        step_ms, encode_ms, size = step_and_encoding_ms(opponent)
         most = str(max(SESSIONS))
         with spar_server(opponent, Path(tmp) / "data", "--max-sessions", most) as (url, _, _):
             for count in SESSIONS:
@@ -165,6 +196,7 @@ def main() -> None:
                     "rate": min(r["states_per_s"] for r in results),
                     "opened": max(r["opened_s"] for r in results),
                 }
+                sizes.extend(b for r in results for b in r["bytes"])
     print(
         f"ringside spar-server, commands mode at {RATE_HZ:.0f} Hz, {SECONDS:.0f} s measured per "
         f"session count after {WARMUP_S:.0f} s of warm-up, {os.cpu_count()} CPUs, loopback"
@@ -179,6 +211,11 @@ def main() -> None:
             f"{row['trip']['p50']:11.2f} ms  {row['trip']['p99']:11.2f} ms  "
             f"{row['rate']:14.1f}  {row['late']:5.1%}  {row['opened']:11.2f} s"
         )
+    print(f"a state message: {np.mean(sizes) / 1024:.1f} KiB of JSON on average")
+    print(
+        f"in one process: a step {step_ms:.2f} ms, its state encoded as JSON {encode_ms:.2f} ms "
+        f"({size / 1024:.1f} KiB)"
+    )
     holding = [c for c, row in rows.items() if row["late"] < REAL_TIME_LATE_SHARE]
     most = max(holding, default=0)
     print(

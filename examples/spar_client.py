@@ -160,6 +160,13 @@ def facing_summary(
     }
 
 
+def moved_through(angles: np.ndarray, restarted: np.ndarray) -> float:
+    """How far an angle (T,) went round in all, radians, leaving out each step that follows a
+    restart (``restarted`` (T,): the state after which the opponent was put back)."""
+    steps = wrap_angle(np.diff(np.asarray(angles, dtype=np.float64)))
+    return float(np.sum(steps[~np.asarray(restarted, dtype=bool)[:-1]]))
+
+
 def round_trips(
     sent: Mapping[int, float], received: Sequence[tuple[float, int | None]]
 ) -> np.ndarray:
@@ -384,6 +391,10 @@ def summary(
     heading = np.array([o["heading"] for o in opp])
     errors = facing_errors(opponent_xy, heading, partner_xy)
     still = facing_errors(opponent_xy, np.full(len(heading), heading[:1].mean()), partner_xy)
+    towards = partner_xy - opponent_xy
+    restarted = np.array([bool(s.get("reset")) for s in states])
+    bearing = moved_through(np.arctan2(towards[:, 1], towards[:, 0]), restarted)
+    turned = moved_through(heading, restarted)
     received = [(a, s.get("ack")) for a, s in zip(recording.arrived, states, strict=True)]
     step_ms = np.array([s.get("step_ms", np.nan) for s in states], dtype=np.float64) / 1e3
     return {
@@ -404,11 +415,18 @@ def summary(
         else None,
         "falls": {"opponent": opp[-1]["falls"], "partner": par[-1]["falls"]} if states else {},
         "resets": sum(bool(s.get("reset")) for s in states),
+        "contact_share": round(float(np.mean([bool(s.get("contacts")) for s in states])), 4)
+        if states
+        else None,
         "damage_n": {
             "opponent": round(sum(o.get("damage_n", 0.0) for o in opp), 2),
             "partner": round(sum(p.get("damage_n", 0.0) for p in par), 2),
         },
         "facing": facing_summary(t, errors, still),
+        # How far the bearing to the partner went round, and how far the opponent turned with
+        # it, leaving out the jumps of its restarts.
+        "bearing_moved_deg": round(float(np.degrees(bearing)), 1),
+        "opponent_turned_deg": round(float(np.degrees(turned)), 1),
         "orbit_deg_s": orbit_deg_s,
         "errors": recording.errors,
     }

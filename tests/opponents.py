@@ -31,8 +31,29 @@ from tasks.train.data import clip_demonstrations
 BONES = (BoneLengths(), BoneLengths().scaled(0.95))
 
 
+def untrained_opponents(
+    root: Path, bones: tuple[BoneLengths, BoneLengths], stance: np.ndarray, env: EnvConfig
+) -> tuple[Path, Path]:
+    """Agent 0 and agent 1 of one untrained policy whose mean is ``stance`` (2, 28), exported
+    under ``root`` for an arena of ``bones`` stepped as ``env``; returns the folders."""
+    config = TrainConfig(network=NetworkConfig(hidden="32,32"), env=env)
+    nets = make_networks(config, generator=torch.Generator().manual_seed(0), stance=stance)
+    facts = {"dataset_key": "none", "run_key": "untrained", "iteration": 0, "metrics": {}}
+    return tuple(
+        export_opponent(
+            root / f"agent{agent}",
+            policy=nets.policy.eval(),
+            agent=agent,
+            bones=bones,
+            env=config.env,
+            facts=facts,
+        )
+        for agent in (0, 1)
+    )
+
+
 def guard_opponents(assets: Path, root: Path) -> tuple[Path, Path]:
-    """Export agent 0 and agent 1 of one untrained policy under ``root``; returns the folders."""
+    """`untrained_opponents` in the guards of DeepMimic's punch as `BONES` perform it."""
     demos = clip_demonstrations(assets, "punch", BONES)
     stance = np.stack(
         [
@@ -40,20 +61,7 @@ def guard_opponents(assets: Path, root: Path) -> tuple[Path, Path]:
             for b, q in zip(BONES, (demos.reference.qpos0, demos.reference.qpos1), strict=True)
         ]
     )
-    config = TrainConfig(network=NetworkConfig(hidden="32,32"), env=EnvConfig(num_envs=32))
-    nets = make_networks(config, generator=torch.Generator().manual_seed(0), stance=stance)
-    facts = {"dataset_key": "clip:punch", "run_key": "untrained", "iteration": 0, "metrics": {}}
-    return tuple(
-        export_opponent(
-            root / f"agent{agent}",
-            policy=nets.policy.eval(),
-            agent=agent,
-            bones=BONES,
-            env=config.env,
-            facts=facts,
-        )
-        for agent in (0, 1)
-    )
+    return untrained_opponents(root, BONES, stance, EnvConfig(num_envs=32))
 
 
 REPO = Path(__file__).resolve().parent.parent
