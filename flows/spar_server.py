@@ -162,6 +162,8 @@ def welcome(bout: LiveBout, session: str) -> dict:
         "policy_hz": bout.config.policy_hz,
         "physics_hz": bout.config.policy_hz * bout.config.substeps,
         "max_turn_rate": MAX_TURN_RATE,
+        # The policy driving the partner's limbs in commands mode (None: it holds its guard).
+        "partner_policy": None if bout.partner is None else str(bout.partner.folder),
         "bodies": list(BODY_NAMES),
         "parents": list(PARENTS),
         "fighters": [
@@ -219,11 +221,11 @@ def _timed_step(bout: LiveBout) -> tuple[LiveStep, float]:
     return step, (time.perf_counter() - begin) * 1000.0
 
 
-def warm_up(opponent: Opponent) -> None:
+def warm_up(opponent: Opponent, partner: Opponent | None = None) -> None:
     """A few steps of a throwaway bout: the first steps after a start (onnxruntime's first
     runs, MuJoCo's first model) take 45-90 ms, which would make a first client's states late."""
     for mode in MODES:
-        with LiveBout(opponent, mode) as bout:
+        with LiveBout(opponent, mode, partner=partner) as bout:
             for _ in range(5):
                 bout.step()
 
@@ -241,10 +243,12 @@ class SparServer:
         *,
         assets: Path,
         token: str | None,
+        partner: Opponent | None = None,
         max_sessions: int = 8,
         threads: int = 2,
     ):
         self.opponent = opponent
+        self.partner = partner
         self.assets = assets
         self.token = token
         self.max_sessions = max_sessions
@@ -330,7 +334,7 @@ class SparServer:
             )
             return
         bout = await loop.run_in_executor(
-            self.pool, lambda: LiveBout(self.opponent, hello.mode, hello.bones)
+            self.pool, lambda: LiveBout(self.opponent, hello.mode, hello.bones, self.partner)
         )
         session = uuid.uuid4().hex[:12]
         outbox: asyncio.Queue[str] = asyncio.Queue(maxsize=round(QUEUE_S * bout.config.policy_hz))

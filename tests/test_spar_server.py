@@ -358,3 +358,33 @@ def test_a_bad_folder_is_one_line(capsys, tmp_path):
     code, _, err = run_cli(capsys, "spar-server", str(tmp_path / "nowhere"))
     assert code == 2 and "no such opponent folder" in err and err.count("\n") == 1
     assert Path(tmp_path).exists()
+
+
+def test_a_partner_policy_drives_the_partners_limbs_while_the_commands_steer_it(folders, tmp_path):
+    """`--partner FOLDER`: in commands mode the partner's hinges move under its policy through
+    the actuators (without it they hold the guard exactly), and it still turns on command."""
+
+    async def session(url: str) -> tuple[dict, float | None, np.ndarray]:
+        ws, welcome = await _open(url)
+        async with ws:
+            first = await _next(ws)
+            target = first["fighters"][1]["heading"] - math.pi / 2
+            await ws.send(json.dumps({"type": "command", "heading": target, "speed": 0.5}))
+            start, turned, hinges = time.monotonic(), None, []
+            while time.monotonic() - start < 1.5:
+                state = await _next(ws)
+                partner = state["fighters"][1]
+                hinges.append(partner["qpos"][7:])
+                off = abs((partner["heading"] - target + math.pi) % (2 * math.pi) - math.pi)
+                if off < 0.02 and turned is None:
+                    turned = time.monotonic() - start
+            return welcome, turned, np.array(hinges)
+
+    with spar_server(folders[0], tmp_path / "data", "--partner", str(folders[1])) as (url, _, _):
+        welcome, turned, hinges = asyncio.run(session(url))
+    assert welcome["partner_policy"] == str(folders[1])
+    assert turned is not None and turned < 1.0
+    assert hinges.std(axis=0).max() > 1e-3
+    with spar_server(folders[0], tmp_path / "guard") as (url, _, _):
+        welcome, _, hinges = asyncio.run(session(url))
+    assert welcome["partner_policy"] is None and np.ptp(hinges, axis=0).max() == 0.0

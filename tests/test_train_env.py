@@ -506,3 +506,21 @@ def test_a_puppet_follows_its_poses_and_pushes_the_other_fighter(punch):
         rollout.step(actions, Puppet(1, pose[None]))
     env.close()
     rollout.close()
+
+
+def test_a_puppet_by_the_root_moves_its_pelvis_and_leaves_its_limbs_to_its_actions(punch):
+    env = _env(num_envs=1, stepping="threads")
+    env.reset([0], punch, frames=[0])
+    partner = env.index.agents[1]
+    pose = env.datas[0].qpos[partner.qpos].copy()
+    bent = pose.copy()
+    bent[7:] += 0.5  # hinges a puppet by the root must not take
+    actions = np.zeros((1, 2, len(HINGE_NAMES)))
+    for _ in range(10):
+        pose[1] += 0.01
+        bent[1] = pose[1]
+        env.step(actions, Puppet(1, bent[None], root_only=True))
+    now = env.datas[0].qpos[partner.qpos]
+    assert np.allclose(now[:7], bent[:7], atol=1e-12)
+    assert np.abs(now[7:] - bent[7:]).mean() > 0.3  # nowhere near the bent hinges
+    env.close()

@@ -173,6 +173,14 @@ def build_parser() -> argparse.ArgumentParser:
         "one printed at start on any other address)",
     )
     live.add_argument(
+        "--partner",
+        type=Path,
+        metavar="FOLDER",
+        help="an opponent folder whose policy drives the partner's limbs in commands mode (e.g. "
+        "`ringside export --agent opponent`; its pelvis is still steered by the commands); "
+        "default: the partner holds its guard",
+    )
+    live.add_argument(
         "--max-sessions", type=int, default=8, metavar="N", help="concurrent sessions (8)"
     )
 

@@ -254,8 +254,11 @@ def spar_server_command(args, paths: DataPaths) -> int:
     if token is None and needs_token(args.host):
         token = secrets.token_urlsafe(16)
     opponent = load_opponent(args.opponent)
-    warm_up(opponent)
-    server = SparServer(opponent, assets=paths.assets, token=token, max_sessions=args.max_sessions)
+    partner = None if args.partner is None else load_opponent(args.partner)
+    warm_up(opponent, partner)
+    server = SparServer(
+        opponent, assets=paths.assets, token=token, partner=partner, max_sessions=args.max_sessions
+    )
 
     def ready(port: int) -> None:
         query = f"?token={token}" if token else ""

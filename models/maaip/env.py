@@ -60,7 +60,8 @@ A puppet (`Puppet`, for live sparring): one agent moved through given poses inst
 actuators. Before every substep its qpos and qvel are set on the path from where it is to the
 step's pose at constant velocity (`mj_differentiatePos`, `mj_integratePos`), and after the last
 it is exactly at that pose; the solver still computes its contacts, so the other fighter is
-pushed and struck by it, and damage and falls are read as for any agent. Only "threads"
+pushed and struck by it, and damage and falls are read as for any agent. A puppet by the root
+only has its pelvis moved so, and its limbs driven by its actions as usual. Only "threads"
 stepping takes one ("rollout" steps in C without a hook between substeps).
 
 Shape letters: N environments, M reference frames, 2 agents.
@@ -150,10 +151,13 @@ class Puppet:
     Attributes:
         agent: which agent (0 or 1).
         qpos: (N, 35) its pose at the end of the step, per environment (a jump is `place`'s).
+        root_only: move only its pelvis (the free joint) so; its hinges follow its actions
+            through the actuators, as any agent's do.
     """
 
     agent: int
     qpos: np.ndarray
+    root_only: bool = False
 
 
 def joint_targets(actions: np.ndarray, ctrlrange: np.ndarray) -> np.ndarray:
@@ -648,18 +652,22 @@ class ArenaEnv:
         if qpos.shape != (self.num_envs, NQ) or not np.isfinite(qpos).all():
             raise ValueError(f"puppet.qpos must be finite with shape ({self.num_envs}, {NQ})")
         agent = self.index.agents[puppet.agent]
+        moved_qpos, moved_qvel = agent.qpos, agent.qvel
+        if puppet.root_only:
+            moved_qpos = slice(agent.qpos_start, agent.qpos_start + 7)
+            moved_qvel = slice(agent.qvel_start, agent.qvel_start + 6)
         starts = np.empty((self.num_envs, self.model.nq))
         velocities = np.zeros((self.num_envs, self.model.nv))
         step_s = self.config.timestep * self.config.substeps
         for i, data in enumerate(self.datas):
             starts[i] = data.qpos
             end = data.qpos.copy()
-            end[agent.qpos] = qpos[i]
+            end[moved_qpos] = qpos[i][: moved_qpos.stop - moved_qpos.start]
             mujoco.mj_differentiatePos(self.model, velocities[i], step_s, starts[i], end)
         mine = np.zeros(self.model.nv, dtype=bool)
-        mine[agent.qvel] = True
+        mine[moved_qvel] = True
         velocities[:, ~mine] = 0.0
-        return agent.qpos, agent.qvel, starts, velocities
+        return moved_qpos, moved_qvel, starts, velocities
 
     def _advance(
         self,

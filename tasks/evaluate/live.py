@@ -3,9 +3,11 @@
 `LiveBout` is one arena of the opponent's training environment (as `tasks.evaluate.spar`), with
 the opponent driven by its ONNX policy and the partner a puppet (`models.maaip.env.Puppet`)
 moved by the client, two ways (docs/spar-protocol.md):
-- "commands": the partner holds its guard and its pelvis follows a heading and a speed; it
-  turns towards the heading at most `MAX_TURN_RATE` and glides at the speed, its height and
-  tilt as it started.
+- "commands": the partner's pelvis follows a heading and a speed: it turns towards the heading
+  at most `MAX_TURN_RATE` and glides at the speed, its height and tilt as it started. Its limbs
+  hold its guard, or, given a partner policy (another opponent folder, e.g. the run's other
+  fighter), are driven by that policy through the actuators as in training, with the commanded
+  heading as its task input where it was trained for MAAIP's heading task (§5.4).
 - "poses": the partner takes each pose (the humanoid's qpos) the client sends, moving to it over
   one step; a pose further than `TELEPORT_M` from the last is a jump, taken with zero velocity.
 
@@ -90,20 +92,32 @@ def wrap_angle(angle: float) -> float:
 class LiveBout:
     """One live arena; see the module docstring. Call `close` (or use `with`) when done."""
 
-    def __init__(self, opponent: Opponent, mode: str, partner_bones: BoneLengths | None = None):
+    def __init__(
+        self,
+        opponent: Opponent,
+        mode: str,
+        partner_bones: BoneLengths | None = None,
+        partner: Opponent | None = None,
+    ):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         self.opponent = opponent
         self.mode = mode
         self.slot = opponent.agent
         self.partner_slot = 1 - self.slot
+        # The partner's policy drives its limbs in commands mode only: poses set all of it.
+        self.partner = partner if mode == "commands" else None
         bones = list(opponent.bones)
+        guards = opponent.guard.copy()
+        if partner is not None:
+            bones[self.partner_slot] = partner.bones[partner.agent]
+            guards[self.partner_slot] = partner.guard[partner.agent]
         if partner_bones is not None:
             bones[self.partner_slot] = partner_bones
         self.bones = (bones[0], bones[1])
         self.config = env_config(opponent)
         self.env = ArenaEnv(self.config, np.random.default_rng(0), self.bones)
-        self.start = standing_start(self.env, opponent.guard)
+        self.start = standing_start(self.env, guards)
         model, index = self.env.model, self.env.index
         partner = index.agents[self.partner_slot]
         hinge_joints = [
@@ -247,8 +261,17 @@ class LiveBout:
             self._restart_opponent()
         actions = np.zeros((1, 2, NUM_ACTUATED))
         actions[0, self.slot] = self.opponent.act(self._obs[:, self.slot])[0]
-        result = self.env.step(actions, Puppet(self.partner_slot, target[None]))
-        self._partner = target
+        if self.partner is not None:
+            task = None
+            if self.partner.task_dim:
+                targets = np.full((1, 2), self._heading_target)
+                task = self.env.heading_inputs(targets)[:, self.partner_slot]
+            actions[0, self.partner_slot] = self.partner.act(self._obs[:, self.partner_slot], task)[
+                0
+            ]
+        puppet = Puppet(self.partner_slot, target[None], root_only=self.partner is not None)
+        result = self.env.step(actions, puppet)
+        self._partner = self._partner_qpos()
         self._obs = result.observation
         self.steps += 1
         fell = result.fell[0]
