@@ -8,7 +8,6 @@ one does is the evaluation's business."""
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 import signal
 import subprocess
@@ -21,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from flows.serve import stop_process
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.stance import guard_pose
 from models.maaip.config import EnvConfig, NetworkConfig, TrainConfig
@@ -101,13 +101,7 @@ def spar_server(
             time.sleep(0.2)
         yield Served(found[1], found[2], server)
     finally:
-        server.send_signal(signal.SIGTERM)
-        try:
-            server.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-            server.wait()
-            said = err.read_text()[-3000:]
-            raise AssertionError(f"spar-server did not stop on SIGTERM:\n{said}") from None
+        stop_process(server, timeout_s=15)
     said = err.read_text()
+    assert server.returncode != -signal.SIGKILL, f"it did not stop on SIGTERM:\n{said[-3000:]}"
     assert "Traceback" not in said, said[-3000:]
