@@ -3,6 +3,7 @@ what a command does about the flow runs a killed one left running."""
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,6 +81,9 @@ def reuse_or_run(paths: DataPaths, plan: StagePlan, force: bool) -> tuple[StageR
 
 
 def _compute(paths: DataPaths, plan: StagePlan) -> StageResult:
+    # The output's seconds are the stage's whole wall time: its `before` work too (the pose
+    # stage's chunks, most of its time), not only `compute`'s.
+    started = time.perf_counter()
     spec = plan.spec
     if plan.noted:
         # Seen by `ringside status` and the dashboard while the stage computes.
@@ -87,7 +91,7 @@ def _compute(paths: DataPaths, plan: StagePlan) -> StageResult:
             record_run(con, current_run_id(), spec.video_id, spec.stage, spec.key, "running")
     try:
         plan.before()
-        return run_stage_task(paths.db, spec, plan.compute)
+        return run_stage_task(paths.db, spec, plan.compute, started)
     except BadInput as error:
         if plan.noted:
             with connect(paths.db) as con:

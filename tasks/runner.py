@@ -99,15 +99,23 @@ class StagePlan:
 
 
 def run_stage(
-    db: Path, spec: StageSpec, compute: Callable[[], StageOutput], run_id: str
+    db: Path,
+    spec: StageSpec,
+    compute: Callable[[], StageOutput],
+    run_id: str,
+    started: float | None = None,
 ) -> StageResult:
     """Compute ``spec``'s output with ``compute`` and commit it (whether one is committed
     already is the caller's question: `flows.runs.reuse_or_run`).
 
+    The output's ``seconds`` are its wall time from ``started`` (a `time.perf_counter` reading
+    taken when the stage began, before its plan's ``before``: the pose stage tracks its chunks
+    there) to the commit; from the start of ``compute`` when not given.
+
     The database is opened only to write, never while the computation runs, so other processes
     can use it meanwhile.
     """
-    start = time.perf_counter()
+    start = time.perf_counter() if started is None else started
     output = compute()
     seconds = time.perf_counter() - start
     key = spec.key

@@ -13,12 +13,21 @@ from tasks.runner import StageOutput, StageResult, StageSpec, run_stage
 
 
 @task(name="stage", cache_policy=NO_CACHE)
-def _stage_task(db: Path, spec: StageSpec, compute: Callable[[], StageOutput]) -> StageResult:
-    return run_stage(db, spec, compute, str(flow_run.id))
+def _stage_task(
+    db: Path, spec: StageSpec, compute: Callable[[], StageOutput], started: float | None
+) -> StageResult:
+    return run_stage(db, spec, compute, str(flow_run.id), started)
 
 
-def run_stage_task(db: Path, spec: StageSpec, compute: Callable[[], StageOutput]) -> StageResult:
-    """Compute and commit ``spec``'s output as a Prefect task run named for its stage.
+def run_stage_task(
+    db: Path,
+    spec: StageSpec,
+    compute: Callable[[], StageOutput],
+    started: float | None = None,
+) -> StageResult:
+    """Compute and commit ``spec``'s output as a Prefect task run named for its stage; its
+    seconds count from ``started`` (a `time.perf_counter` reading in this process), so they
+    hold what the flow did for the stage before this task (`tasks.runner.run_stage`).
 
     Without Prefect's cache: whether a stage's output exists is asked of the database, the
     source of truth, once, before this is called (`flows.runs.reuse_or_run`). A Prefect cache
@@ -26,4 +35,4 @@ def run_stage_task(db: Path, spec: StageSpec, compute: Callable[[], StageOutput]
     database had lost the output); only the pose chunks keep one, where it pays.
     """
     named = _stage_task.with_options(name=spec.stage, task_run_name=spec.run_name)
-    return named(db, spec, compute)
+    return named(db, spec, compute, started)
