@@ -115,6 +115,29 @@ def _segment(track: FighterTrack, start: int, end: int, min_frames: int) -> tupl
     return start + int(seen[0]), start + int(seen[-1]) + 1
 
 
+# The least height in pixels (top to bottom of a fighter's keypoints, median over the frames
+# the pose stage saw them) at which people were lifted. Measured on the bundled sample (two people
+# walking, 1088x1920, ~820 px tall) shrunk by 0.10-0.30 onto a grey canvas of its own size and
+# run with `ringside process --until lift`: people a median 90 and 110 px tall were seen but
+# not lifted (each shot left out: their sizes are too noisy to place them, which put the
+# fighters 10-15 m apart); 128, 135, 178 and 263 px were lifted. Below about 90 px (shrunk by
+# 0.09 or less) the person detector finds nobody, and the pose stage refuses the video.
+MIN_PERSON_PX = 125
+
+
+def median_height_px(fighters: Mapping[str, FighterTrack]) -> float | None:
+    """The fighters' median height in the image, pixels: top to bottom of their keypoints on
+    each frame the pose stage saw them; None if it saw neither."""
+    heights = []
+    for track in fighters.values():
+        seen = np.isfinite(track.world).all(axis=(1, 2))
+        y = track.keypoints[seen][..., 1]
+        y = y[np.isfinite(y).any(axis=1)]
+        heights.append(np.nanmax(y, axis=1) - np.nanmin(y, axis=1))
+    found = np.concatenate(heights) if heights else np.zeros(0)
+    return float(np.median(found)) if len(found) else None
+
+
 def _intrinsics(
     config: LiftStageConfig, size: tuple[int, int], calibration: Path | None
 ) -> tuple[np.ndarray, np.ndarray, str]:
@@ -244,7 +267,9 @@ def lift_video(
 
     ``fighters`` maps role to its 2D input; ``shots`` are (shot, start, end) frame ranges.
     ``progress(frames)`` is told each shot's frames once the shot is done.
-    Raises :class:`BadInput` when no fighter is seen long enough in any shot.
+    Raises :class:`BadInput` when no shot is lifted: when a fighter was seen long enough but
+    the fighters are smaller than people are lifted (`MIN_PERSON_PX`), saying so with their
+    median height; else that no fighter is seen long enough in any shot.
     """
     advance = progress or (lambda frames: None)
     frames = next(iter(fighters.values())).keypoints.shape[0]
@@ -366,6 +391,16 @@ def lift_video(
             )
     advance(finished)
     if not camera_rows:
+        # Seen long enough (fighter_frames), yet no shot lifted: their size may be why.
+        tall = median_height_px(fighters) if fighter_frames else None
+        if tall is not None and tall < MIN_PERSON_PX:
+            left_out = f" ({'; '.join(notes)})" if notes else ""
+            raise BadInput(
+                STAGE,
+                f"the people found are a median {tall:.0f} px tall, too small to lift: "
+                f"on the bundled sample, people under about {MIN_PERSON_PX} px were not "
+                f"lifted{left_out}",
+            )
         raise BadInput(
             STAGE,
             f"no fighter is seen in {config.min_frames} frames of any shot "
