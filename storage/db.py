@@ -110,19 +110,40 @@ def migrate(con: duckdb.DuckDBPyConnection) -> list[int]:
     return done
 
 
+def _migrated(con: duckdb.DuckDBPyConnection) -> bool:
+    """Whether every migration this Ringside ships is applied to ``con``'s database."""
+    try:
+        (newest,) = con.execute("SELECT max(version) FROM schema_migrations").fetchone()
+    except duckdb.CatalogException:
+        return False
+    return newest is not None and newest >= migrations()[-1][0]
+
+
 @contextmanager
 def connect(
     path: Path, *, read_only: bool = False, wait_s: float = LOCK_WAIT_S
 ) -> Iterator[duckdb.DuckDBPyConnection]:
     """A connection to the database at ``path``, migrated when writable, closed on exit.
 
-    A read-only connection to a file that does not exist yet raises ``FileNotFoundError``.
+    A read-only connection to a file that does not exist yet raises ``FileNotFoundError``. One
+    to a file whose schema is behind this Ringside's (a process killed while it created the
+    file, between DuckDB's first write and the migrations' commit; or a file of an older
+    version) has it migrated first, through a writable connection, so that readers never meet
+    a table that is not there yet.
     """
     if read_only and not path.exists():
         raise FileNotFoundError(f"{path}: no database yet (process a video first)")
     path.parent.mkdir(parents=True, exist_ok=True)
     with _PROCESS_LOCK:
         con = _open(path, read_only=read_only, wait_s=wait_s)
+        if read_only and not _migrated(con):
+            con.close()
+            migrating = _open(path, read_only=False, wait_s=wait_s)
+            try:
+                migrate(migrating)
+            finally:
+                migrating.close()
+            con = _open(path, read_only=True, wait_s=wait_s)
         try:
             if not read_only:
                 migrate(con)
