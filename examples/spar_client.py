@@ -52,7 +52,7 @@ from websockets.exceptions import ConnectionClosed
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.bvh import bvh_text, read_bvh
-from models.humanoid.kinematics import ROOT_QUAT, heading_yaw
+from models.humanoid.kinematics import ROOT_QUAT, heading_yaw, wrap_angle
 
 DEFAULT_URL = "ws://127.0.0.1:8765/spar"
 PROTOCOL = 1
@@ -62,11 +62,6 @@ TAIL_S = 2.0
 # --------------------------------------------------------------------------
 # Pure parts
 # --------------------------------------------------------------------------
-
-
-def wrap_angle(angle: np.ndarray) -> np.ndarray:
-    """Angles (radians) into [-pi, pi)."""
-    return (np.asarray(angle, dtype=np.float64) + np.pi) % (2 * np.pi) - np.pi
 
 
 def place_motion(

@@ -56,6 +56,7 @@ from models.humanoid.kinematics import (
     matrix_to_quat,
     qpos_from_body_rotations,
     quat_to_matrix,
+    wrap_angle,
 )
 from tasks.errors import BadInput
 
@@ -295,10 +296,6 @@ def foot_box_corners(model: mujoco.MjModel, qpos: np.ndarray, *, prefix: str = "
     return out
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    return (angle + np.pi) % (2 * np.pi) - np.pi
-
-
 def _clip_circular(angle: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Angles outside [lo, hi] moved to the limit nearest round the circle.
 
@@ -306,8 +303,8 @@ def _clip_circular(angle: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndar
     from -180, not 110 from 60, and clipping to 60 would swing the arm to the other side.
     """
     inside = (angle >= lo) & (angle <= hi)
-    to_lo = np.abs(_wrap(angle - lo))
-    to_hi = np.abs(_wrap(angle - hi))
+    to_lo = np.abs(wrap_angle(angle - lo))
+    to_hi = np.abs(wrap_angle(angle - hi))
     return np.where(inside, angle, np.where(to_lo < to_hi, lo, hi))
 
 
@@ -340,7 +337,7 @@ def _limited_qpos(root_pos: np.ndarray, body_rot: np.ndarray) -> np.ndarray:
         else:
             quat = matrix_to_quat(local)
             axis = np.asarray(joint.axes[0])
-            twist = _wrap(2 * np.arctan2(quat[:, 1:] @ axis, quat[:, 0]))  # nearest about axis
+            twist = wrap_angle(2 * np.arctan2(quat[:, 1:] @ axis, quat[:, 0]))  # nearest about axis
             angles = _clip_circular(twist, lo, hi)[:, None]
             rotation = axis_angle_matrix(axis, angles[:, 0])
         qpos[:, joint.qpos] = angles

@@ -42,6 +42,7 @@ from models.humanoid.kinematics import (
     Y_UP_TO_Z_UP,
     joint_local_rotations,
     qpos_from_body_rotations,
+    wrap_angle,
 )
 
 CENTIMETRES = 100.0
@@ -269,7 +270,7 @@ def _wrap_into_ranges(hinges: np.ndarray) -> np.ndarray:
     centre (`JOINT_RANGES_DEG`): every angle within its range is then itself (no range is wider
     than a turn), e.g. a shoulder flexed to -179 deg is not read as +181."""
     centre = np.deg2rad([(lo + hi) / 2 for lo, hi in JOINT_RANGES_DEG.values()])
-    return centre + (hinges - centre + np.pi) % (2 * np.pi) - np.pi
+    return centre + wrap_angle(hinges - centre)
 
 
 def qpos_from_channels(values: np.ndarray) -> np.ndarray:

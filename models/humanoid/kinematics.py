@@ -454,6 +454,11 @@ def tangent_normal_to_matrix(tan_norm: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------
 
 
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
+    """Angles (radians) into [-pi, pi)."""
+    return (np.asarray(angle, dtype=np.float64) + np.pi) % (2 * np.pi) - np.pi
+
+
 def heading_yaw(root_quat: np.ndarray) -> np.ndarray:
     """Yaw (radians, about +z) of the root's facing direction, its x axis on the floor.
 
@@ -651,7 +656,7 @@ def qpos_from_body_rotations(root_pos: np.ndarray, body_rot: np.ndarray) -> np.n
             quat = matrix_to_quat(local)
             along = quat[..., 1:] @ np.asarray(joint.axes[0])
             angle = 2 * np.arctan2(along, quat[..., 0])
-            qpos[..., joint.qpos_start] = (angle + np.pi) % (2 * np.pi) - np.pi
+            qpos[..., joint.qpos_start] = wrap_angle(angle)
     return qpos
 
 

@@ -32,7 +32,7 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from models.humanoid.boxer import BoneLengths
+from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths
 from models.humanoid.kinematics import (
     BODY_NAMES,
     NQ,
@@ -40,6 +40,7 @@ from models.humanoid.kinematics import (
     ROOT_POS,
     ROOT_QUAT,
     heading_yaw,
+    wrap_angle,
 )
 from models.maaip.env import ArenaEnv, Puppet
 from tasks.evaluate.opponent import Opponent
@@ -56,6 +57,10 @@ _HINGES = slice(7, NQ)
 
 class BadPose(ValueError):
     """A pose or command the bout refuses; the message says what is wrong, in one line."""
+
+
+class WrongMode(BadPose):
+    """A command in poses mode, or a pose in commands mode."""
 
 
 @dataclass(frozen=True)
@@ -82,11 +87,6 @@ class LiveStep:
     fighters: tuple[Fighter, Fighter]
     contacts: tuple[tuple[str, str, float], ...]  # (opponent's body, partner's body, newtons)
     reset: bool
-
-
-def wrap_angle(angle: float) -> float:
-    """The angle in [-pi, pi)."""
-    return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
 class LiveBout:
@@ -119,14 +119,8 @@ class LiveBout:
         self.env = ArenaEnv(self.config, np.random.default_rng(0), self.bones)
         self.start = standing_start(self.env, guards)
         model, index = self.env.model, self.env.index
-        partner = index.agents[self.partner_slot]
-        hinge_joints = [
-            j
-            for j in range(model.njnt)
-            if partner.qpos_start + 7 <= model.jnt_qposadr[j] < partner.qpos_start + NQ
-        ]
-        self.hinge_range = model.jnt_range[hinge_joints]  # (28, 2)
-        # Contacts are named by body: which fighter and which of its 15 bodies owns each geom.
+        self.hinge_range = np.radians(np.array(list(JOINT_RANGES_DEG.values())))  # (28, 2)
+        # Contacts and shapes name their body: which of its fighter's 15 bodies owns each geom.
         self._body_of_geom = np.full(model.ngeom, -1)
         for agent in index.agents:
             for k, body in enumerate(agent.body_ids):
@@ -149,18 +143,18 @@ class LiveBout:
     def command(self, heading: float, speed: float) -> None:
         """Steer the partner (commands mode): a world yaw and a speed in m/s."""
         if self.mode != "commands":
-            raise BadPose("a command in poses mode (send poses)")
+            raise WrongMode("a command in poses mode (send poses)")
         if not math.isfinite(heading):
             raise BadPose(f"heading must be a finite number, got {heading!r}")
         if not (math.isfinite(speed) and 0.0 <= speed <= MAX_SPEED):
             raise BadPose(f"speed must be in [0, {MAX_SPEED}] m/s, got {speed!r}")
-        self._heading_target = wrap_angle(float(heading))
+        self._heading_target = float(wrap_angle(heading))
         self._speed = float(speed)
 
     def pose(self, qpos: np.ndarray) -> None:
         """The partner's next pose (poses mode): its (35,) qpos, checked."""
         if self.mode != "poses":
-            raise BadPose("a pose in commands mode (send commands)")
+            raise WrongMode("a pose in commands mode (send commands)")
         self._target = self.check_pose(qpos)
 
     def check_pose(self, qpos) -> np.ndarray:
@@ -236,7 +230,7 @@ class LiveBout:
         """The partner's next pose in commands mode."""
         turn = wrap_angle(self._heading_target - self._yaw)
         limit = MAX_TURN_RATE * dt
-        self._yaw = wrap_angle(self._yaw + float(np.clip(turn, -limit, limit)))
+        self._yaw = float(wrap_angle(self._yaw + np.clip(turn, -limit, limit)))
         q = self._partner.copy()
         q[0] += self._speed * dt * math.cos(self._yaw)
         q[1] += self._speed * dt * math.sin(self._yaw)
@@ -322,7 +316,6 @@ class LiveBout:
     def geoms(self, slot: int) -> list[dict]:
         """A fighter's collision shapes, for drawing it (docs/spar-protocol.md, welcome)."""
         model = self.env.model
-        agent = self.env.index.agents[slot]
         shapes = {
             mujoco.mjtGeom.mjGEOM_SPHERE: "sphere",
             mujoco.mjtGeom.mjGEOM_CAPSULE: "capsule",
@@ -336,7 +329,7 @@ class LiveBout:
             sizes = {"sphere": 1, "capsule": 2, "box": 3}[shape]
             out.append(
                 {
-                    "body": int(np.flatnonzero(agent.body_ids == model.geom_bodyid[g])[0]),
+                    "body": int(self._body_of_geom[g]),
                     "shape": shape,
                     "size": [round(float(v), 5) for v in model.geom_size[g][:sizes]],
                     "pos": [round(float(v), 5) for v in model.geom_pos[g]],
