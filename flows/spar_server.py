@@ -5,7 +5,8 @@ The protocol is docs/spar-protocol.md. Built on the `websockets` library's async
 small thread pool (onnxruntime and MuJoCo's mj_step release the GIL), so a session that
 misbehaves or a client that stops reading holds up no other. Each session keeps its own 30 Hz
 clock and never waits for its client: input is taken when it comes, the latest wins, and states
-go out through a queue of one second; a client that lets it fill is closed (`not_reading`).
+go out through a queue of one second; a client that lets it fill is dropped (its socket is full:
+no error frame could reach it).
 The same port serves the viewer (flows/spar_viewer/) and three.js from the data directory's
 assets (`ringside assets pull`), never from a CDN.
 """
@@ -33,7 +34,7 @@ from websockets.http11 import Request, Response
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import BODY_NAMES, PARENTS
-from tasks.evaluate.live import MAX_TURN_RATE, MODES, BadPose, LiveBout, LiveStep
+from tasks.evaluate.live import MAX_TURN_RATE, MODES, BadPose, LiveBout, LiveStep, WrongMode
 from tasks.evaluate.opponent import Opponent
 
 PROTOCOL = 1
@@ -144,11 +145,10 @@ def apply_message(bout: LiveBout, text: str | bytes) -> int | None:
             raise EOFError
         else:
             raise ProtocolError("bad_message", f"unknown message type {kind!r:.40}")
+    except WrongMode as error:
+        raise ProtocolError("bad_message", str(error)) from None
     except BadPose as error:
-        text = str(error)
-        if "mode" in text:
-            raise ProtocolError("bad_message", text) from None
-        raise ProtocolError("bad_pose" if kind == "pose" else "bad_command", text) from None
+        raise ProtocolError("bad_pose" if kind == "pose" else "bad_command", str(error)) from None
     return seq
 
 
