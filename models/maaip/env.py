@@ -303,7 +303,7 @@ def _read_contacts(
                 floor[a] = True
 
 
-def _place(
+def _move_puppet(
     model: mujoco.MjModel,
     data: mujoco.MjData,
     paths: tuple[slice, slice, np.ndarray, np.ndarray],
@@ -693,12 +693,12 @@ class ArenaEnv:
                 data.ctrl[:] = ctrl[i]
                 for k in range(substeps):
                     if paths is not None:
-                        _place(model, data, paths, i, k * model.opt.timestep)
+                        _move_puppet(model, data, paths, i, k * model.opt.timestep)
                     mujoco.mj_step(model, data)
                     if contacts:
                         _read_contacts(model, data, tables, damage[i], floor[i], force)
                 if paths is not None:
-                    _place(model, data, paths, i, substeps * model.opt.timestep)
+                    _move_puppet(model, data, paths, i, substeps * model.opt.timestep)
             if contacts:
                 # In the worker, so that this work overlaps with the other workers' mj_step
                 # (which runs without the GIL); after the chunk's physics, which then runs back
