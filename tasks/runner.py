@@ -103,21 +103,20 @@ def run_stage(
     spec: StageSpec,
     compute: Callable[[], StageOutput],
     run_id: str,
-    started: float | None = None,
+    started: float,
 ) -> StageResult:
     """Compute ``spec``'s output with ``compute`` and commit it (whether one is committed
     already is the caller's question: `flows.runs.reuse_or_run`).
 
     The output's ``seconds`` are its wall time from ``started`` (a `time.perf_counter` reading
     taken when the stage began, before its plan's ``before``: the pose stage tracks its chunks
-    there) to the commit; from the start of ``compute`` when not given.
+    there) to the commit.
 
     The database is opened only to write, never while the computation runs, so other processes
     can use it meanwhile.
     """
-    start = time.perf_counter() if started is None else started
     output = compute()
-    seconds = time.perf_counter() - start
+    seconds = time.perf_counter() - started
     key = spec.key
     record = OutputRecord(
         spec.stage, spec.video_id, key, spec.config, spec.code, spec.upstream, run_id, seconds

@@ -14,7 +14,7 @@ from tasks.runner import StageOutput, StageResult, StageSpec, run_stage
 
 @task(name="stage", cache_policy=NO_CACHE)
 def _stage_task(
-    db: Path, spec: StageSpec, compute: Callable[[], StageOutput], started: float | None
+    db: Path, spec: StageSpec, compute: Callable[[], StageOutput], started: float
 ) -> StageResult:
     return run_stage(db, spec, compute, str(flow_run.id), started)
 
@@ -23,7 +23,7 @@ def run_stage_task(
     db: Path,
     spec: StageSpec,
     compute: Callable[[], StageOutput],
-    started: float | None = None,
+    started: float,
 ) -> StageResult:
     """Compute and commit ``spec``'s output as a Prefect task run named for its stage; its
     seconds count from ``started`` (a `time.perf_counter` reading in this process), so they
