@@ -345,7 +345,7 @@ def test_without_a_token_another_address_gets_a_random_one_printed(folders, tmp_
 
 def test_the_serving_path_imports_no_torch():
     code = (
-        "import sys; import flows.spar_server, flows.cli.training; "
+        "import sys; import flows.spar_server, flows.cli.servers; "
         "assert 'torch' not in sys.modules, 'torch was imported'"
     )
     done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)

@@ -35,14 +35,19 @@ from flows.cli.pipeline import (
     status_command,
 )
 from flows.cli.postgres import postgres_command
-from flows.cli.servers import dashboard_command, schedule_command, serve_command, worker_command
+from flows.cli.servers import (
+    dashboard_command,
+    schedule_command,
+    serve_command,
+    spar_server_command,
+    worker_command,
+)
 from flows.cli.training import (
     curves_command,
     evaluate_command,
     export_command,
     export_motion_command,
     spar_command,
-    spar_server_command,
     train_command,
 )
 from flows.cli.upkeep import (

@@ -1,4 +1,5 @@
-"""Long-running commands: the dashboard, Prefect's server and workers, schedules."""
+"""Long-running commands: the dashboard, Prefect's server and workers, schedules, the live
+sparring server."""
 
 from __future__ import annotations
 
@@ -261,4 +262,46 @@ def schedule_command(args, paths: DataPaths) -> int:
     else:
         print(f"flow run {run_id} runs at {at:%Y-%m-%d %H:%M:%S %Z}")
         print(f"follow it at {url}")
+    return 0
+
+
+def spar_server_command(args, paths: DataPaths) -> int:
+    import asyncio
+    import secrets
+    import signal
+
+    from flows.spar_server import PATH, SparServer, needs_token, run_server, warm_up
+    from tasks.evaluate.opponent import load_opponent
+
+    if not 0 <= args.port < 65536:
+        raise ValueError(f"--port must be between 0 and 65535, got {args.port}")
+    if args.max_sessions < 1:
+        raise ValueError(f"--max-sessions must be at least 1, got {args.max_sessions}")
+    token = args.token
+    if token is None and needs_token(args.host):
+        token = secrets.token_urlsafe(16)
+    opponent = load_opponent(args.opponent)
+    partner = None if args.partner is None else load_opponent(args.partner)
+    warm_up(opponent, partner)
+    server = SparServer(
+        opponent, assets=paths.assets, token=token, partner=partner, max_sessions=args.max_sessions
+    )
+
+    def ready(port: int) -> None:
+        query = f"?token={token}" if token else ""
+        print(
+            f"spar server: ws://{args.host}:{port}{PATH}  viewer: http://{args.host}:{port}/"
+            f"{query}  (opponent {opponent.folder}; Ctrl-C stops it)",
+            flush=True,
+        )
+
+    async def serve() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(signum, stop.set)
+        await run_server(server, args.host, args.port, ready, stop)
+
+    asyncio.run(serve())
+    print("spar server stopped", file=sys.stderr)
     return 0
