@@ -19,7 +19,8 @@ The people's true statures are measured on the reference (`tasks.lift.camera.sta
 points whose views agree), and camera 1 is lifted again given both, then each alone
 (`lift.adversary_height_m`, `lift.opponent_height_m`): the camera's height, each lifted body's
 stature, PA-MPJPE and placement error are printed beside the default lift's, whose scale is
-BlazePose's average body.
+BlazePose's average body. Each person's lowest foot point over the calibration's floor is
+printed with the statures: the man stands on a platform.
 
 Why the heavy model for the reference: a reference triangulated from the lift's own detector
 inherits that detector's mistakes, and the full model puts the man's raised elbows and wrists
@@ -46,7 +47,13 @@ from benchmarks._common import FPS, FRAMES, lift_sample, sample_fighters  # noqa
 from models.pose.types import BLAZEPOSE_33  # noqa: E402
 from storage.assets import HEAVY_LANDMARKER, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
-from tasks.lift.camera import read_qca, stature, triangulate, write_calibration  # noqa: E402
+from tasks.lift.camera import (  # noqa: E402
+    FOOT_POINTS,
+    read_qca,
+    stature,
+    triangulate,
+    write_calibration,
+)
 from tasks.lift.config import LiftStageConfig  # noqa: E402
 from tasks.lift.metrics import HIPS, mpjpe_mm, pa_mpjpe_mm, procrustes_align  # noqa: E402
 
@@ -201,6 +208,11 @@ def main() -> None:
     print(
         "statures on the reference (views agreeing): "
         + ", ".join(f"{r} {statures[r]:.3f} m" for r in ROLES)
+        + "; lowest foot point over the calibration's floor, median per frame: "
+        + ", ".join(
+            f"{r} {np.nanmedian(np.min(reference[r][:, FOOT_POINTS, 2], axis=1)) * 100:+.1f} cm"
+            for r in ROLES
+        )
     )
     for name, (m_, R_, t_, camera_height) in {
         "no stature known": (motion, R_est, t_est, height),

@@ -81,7 +81,8 @@ def test_two_people_give_the_camera_height_and_their_distance():
         uv = project(world, K, R, t) + rng.normal(0, 1.0, (30, 33, 2))
         fighters.append((uv, np.ones((30, 33)), landmarks))
         truth_roots.append(hips)
-    camera, roots = ground_fighters(fighters, K, (1920, 1080))
+    camera, roots, scales = ground_fighters(fighters, K, (1920, 1080))
+    assert scales == [1.0, 1.0]
     assert camera.centre[2] == pytest.approx(2.5, abs=0.08)
     distance = np.linalg.norm(roots[0] - roots[1], axis=1)
     truth = np.linalg.norm(truth_roots[0] - truth_roots[1], axis=1)

@@ -9,7 +9,8 @@ translation that best reprojects it onto the 2D keypoints, which puts the feet i
 coordinates; a plane through the lowest foot points over time is the floor, and the floor gives
 the camera's height and pitch. Both fighters then share that world, at their metric distance.
 BlazePose's skeletons have an average body's size; a fighter's known stature rescales his, and
-with it the camera's height and the distances (`stature_scales`).
+the camera's height then comes from his ankles and ears (`camera_height`), every fighter
+standing on that floor (`ground_fighters`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.optimize import least_squares
 
 from models.pose.types import BLAZEPOSE_33
 from tasks.errors import BadInput
@@ -351,49 +353,120 @@ def _lowest_feet(world: np.ndarray, roots: np.ndarray, up: np.ndarray) -> np.nda
     return points[np.arange(len(points)), np.argmin(heights, axis=1)]
 
 
-def stature_scales(
+def camera_height(
     fighters: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
     K: np.ndarray,
-    statures: list[float | None],
-) -> list[float]:
-    """Per fighter, the factor that scales its metric skeleton to a known stature.
+    up: np.ndarray,
+    guess: float,
+) -> float | None:
+    """The camera's height (m) over the floor from fighters of known size, by single-view
+    metrology (Criminisi, Reid and Zisserman, 2000): a body standing on the floor with its
+    ankles on their camera ray has its ears on theirs only at one camera height.
 
-    BlazePose's world landmarks have an average body's size, and the camera's height and every
-    distance of the scene follow from them. A fighter of known stature (m) is scaled to it
-    (`stature`). A fighter of unknown stature beside a known one is scaled so that its feet
-    stand on the floor the known one's define: scaling a skeleton by s moves its placement
-    along the camera rays by s (`root_translations` is linear in both), so s is the camera's
-    height over the known floor divided by its height over the floor this fighter alone gives
-    (the known fighters' mean factor where that floor cannot be found). With no stature known,
-    every factor is 1.
+    Per frame, the fighter's lowest foot point is on the floor, its ankles' midpoint is on the
+    ray through their 2D midpoint at the height above its lowest foot that its skeleton gives,
+    and its ears' midpoint is that far above it along `up` that the skeleton's ankle-to-ear
+    height says: a posture, so the skeleton must be at the fighter's true size. The height is
+    the one whose ears reproject best (least squares in pixels, over all frames that see both
+    ankles and both ears with confidence over 0.5).
+
+    Only the upright part of the ankle-to-ear line is taken from the skeleton: on the sample
+    filmed by four calibrated cameras (benchmarks/lift_multiview.py) the whole 3D offset, lean
+    included, put the camera 3 cm lower with BlazePose's full model and 5 cm lower with its
+    heavy one, and placing the whole skeleton by all its joints (`root_translations`) put it 11
+    cm too high: BlazePose's proportions are an average body's, its posture is closer to true.
 
     fighters: per fighter (keypoints_2d (F, 33, 2), confidence (F, 33), world_landmarks
-    (F, 33, 3)), as `ground_fighters` takes them; statures: per fighter, metres or None.
+    (F, 33, 3) at its true size); up (3,) unit, camera coordinates; guess: a height (m) to start
+    from. None where no frame serves.
     """
+    rays, ears, above = [], [], []
+    inverse = np.linalg.inv(K)
+    for keypoints, confidence, world in fighters:
+        seen = (confidence[:, np.r_[ANKLES, EARS]] > 0.5).all(1)
+        seen &= np.isfinite(keypoints[:, np.r_[ANKLES, EARS]]).all((1, 2))
+        seen &= np.isfinite(world[:, np.r_[ANKLES, EARS]]).all((1, 2))
+        ankle_px = keypoints[seen][:, ANKLES].mean(1)
+        ray = np.c_[ankle_px, np.ones(len(ankle_px))] @ inverse.T
+        ankle = world[seen][:, ANKLES].mean(1)
+        feet = np.where(np.isfinite(world[seen][:, FOOT_POINTS]), world[seen][:, FOOT_POINTS], 0)
+        ankle_height = np.max((ankle[:, None] - feet) @ up, axis=1)
+        ear_height = (world[seen][:, EARS].mean(1) - ankle) @ up
+        downward = ray @ up < 0  # an ankle above the horizon cannot stand on a floor below
+        rays.append(ray[downward])
+        ears.append(keypoints[seen][downward][:, EARS].mean(1))
+        above.append(np.c_[ankle_height, ear_height][downward])
+    ray, ear, (ankle_height, ear_height) = (
+        np.concatenate(rays),
+        np.concatenate(ears),
+        np.concatenate(above).T,
+    )
+    if not len(ray):
+        return None
+
+    def misfit(height: np.ndarray) -> np.ndarray:
+        ankle = ((ankle_height - height[0]) / (ray @ up))[:, None] * ray
+        projected = (ankle + ear_height[:, None] * up) @ K.T
+        return (projected[:, :2] / projected[:, 2:] - ear).ravel()
+
+    # Below its ankles' height the camera would see them from under the floor.
+    lowest = float(ankle_height.max()) + 1e-3
+    return float(least_squares(misfit, [max(guess, 2 * lowest)], bounds=(lowest, np.inf)).x[0])
+
+
+def ground_fighters(
+    fighters: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    K: np.ndarray,
+    size: tuple[int, int],
+    statures: list[float | None] | None = None,
+) -> tuple[Camera, list[np.ndarray], list[float]]:
+    """One world for all fighters of a shot, from their own bodies.
+
+    Each frame's metric skeleton is placed by `root_translations`, which puts the feet in
+    camera coordinates. BlazePose's skeletons have an average body's size, and every distance
+    follows from it. With no stature known, the floor lies under the feet of all the fighters
+    (`fit_floor`), and the camera's height and pitch come from it.
+
+    A known stature (m) scales its fighter's skeleton to it (`stature`), and the camera's height
+    comes from those fighters (`camera_height`). Every fighter is then moved along the camera
+    rays until its feet stand on that floor: one of known stature keeps its size; one of
+    unknown stature is scaled with its distance (`root_translations` is linear in the
+    skeleton's size, so it comes out the size that stands it on the floor), or by the known
+    fighters' mean factor where its own feet are too few to find its floor.
+
+    fighters: per fighter (keypoints_2d (F, 33, 2), confidence (F, 33), world_landmarks
+    (F, 33, 3)); statures: per fighter, metres or None. Returns the camera, per fighter its hip
+    centre in the world per frame (F, 3), NaN where it could not be placed, and per fighter the
+    factor its skeleton was scaled by.
+    """
+    statures = statures or [None] * len(fighters)
     if len(statures) != len(fighters):
         raise ValueError(f"got {len(statures)} statures for {len(fighters)} fighters")
     scales = [
-        None if height is None else height / stature(world)
+        1.0 if height is None else height / stature(world)
         for (_, _, world), height in zip(fighters, statures, strict=True)
     ]
-    if all(s is None for s in scales) or None not in scales:
-        return [1.0 if s is None else s for s in scales]
+    fighters = [(k, c, w * s) for (k, c, w), s in zip(fighters, scales, strict=True)]
+    roots = [root_translations(k, c, w, K) for k, c, w in fighters]
     up = body_up(np.concatenate([w for _, _, w in fighters]))
-    feet = [_lowest_feet(w, root_translations(k, c, w, K), up) for k, c, w in fighters]
-    known = [s for s in scales if s is not None]
-    _, height = fit_floor(
-        np.concatenate([f * s for f, s in zip(feet, scales, strict=True) if s is not None]), up
-    )
-    out = []
-    for f, s in zip(feet, scales, strict=True):
-        if s is None:
+    feet = [_lowest_feet(w, r, up) for (_, _, w), r in zip(fighters, roots, strict=True)]
+    known = [i for i, height in enumerate(statures) if height is not None]
+    _, height = fit_floor(np.concatenate([feet[i] for i in known or range(len(feet))]), up)
+    if known:
+        height = camera_height([fighters[i] for i in known], K, up, height) or height
+        mean_known = float(np.mean([scales[i] for i in known]))
+        for i, placed in enumerate(feet):
             try:
-                own = fit_floor(f, up)[1]
+                own = fit_floor(placed, up)[1]
             except ValueError:  # too few placed feet
                 own = 0.0
-            s = height / own if own > 0 else float(np.mean(known))
-        out.append(s)
-    return out
+            factor = height / own if own > 0 else mean_known if statures[i] is None else 1.0
+            roots[i] = roots[i] * factor
+            if statures[i] is None:
+                scales[i] *= factor
+    R, t = world_from_floor(up, height)
+    camera = Camera(K, np.zeros(5), R, t, size)
+    return camera, [(r - t) @ R for r in roots], scales
 
 
 def stature_notes(known: dict[str, float | None], joints: dict[str, np.ndarray]) -> list[str]:
@@ -412,24 +485,6 @@ def stature_notes(known: dict[str, float | None], joints: dict[str, np.ndarray])
                 f"{stature(points):.2f} m tall"
             )
     return notes
-
-
-def ground_fighters(
-    fighters: list[tuple[np.ndarray, np.ndarray, np.ndarray]], K: np.ndarray, size: tuple[int, int]
-) -> tuple[Camera, list[np.ndarray]]:
-    """One world for all fighters of a shot, from their own bodies.
-
-    fighters: per fighter (keypoints_2d (F, 33, 2), confidence (F, 33), world_landmarks
-    (F, 33, 3)). Returns the camera (its height and pitch come from the floor) and, per fighter,
-    its hip centre in the world per frame (F, 3), NaN where it could not be placed.
-    """
-    roots_cam = [root_translations(k, c, w, K) for k, c, w in fighters]
-    up = body_up(np.concatenate([w for _, _, w in fighters]))
-    feet = [_lowest_feet(w, r, up) for (_, _, w), r in zip(fighters, roots_cam, strict=True)]
-    normal, d = fit_floor(np.concatenate(feet), up)
-    R, t = world_from_floor(normal, d)
-    camera = Camera(K, np.zeros(5), R, t, size)
-    return camera, [(roots - t) @ R for roots in roots_cam]
 
 
 def write_calibration(

@@ -33,7 +33,6 @@ from tasks.lift.camera import (
     read_calibration,
     root_translations,
     stature_notes,
-    stature_scales,
     undistort,
 )
 from tasks.lift.cleanup import Cleaned, cleanup, cleanup_pair, floor_depth
@@ -319,9 +318,10 @@ def lift_video(
         }
         # Known statures set the scene's metric scale (BlazePose's is an average body's).
         known = [config.statures()[r] for r in inputs]
-        scales = dict(zip(inputs, stature_scales(list(inputs.values()), K, known), strict=True))
-        inputs = {r: (k, c, w * scales[r]) for r, (k, c, w) in inputs.items()}
-        camera, roots = ground_fighters(list(inputs.values()), K, size)
+        camera, roots, scales = ground_fighters(list(inputs.values()), K, size, known)
+        inputs = {
+            r: (k, c, w * s) for (r, (k, c, w)), s in zip(inputs.items(), scales, strict=True)
+        }
         problem = shot_problem(float(camera.centre[2]), _median_distance(spans, roots), gates)
         if problem is not None:
             rejected["shot"] += sum(b - a for a, b in spans.values())
