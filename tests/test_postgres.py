@@ -1,4 +1,4 @@
-"""Prefect on PostgreSQL: the README's commands run as written (`ringside postgres`, `ringside
+"""Prefect on PostgreSQL: docs/prefect.md's commands run as written (`ringside postgres`, `ringside
 serve` with the URL it printed, `ringside postgres --stop`), in a temporary data directory on
 free ports, with a scheduled run and a CLI run. Debian's server: `make test` installs it when run
 as root; elsewhere the tests skip and say why."""
@@ -30,10 +30,10 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def readme_commands(port: int) -> list[str]:
-    """The lines of the README's shell block under "Prefect on PostgreSQL", comments dropped,
+    """The lines of docs/prefect.md's shell block under "Prefect on PostgreSQL", comments dropped,
     with ``port`` for PostgreSQL's 5433."""
-    readme = (REPO / "README.md").read_text()
-    block = re.search(r"### Prefect on PostgreSQL\n.*?```sh\n(.*?)```", readme, re.S).group(1)
+    readme = (REPO / "docs" / "prefect.md").read_text()
+    block = re.search(r"## Prefect on PostgreSQL\n.*?```sh\n(.*?)```", readme, re.S).group(1)
     lines = [re.sub(r"\s+#.*", "", line) for line in block.splitlines()]
     return [line.replace("5433", str(port)) for line in lines if line]
 
@@ -55,7 +55,7 @@ class Served:
     data: Path
     env: dict[str, str]
     start_line: str
-    printed: str  # what the README's `ringside postgres` printed on stdout
+    printed: str  # what docs/prefect.md's `ringside postgres` printed on stdout
     serve_line: str
     psql: list[str]  # psql on the database `prefect`, to be given -c SQL
     api: str
@@ -70,9 +70,9 @@ def shell(line: str, env: dict[str, str]) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def served():
-    """The README's block run as written, on the data directory `$RINGSIDE_DATA` of a temporary
+    """docs/prefect.md's block run as written, on the data directory `$RINGSIDE_DATA` of a temporary
     folder: PostgreSQL started on a free port, then `ringside serve` on it (on a free port too,
-    its only addition); both stopped at the end, `serve` first, as the README says."""
+    its only addition); both stopped at the end, `serve` first, as docs/prefect.md says."""
     skip_without_postgresql()
     root = Path(tempfile.mkdtemp(prefix="ringside-postgres-"))
     # As root the cluster runs as the `postgres` user, who must reach DATA/postgres.
@@ -113,7 +113,7 @@ def served():
                 serve_code = serve.wait()
             serve_tail = log.read_text(errors="replace")[-3000:]
         stopped = shell(stop_line, env)
-        # No server of ours may outlive the tests, whatever the README's line did.
+        # No server of ours may outlive the tests, whatever docs/prefect.md's line did.
         flows.postgres.stop(data / "postgres")
         shutil.rmtree(root)
     assert serve_code in (None, 0), serve_tail
@@ -121,7 +121,7 @@ def served():
 
 
 def test_the_readme_commands_keep_prefects_tables_in_postgresql(served):
-    # What `ringside postgres` printed is the setting the README's serve line gives.
+    # What `ringside postgres` printed is the setting docs/prefect.md's serve line gives.
     assert served.printed.splitlines() == [served.serve_line.removesuffix(" ringside serve")]
     tables = subprocess.run(
         [*served.psql, "SELECT tablename FROM pg_tables WHERE schemaname = 'public'"],
