@@ -28,8 +28,9 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks._common import FPS, FRAMES, looped_sample  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
+from tasks.registry import per_video  # noqa: E402
 
-STAGES = ("ingest", "pose", "lift", "dataset")
+STAGES = per_video()
 
 
 def size(path: Path) -> int:

@@ -20,7 +20,7 @@ from dashboards.widgets import (
     read,
     video_labels,
 )
-from flows.config import PIPELINE_STAGES, STAGES
+from tasks.registry import names, per_video
 
 STATE_COLOURS = {
     "done": "#d4f0da",
@@ -55,7 +55,9 @@ def overview_page() -> None:
     matrix.index = [labels[v] for v in matrix.index]
     st.subheader("Each video's stages")
     st.table(
-        matrix.style.map(lambda s: f"background-color: {STATE_COLOURS.get(s, '')}", list(STAGES))
+        matrix.style.map(
+            lambda s: f"background-color: {STATE_COLOURS.get(s, '')}", list(per_video())
+        )
     )
     st.caption(
         "done: computed by its newest run; cached: its newest run reused an output; running: "
@@ -126,7 +128,7 @@ def rerun_section(videos: Sequence[Mapping[str, Any]]) -> None:
     labels = video_labels(videos)
     left, middle, right = st.columns([3, 2, 1], vertical_alignment="bottom")
     video = left.selectbox("Video", list(labels), format_func=labels.get, key="rerun_video")
-    stage = middle.selectbox("Stage", PIPELINE_STAGES, key="rerun_stage")
+    stage = middle.selectbox("Stage", names(), key="rerun_stage")
     pressed = right.button(
         "Rerun",
         disabled=served is None,
@@ -169,7 +171,7 @@ def rerun_progress(root: Path, labels: Mapping[str, str]) -> None:
         progress = run_progress(root, rerun["flow_run"])
         rerun["finished"] = progress.finished
         finished = events[rerun["flow_run"]]
-        share = 1.0 if progress.finished else len(finished) / len(PIPELINE_STAGES)
+        share = 1.0 if progress.finished else len(finished) / len(names())
         what = f"{rerun['stage']} of {labels.get(rerun['video_id'], rerun['video_id'][:12])}"
         st.progress(
             share,

@@ -19,7 +19,6 @@ import duckdb
 import numpy as np
 import pandas as pd
 
-from flows.config import PIPELINE_STAGES, SECTIONS, STAGES
 from models.pose.types import BLAZEPOSE_33
 from storage.records import (
     latest_metrics,
@@ -41,12 +40,17 @@ from tasks.pose.store import (
     pose_tracks,
     track_handovers,
 )
+from tasks.registry import names, per_video
 from tasks.train import store as train_store
 
-# Every stage, in pipeline order (a stage has its config section once it exists): the ones
-# `ringside metrics --stage` knows. A per-video stage's output belongs to a video; training's
-# to a dataset and evaluation's to a training run, whose keys stand in the "video_id" column.
-METRIC_STAGES: tuple[str, ...] = tuple(SECTIONS)
+
+def metric_stages() -> tuple[str, ...]:
+    """Every stage, in pipeline order (`tasks.registry`): the ones `ringside metrics --stage`
+    knows. A per-video stage's output belongs to a video; training's to a dataset and
+    evaluation's to a training run, whose keys stand in the "video_id" column."""
+    return names()
+
+
 # Points a learning curve is drawn with by default, whatever the run's length.
 CURVE_POINTS = 100
 
@@ -64,7 +68,7 @@ def videos(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
 def stage_overview(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
     """Per video and per-video stage: the newest run's state, key, error and timings, the rows
     `ringside status` prints (see `storage.records.stage_states`)."""
-    return stage_states(con, STAGES)
+    return stage_states(con, per_video())
 
 
 def opponent_overview(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
@@ -82,11 +86,11 @@ def opponent_overview(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
 def state_matrix(states: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
     """Videos × stages, each cell the stage's state; rows in the order of ``states``."""
     if not states:
-        return pd.DataFrame(columns=list(STAGES))
+        return pd.DataFrame(columns=list(per_video()))
     frame = pd.DataFrame(states)
     matrix = frame.pivot(index="video_id", columns="stage", values="state")
     order = list(dict.fromkeys(frame["video_id"]))
-    stages = [s for s in STAGES if s in matrix.columns]
+    stages = [s for s in per_video() if s in matrix.columns]
     return matrix.loc[order, stages]
 
 
@@ -250,7 +254,7 @@ def stages_finished_since(
 ) -> list[str]:
     """The pipeline's stages some run has finished for ``video_id`` since ``since`` (UTC)
     (`storage.records.stages_finished_since`)."""
-    return finished_since(con, video_id, since, PIPELINE_STAGES)
+    return finished_since(con, video_id, since, names())
 
 
 def evaluations(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:

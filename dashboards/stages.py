@@ -27,7 +27,7 @@ COMPARED = {"train": "datasets", "evaluate": "training runs"}
 
 def stage_page() -> None:
     st.title("Stages")
-    stage = choose("Stage", queries.METRIC_STAGES, "stage")
+    stage = choose("Stage", queries.metric_stages(), "stage")
     found = read(
         lambda con: (
             queries.stage_metrics(con, stage),

@@ -3,34 +3,22 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from models.maaip.config import TrainConfig
+from tasks import registry
 from tasks.config import apply_overrides, build, defaults_toml, read_toml
-from tasks.dataset.config import DatasetConfig
-from tasks.evaluate.config import EvaluateConfig
-from tasks.ingest.config import IngestConfig
-from tasks.lift.config import LiftStageConfig
-from tasks.pose.config import PoseConfig
 
-# Stage name -> its config class, in pipeline order. A stage joins here when it exists.
-SECTIONS: dict[str, type] = {
-    "ingest": IngestConfig,
-    "pose": PoseConfig,
-    "lift": LiftStageConfig,
-    "dataset": DatasetConfig,
-    "train": TrainConfig,
-    "evaluate": EvaluateConfig,
-}
-# The stages `video_to_opponent` runs per video; training runs on an assembled dataset.
-STAGES: tuple[str, ...] = ("ingest", "pose", "lift", "dataset")
-# Every stage of `video_to_opponent` in order: the per-video ones, then training on the
-# adversary's assembled dataset and the evaluation (and export) of that run.
-PIPELINE_STAGES: tuple[str, ...] = (*STAGES, "train", "evaluate")
+
+def sections() -> dict[str, type]:
+    """Stage name -> its settings class, in pipeline order (`tasks.registry`)."""
+    return {stage.name: stage.settings for stage in registry.stages()}
+
+
 # `ringside demo`'s settings over the defaults: a training run the demo can wait for, ended by
-# its wall-clock budget at a checkpoint (README, "The demo": what 8 minutes give).
+# its wall-clock budget at a checkpoint (docs/evaluate.md, "The demo": what 8 minutes give).
 DEMO_SETTINGS: dict[str, str] = {
     "train.minutes": "8",
     "train.iterations": "100000",
@@ -46,29 +34,36 @@ This file is written by `ringside config`."""
 
 def defaults_text() -> str:
     """The documented defaults of every stage, as the TOML text ``ringside.toml`` ships with."""
-    return defaults_toml(SECTIONS, HEADER)
+    return defaults_toml(sections(), HEADER)
 
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    ingest: IngestConfig = field(default_factory=IngestConfig)
-    pose: PoseConfig = field(default_factory=PoseConfig)
-    lift: LiftStageConfig = field(default_factory=LiftStageConfig)
-    dataset: DatasetConfig = field(default_factory=DatasetConfig)
-    train: TrainConfig = field(default_factory=TrainConfig)
-    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
+    """Every stage's settings, one section per registered stage: ``config.pose`` is the pose
+    stage's."""
+
+    sections: Mapping[str, Any] = field(
+        default_factory=lambda: {name: cls() for name, cls in sections().items()}
+    )
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return self.__dict__["sections"][name]
+        except KeyError:
+            raise AttributeError(name) from None
 
     def as_dict(self) -> dict[str, dict[str, Any]]:
-        return {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}
+        return {name: dataclasses.asdict(value) for name, value in self.sections.items()}
 
 
 def from_tables(tables: dict[str, Any]) -> PipelineConfig:
     """A checked config from TOML tables (or a flow parameter); missing sections take defaults."""
-    unknown = sorted(set(tables) - set(SECTIONS))
+    known = sections()
+    unknown = sorted(set(tables) - set(known))
     if unknown:
-        raise ValueError(f"config has unknown sections {unknown}; known: {list(SECTIONS)}")
+        raise ValueError(f"config has unknown sections {unknown}; known: {list(known)}")
     return PipelineConfig(
-        **{name: build(cls, tables.get(name, {}), section=name) for name, cls in SECTIONS.items()}
+        {name: build(cls, tables.get(name, {}), section=name) for name, cls in known.items()}
     )
 
 

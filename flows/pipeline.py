@@ -9,10 +9,11 @@ import os
 from prefect import flow
 from prefect.task_runners import ThreadPoolTaskRunner
 
-from flows.config import PIPELINE_STAGES, from_tables
+from flows.config import from_tables
 from flows.dataset import assemble_flow
 from flows.runs import StageSummary
 from flows.stage import run_stage_flow
+from tasks import registry
 from tasks.errors import BadInput
 
 
@@ -56,11 +57,10 @@ def check_scheduler(address: str, timeout_s: float = 5.0) -> None:
 
 
 def stages_until(until: str | None) -> tuple[str, ...]:
-    if until is None:
-        return PIPELINE_STAGES
-    if until not in PIPELINE_STAGES:
-        raise ValueError(f"--until must be one of {', '.join(PIPELINE_STAGES)}, got {until!r}")
-    return PIPELINE_STAGES[: PIPELINE_STAGES.index(until) + 1]
+    """The stages a run up to ``until`` runs: it and every stage it needs (all when None)."""
+    if until is not None and until not in registry.names():
+        raise ValueError(f"--until must be one of {', '.join(registry.names())}, got {until!r}")
+    return registry.until(until)
 
 
 @flow(name="video_to_opponent")
@@ -81,10 +81,10 @@ def video_to_opponent(
     stages = stages_until(until)
     chunks = chunk_runner(from_tables(config or {}).pose.workers)
     forced = set(rerun or [])
-    unknown = forced - set(PIPELINE_STAGES)
+    unknown = forced - set(registry.names())
     if unknown:
         raise ValueError(
-            f"cannot rerun unknown stages {sorted(unknown)}; known: {list(PIPELINE_STAGES)}"
+            f"cannot rerun unknown stages {sorted(unknown)}; known: {list(registry.names())}"
         )
 
     def run(stage: str, subject: str, inputs: dict, **options) -> StageSummary:
@@ -94,23 +94,26 @@ def video_to_opponent(
         summaries.append(summary)
         return summary
 
+    def keys_of(stage: str, done: dict[str, str]) -> dict[str, str]:
+        """The upstream output keys ``stage``'s plan is given."""
+        return {name: done[name] for name in registry.stage(stage).upstream}
+
     summaries: list[StageSummary] = []
     failures: list[str] = []
     declaration = {"adversary": adversary, "adversary_colour": adversary_colour, "notes": notes}
+    per_video = [s for s in registry.names(registry.Subject.VIDEO) if s in stages and s != "ingest"]
     for video in videos:
         try:
             ingested = run("ingest", video, declaration)
         except BadInput as error:
             failures.append(str(error))
             continue
-        video_id, ingest_key = ingested.video_id, ingested.key
+        done = {"ingest": ingested.key}
         try:
-            if "pose" in stages:
-                posed = run("pose", video_id, {"ingest": ingest_key}, task_runner=chunks)
-            if "lift" in stages:
-                lifted = run("lift", video_id, {"ingest": ingest_key, "pose": posed.key})
-            if "dataset" in stages:
-                run("dataset", video_id, {"ingest": ingest_key, "lift": lifted.key})
+            for stage in per_video:
+                # The pose stage's chunks run on their own runner (threads or Dask).
+                options = {"task_runner": chunks} if stage == "pose" else {}
+                done[stage] = run(stage, ingested.video_id, keys_of(stage, done), **options).key
         except BadInput as error:
             failures.append(str(error))
     if any(s.stage == "dataset" for s in summaries):
@@ -118,10 +121,11 @@ def video_to_opponent(
         try:
             assembled = assemble_flow(data_root, adversary, config, "dataset" in forced)
             summaries.append(assembled)
-            if "train" in stages:
-                trained = run("train", assembled.key, {})
-                if "evaluate" in stages:
-                    run("evaluate", trained.key, {})
+            done = {"dataset": assembled.key}
+            for stage in registry.names(registry.Subject.DATASET, registry.Subject.RUN):
+                if stage in stages:
+                    subject = done[registry.stage(stage).upstream[0]]
+                    done[stage] = run(stage, subject, {}).key
         except BadInput as error:
             failures.append(str(error))
     if failures:

@@ -3,7 +3,7 @@ or compute it, summarise."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -13,23 +13,7 @@ from prefect.task_runners import ThreadPoolTaskRunner
 from flows.config import from_tables
 from flows.runs import StageSummary, reuse_or_run
 from storage.paths import data_paths
-from tasks.dataset.task import dataset_plan
-from tasks.evaluate.task import evaluate_plan
-from tasks.ingest.task import ingest_plan
-from tasks.lift.task import lift_plan
-from tasks.pose.task import pose_plan
-from tasks.runner import StagePlan
-from tasks.train.task import train_plan
-
-# Each stage's plan: (paths, its settings, subject, inputs) -> StagePlan.
-PLANS: dict[str, Callable[..., StagePlan]] = {
-    "ingest": ingest_plan,
-    "pose": pose_plan,
-    "lift": lift_plan,
-    "dataset": dataset_plan,
-    "train": train_plan,
-    "evaluate": evaluate_plan,
-}
+from tasks import registry
 
 
 # One task at a time unless the caller says otherwise (the pose stage's chunks: `chunk_runner`).
@@ -47,7 +31,7 @@ def stage_flow(
     adversary's declaration); ``force`` recomputes even when a committed output exists."""
     paths = data_paths(data_root)
     settings = getattr(from_tables(config or {}), stage)
-    plan = PLANS[stage](paths, settings, subject, inputs or {})
+    plan = registry.stage(stage).planner()(paths, settings, subject, inputs or {})
     result, state = reuse_or_run(paths, plan, force)
     plan.after()
     return StageSummary(
@@ -72,7 +56,8 @@ def run_stage_flow(
 ) -> StageSummary:
     """`stage_flow` as a flow run named for its stage and subject, as Prefect's UI lists it
     (``ingest-fight.mp4``, ``pose-3f2a…``)."""
-    label = Path(subject).name if stage == "ingest" else subject[:12]
+    file = registry.stage(stage).subject is registry.Subject.FILE
+    label = Path(subject).name if file else subject[:12]
     options: dict[str, Any] = {"name": stage, "flow_run_name": f"{stage}-{label}"}
     if task_runner is not None:
         options["task_runner"] = task_runner

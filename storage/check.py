@@ -33,10 +33,13 @@ from storage.db import connect, error_line, transaction
 from storage.files import SCRATCH, TEMPORARY
 from storage.records import process_alive
 
-# Stages whose outputs a rerun recomputes: their tables are named "<stage>_..." and keyed by
-# (key, video_id) as `stage_outputs` is (train: video_id the dataset, key the run; evaluate:
-# video_id the run).
-STAGES = ("ingest", "pose", "lift", "dataset", "train", "evaluate")
+# A stage's output tables are named "<stage>_..." and keyed by (key, video_id) as
+# `stage_outputs` is (train: video_id the dataset, key the run; evaluate: video_id the run), so
+# a rerun recomputes their rows. These tables of storage's own are keyed alike but hold no
+# stage's rows: the record of every output, its metrics and runs, and the datasets' members.
+NOT_OUTPUTS = ("stage_outputs", "stage_metrics", "stage_runs", "dataset_members")
+# What a problem that is no stage output's is of.
+NOT_STAGES = ("database", "artifacts", "prefect")
 # A temporary file whose name does not say its writer (an older version's) and is older than
 # this was left by a process that is gone.
 STALE_TEMP_S = 600.0
@@ -57,7 +60,7 @@ class Problem:
 
     @property
     def output(self) -> tuple[str, str, str] | None:
-        return (self.stage, self.video_id, self.key) if self.stage in STAGES else None
+        return None if self.stage in NOT_STAGES else (self.stage, self.video_id, self.key)
 
 
 def _tables(con: duckdb.DuckDBPyConnection, database: str | None = None) -> dict[str, list[str]]:
@@ -77,9 +80,8 @@ def _tables(con: duckdb.DuckDBPyConnection, database: str | None = None) -> dict
 def _stage_of(table: str, columns: list[str]) -> str | None:
     """The stage whose outputs the table holds; None for the tables that register videos,
     datasets and runs (`dataset_members` joins outputs into datasets, it holds none)."""
-    stage = table.partition("_")[0]
     keyed = {"key", "video_id"} <= set(columns)
-    return stage if stage in STAGES and keyed and table != "dataset_members" else None
+    return table.partition("_")[0] if keyed and table not in NOT_OUTPUTS else None
 
 
 def _read(con: duckdb.DuckDBPyConnection, table: str, where: str = "", params=()) -> None:

@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 
 import duckdb
@@ -76,9 +77,22 @@ def _open(path: Path, *, read_only: bool, wait_s: float) -> duckdb.DuckDBPyConne
             delay = min(delay * 2, 1.0)
 
 
-def migrations() -> list[tuple[int, str, str]]:
-    """The schema migrations shipped with the package, as (version, name, sql), in order."""
-    folder = resources.files("storage") / "migrations"
+# Stages that bring their own tables: stage name -> the folder of its migrations
+# (`tasks.registry.register` adds them).
+_STAGE_MIGRATIONS: dict[str, Traversable] = {}
+
+
+def add_migrations(stage: str, folder: Traversable) -> None:
+    """Apply ``folder``'s ``NNN_name.sql`` files, numbered per stage, to every database opened
+    for writing from now on (a stage outside ``storage/migrations``)."""
+    _STAGE_MIGRATIONS[stage] = folder
+
+
+def remove_migrations(stage: str) -> None:
+    _STAGE_MIGRATIONS.pop(stage, None)
+
+
+def _read_migrations(folder: Traversable) -> list[tuple[int, str, str]]:
     found = []
     for entry in folder.iterdir():
         if entry.name.endswith(".sql"):
@@ -87,8 +101,26 @@ def migrations() -> list[tuple[int, str, str]]:
     return sorted(found)
 
 
+def migrations() -> list[tuple[int, str, str]]:
+    """The schema migrations shipped with the package, as (version, name, sql), in order."""
+    return _read_migrations(resources.files("storage") / "migrations")
+
+
+def _apply(con: duckdb.DuckDBPyConnection, sql: str, record: str, values: list) -> None:
+    con.begin()
+    try:
+        con.execute(sql)
+        con.execute(record, values)
+        con.commit()
+    except BaseException:
+        con.rollback()
+        raise
+
+
 def migrate(con: duckdb.DuckDBPyConnection) -> list[int]:
-    """Apply the migrations this database has not seen yet, each in its own transaction."""
+    """Apply the migrations this database has not seen yet, each in its own transaction: the
+    package's, then each registered stage's own (`add_migrations`). Returns the package's
+    versions applied."""
     con.execute(
         "CREATE TABLE IF NOT EXISTS schema_migrations "
         "(version INTEGER PRIMARY KEY, name VARCHAR NOT NULL, applied_at TIMESTAMP NOT NULL)"
@@ -96,27 +128,38 @@ def migrate(con: duckdb.DuckDBPyConnection) -> list[int]:
     applied = {row[0] for row in con.execute("SELECT version FROM schema_migrations").fetchall()}
     done = []
     for version, name, sql in migrations():
-        if version in applied:
-            continue
-        con.begin()
-        try:
-            con.execute(sql)
-            con.execute("INSERT INTO schema_migrations VALUES (?, ?, ?)", [version, name, utcnow()])
-            con.commit()
-        except BaseException:
-            con.rollback()
-            raise
-        done.append(version)
+        if version not in applied:
+            record = "INSERT INTO schema_migrations VALUES (?, ?, ?)"
+            _apply(con, sql, record, [version, name, utcnow()])
+            done.append(version)
+    for stage, folder in _STAGE_MIGRATIONS.items():
+        applied = {
+            row[0]
+            for row in con.execute(
+                "SELECT version FROM stage_migrations WHERE stage = ?", [stage]
+            ).fetchall()
+        }
+        for version, name, sql in _read_migrations(folder):
+            if version not in applied:
+                record = "INSERT INTO stage_migrations VALUES (?, ?, ?, ?)"
+                _apply(con, sql, record, [stage, version, name, utcnow()])
     return done
 
 
 def _migrated(con: duckdb.DuckDBPyConnection) -> bool:
-    """Whether every migration this Ringside ships is applied to ``con``'s database."""
+    """Whether every migration this Ringside ships, and every registered stage's, is applied to
+    ``con``'s database."""
     try:
         (newest,) = con.execute("SELECT max(version) FROM schema_migrations").fetchone()
+        applied = set(con.execute("SELECT stage, version FROM stage_migrations").fetchall())
     except duckdb.CatalogException:
         return False
-    return newest is not None and newest >= migrations()[-1][0]
+    wanted = {
+        (stage, version)
+        for stage, folder in _STAGE_MIGRATIONS.items()
+        for version, _, _ in _read_migrations(folder)
+    }
+    return newest is not None and newest >= migrations()[-1][0] and wanted <= applied
 
 
 @contextmanager

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from flows.config import SECTIONS, defaults_text, from_tables, load_config
+from flows.config import defaults_text, from_tables, load_config, sections
 from tasks.config import leaf_fields
 
 REPO = Path(__file__).resolve().parent.parent
@@ -16,8 +16,8 @@ def test_ringside_toml_documents_every_default():
     built-in default."""
     assert (REPO / "ringside.toml").read_text() == defaults_text()
     tables = tomllib.loads(defaults_text())
-    assert set(tables) == set(SECTIONS)
-    for section, cls in SECTIONS.items():
+    assert set(tables) == set(sections())
+    for section, cls in sections().items():
         assert from_tables({section: tables[section]}) == from_tables({})
         for path, f in leaf_fields(cls):
             assert f.metadata["help"], f"{section}.{'.'.join(path)} has no documentation"

@@ -41,11 +41,11 @@ from dashboards.opponent import EVALUATION_TILES, HEADLINES, TILES, sample_size
 from dashboards.widgets import READ_AT, format_value, output_labels, video_labels
 from flows.cli import build_parser, main
 from flows.cli.servers import wait_until_serving
-from flows.config import STAGES
 from flows.serve import run_progress, served_api
 from storage.db import connect
 from storage.paths import data_paths
 from tasks.dataset.statistics import combine_videos
+from tasks.registry import per_video
 
 CHROMIUM = Path("/usr/bin/chromium")
 SCREENSHOTS = REPO / "data" / "test-artifacts" / "dashboard"
@@ -124,14 +124,14 @@ def test_the_dashboards_queries_import_no_model_runtime():
 def test_the_stages_page_knows_the_stages_the_cli_does():
     commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     (stage,) = [a for a in commands.choices["metrics"]._actions if a.dest == "stage"]
-    assert tuple(stage.choices) == queries.METRIC_STAGES
+    assert tuple(stage.choices) == queries.metric_stages()
 
 
 def test_metrics_are_the_ones_the_cli_prints(capsys, trained):
     data, _ = trained
-    for stage in queries.METRIC_STAGES:
+    for stage in queries.metric_stages():
         printed = _cli_json(capsys, data, "metrics", "--stage", stage)
-        if stage in (*STAGES, "train"):  # the sample went through these; not evaluation
+        if stage in (*per_video(), "train"):  # the sample went through these; not evaluation
             assert printed, f"the sample has no {stage} metrics"
         table = queries.metrics_table(
             _read(data, lambda con, s=stage: queries.stage_metrics(con, s))
@@ -156,7 +156,7 @@ def test_overview_shows_the_sample_with_every_stage_done(capsys, trained, sample
     (sample,) = [v for v in videos if v["path"] == str(sample_video)]
     assert sample["adversary"] == "A"
     matrix = queries.state_matrix(states)
-    assert list(matrix.columns) == list(STAGES)
+    assert list(matrix.columns) == list(per_video())
     assert set(matrix.loc[sample["video_id"]]) <= {"done", "cached"}
     done = [r for r in states if r["video_id"] == sample["video_id"]]
     assert all(r["seconds"] > 0 and r["ran_at"] is not None for r in done)
@@ -292,7 +292,7 @@ def test_every_page_in_a_browser(capsys, trained, tmp_path):
     serving = _start_serving(data, home)  # it takes a while to come up: meanwhile, the pages
     metrics = {
         stage: _cli_json(capsys, data, "metrics", "--stage", stage)
-        for stage in queries.METRIC_STAGES
+        for stage in queries.metric_stages()
     }
     videos, sets = _read(data, lambda con: (queries.videos(con), queries.datasets(con)))
     run = _newest_run(data, dataset_key)
@@ -504,8 +504,8 @@ def test_a_failed_stage_shows_why_on_the_overview(tmp_path, monkeypatch):
     app = AppTest.from_function(render_page, args=("overview",), default_timeout=60).run()
     assert not app.exception, app.exception
     matrix, runs = (table.value for table in app.table)
-    states = ["failed" if stage == "pose" else "missing" for stage in STAGES]
-    assert list(matrix.loc[f"empty.mp4 · {'f' * 12}", list(STAGES)]) == states
+    states = ["failed" if stage == "pose" else "missing" for stage in per_video()]
+    assert list(matrix.loc[f"empty.mp4 · {'f' * 12}", list(per_video())]) == states
     assert list(runs["why it failed"]) == [why if s == "failed" else "" for s in states]
 
 

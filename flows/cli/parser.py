@@ -13,11 +13,11 @@ ALIASES: dict[tuple[str, ...], str] = {
 
 
 def config_flags(parser: argparse.ArgumentParser) -> None:
-    from flows.config import SECTIONS
+    from flows.config import sections
     from tasks.config import leaf_fields
 
     parser.add_argument("--config", type=Path, help="TOML config (default: ./ringside.toml)")
-    for section, cls in SECTIONS.items():
+    for section, cls in sections().items():
         group = parser.add_argument_group(f"{section} settings (override {section} in the config)")
         for path, f in leaf_fields(cls, (section,)):
             group.add_argument(
@@ -38,8 +38,10 @@ def overrides(args: argparse.Namespace) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from flows.config import PIPELINE_STAGES
     from flows.postgres import DEFAULT_PORT
+    from tasks.registry import names
+
+    stages = names()
 
     parser = argparse.ArgumentParser(
         prog="ringside",
@@ -56,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     process.add_argument("--adversary", required=True, metavar="NAME", help="who the adversary is")
     process.add_argument("--adversary-colour", metavar="COLOUR", help="trunk colour or #rrggbb")
     process.add_argument("--notes", help="free text kept with the video")
-    process.add_argument("--until", choices=PIPELINE_STAGES, help="stop after this stage")
+    process.add_argument("--until", choices=stages, help="stop after this stage")
     process.add_argument("--json", action="store_true", help="print the summary as JSON")
     config_flags(process)
 
@@ -66,9 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
     rerun = commands.add_parser(
         "rerun", help="recompute one stage of one video (and what depends on it), cache or not"
     )
-    rerun.add_argument("stage", choices=PIPELINE_STAGES)
+    rerun.add_argument("stage", choices=stages)
     rerun.add_argument("--video", required=True, metavar="ID", help="video id (a prefix will do)")
-    rerun.add_argument("--until", choices=PIPELINE_STAGES, help="stop after this stage")
+    rerun.add_argument("--until", choices=stages, help="stop after this stage")
     rerun.add_argument("--json", action="store_true")
     config_flags(rerun)
 
@@ -83,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="track id, as `ringside status` and the pose overlay show it",
     )
-    pick.add_argument("--until", choices=PIPELINE_STAGES, help="stop after this stage")
+    pick.add_argument("--until", choices=stages, help="stop after this stage")
     pick.add_argument("--json", action="store_true")
     config_flags(pick)
 
@@ -196,7 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     config_flags(evaluate)
 
     metrics = commands.add_parser("metrics", help="each stage's metrics per video or dataset")
-    metrics.add_argument("--stage", choices=PIPELINE_STAGES)
+    metrics.add_argument("--stage", choices=stages)
     metrics.add_argument("--json", action="store_true")
 
     check = commands.add_parser(
@@ -283,7 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--every", type=float, metavar="SECONDS", help="look in DIR every SECONDS instead"
     )
     serve.add_argument(
-        "--until", choices=PIPELINE_STAGES, help="stop after this stage for videos found in DIR"
+        "--until", choices=stages, help="stop after this stage for videos found in DIR"
     )
     serve.add_argument(
         "--port", type=int, default=4200, metavar="N", help="the server's port (default 4200)"
@@ -336,7 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="TIME",
         help="'now' (default), HH:MM (the next one, local time) or ISO 8601 (2030-06-01T18:30)",
     )
-    schedule.add_argument("--until", choices=PIPELINE_STAGES, help="stop after this stage")
+    schedule.add_argument("--until", choices=stages, help="stop after this stage")
     schedule.add_argument("--json", action="store_true")
     config_flags(schedule)
 

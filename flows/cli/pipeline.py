@@ -77,10 +77,10 @@ def process_command(args, paths: DataPaths) -> int:
 
 
 def status_command(args, paths: DataPaths) -> int:
-    from flows.config import STAGES
     from storage.db import connect
     from storage.records import opponent_states, stage_states
     from tasks.dataset.store import list_datasets
+    from tasks.registry import per_video
 
     db = paths.db
     videos: list[dict[str, Any]] = []
@@ -90,7 +90,7 @@ def status_command(args, paths: DataPaths) -> int:
     fields = ("video_id", "stage", "key", "state", "error")
     if db.exists():
         with connect(db, read_only=True) as con:
-            videos = [{f: r[f] for f in fields} for r in stage_states(con, STAGES)]
+            videos = [{f: r[f] for f in fields} for r in stage_states(con, per_video())]
             listed = list_datasets(con)
             datasets = [d["dataset_key"] for d in reversed(listed)]
             opponents = [{f: r[f] for f in fields} for r in opponent_states(con, datasets)]
