@@ -53,6 +53,7 @@ def end_time(api: str, run_id: str) -> datetime:
 
 def four_videos(data: Path, workers: int, until: str, env: dict[str, str]) -> float:
     videos = [(data_paths().assets / SAMPLE_VIDEO).with_name(f"cam0{i}.mp4") for i in range(1, 5)]
+    paths = data_paths(data)
     ringside = [sys.executable, "-m", "flows.cli", "--data", str(data)]
     serve = subprocess.Popen(
         [*ringside, "serve", "--port", str(free_port()), "--workers", str(workers)],
@@ -62,7 +63,7 @@ def four_videos(data: Path, workers: int, until: str, env: dict[str, str]) -> fl
         stderr=subprocess.DEVNULL,
     )
     try:
-        api = wait("`ringside serve`", lambda: served_api(data))
+        api = wait("`ringside serve`", lambda: served_api(paths))
         started = datetime.now().astimezone()
         runs = []
         for video in videos:
@@ -75,7 +76,7 @@ def four_videos(data: Path, workers: int, until: str, env: dict[str, str]) -> fl
             runs.append(json.loads(done.stdout)["flow_run_id"])
         for run in runs:
             progress = wait(
-                "the runs", lambda run=run: (p := run_progress(data, run)).finished and p
+                "the runs", lambda run=run: (p := run_progress(paths, run)).finished and p
             )
             if not progress.succeeded:
                 sys.exit(f"run {run} failed: {progress.message}")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import pandas as pd
@@ -20,6 +19,7 @@ from dashboards.widgets import (
     read,
     video_labels,
 )
+from storage.paths import DataPaths, data_paths
 from tasks.registry import names, per_video
 
 STATE_COLOURS = {
@@ -123,8 +123,8 @@ def rerun_section(videos: Sequence[Mapping[str, Any]]) -> None:
     from flows.serve import pipeline_parameters, served_api
 
     st.subheader("Rerun a stage")
-    root = data_root(sys.argv[1:])
-    served = served_api(root)
+    paths = data_paths(data_root(sys.argv[1:]))
+    served = served_api(paths)
     labels = video_labels(videos)
     left, middle, right = st.columns([3, 2, 1], vertical_alignment="bottom")
     video = left.selectbox("Video", list(labels), format_func=labels.get, key="rerun_video")
@@ -143,16 +143,16 @@ def rerun_section(videos: Sequence[Mapping[str, Any]]) -> None:
     else:
         st.caption(f"Runs go to Prefect at {served.removesuffix('/api')}.")
     if pressed:
-        follow_run(root, video, stage, lambda: pipeline_parameters(root, video, rerun=[stage]))
+        follow_run(paths, video, stage, lambda: pipeline_parameters(paths, video, rerun=[stage]))
     reruns = st.session_state.get("reruns", [])
     if reruns:
         # Read again every 2 s while a run is unfinished, and not at all after: a timer left
         # running would redraw whatever page the analyst has moved on to.
         pending = any(not r.get("finished") for r in reruns)
-        st.fragment(rerun_progress, run_every=2.0 if pending else None)(root, labels)
+        st.fragment(rerun_progress, run_every=2.0 if pending else None)(paths, labels)
 
 
-def rerun_progress(root: Path, labels: Mapping[str, str]) -> None:
+def rerun_progress(paths: DataPaths, labels: Mapping[str, str]) -> None:
     """The state of each rerun started here: Prefect's state of the flow run and the stages it
     has finished so far. Redraws the whole page once the last of them has finished."""
     from flows.serve import run_progress
@@ -168,7 +168,7 @@ def rerun_progress(root: Path, labels: Mapping[str, str]) -> None:
         return
     was_pending = any(not r.get("finished") for r in reruns)
     for rerun in reversed(reruns):
-        progress = run_progress(root, rerun["flow_run"])
+        progress = run_progress(paths, rerun["flow_run"])
         rerun["finished"] = progress.finished
         finished = events[rerun["flow_run"]]
         share = 1.0 if progress.finished else len(finished) / len(names())

@@ -114,7 +114,7 @@ def pick_section(video: str, review: queries.PoseReview) -> None:
     from flows.serve import pipeline_parameters, served_api
 
     st.subheader("Which track is the adversary?")
-    root = data_root(sys.argv[1:])
+    paths = data_paths(data_root(sys.argv[1:]))
     tracks = list(review.tracks["track"])
     roles = dict(zip(review.tracks["track"], review.tracks["role"], strict=True))
     current = next((t for t in tracks if roles[t] == "adversary"), tracks[0] if tracks else None)
@@ -128,11 +128,11 @@ def pick_section(video: str, review: queries.PoseReview) -> None:
         index=tracks.index(current),
         format_func=lambda t: f"track {t} (now {roles[t]})",
     )
-    served = served_api(root)
+    served = served_api(paths)
     if right.button("Pick and rerun", disabled=served is None or track == current):
-        with connect(data_paths(root).db, wait_s=LOCK_WAIT_S) as con:
+        with connect(paths.db, wait_s=LOCK_WAIT_S) as con:
             record_pick(con, video, int(track))
-        if follow_run(root, video, "pose", lambda: pipeline_parameters(root, video, rerun=None)):
+        if follow_run(paths, video, "pose", lambda: pipeline_parameters(paths, video, rerun=None)):
             st.success(f"Track {track} is the adversary now; the Overview page follows the rerun.")
     picked = "no pick yet" if review.pick is None else f"track {review.pick}"
     hint = "" if served is not None else " Start `ringside serve` to pick from here."

@@ -21,7 +21,7 @@ import streamlit as st
 from dashboards import queries
 from storage.artifacts import NotAnArtifact, artifact_path, hashes_to_name
 from storage.db import DatabaseBusy, connect, damaged_database, error_line, utcnow
-from storage.paths import data_paths
+from storage.paths import DataPaths, data_paths
 from tasks.errors import BadInput
 
 # A page waits this long for the pipeline to let go of the database, then says so: a writer
@@ -234,14 +234,14 @@ def numbers_table(frame: pd.DataFrame) -> Any:
     return frame.style.format(format_value, subset=list(frame.select_dtypes("number").columns))
 
 
-def follow_run(root: Path, video: str, stage: str, parameters: Callable[[], dict]) -> bool:
+def follow_run(paths: DataPaths, video: str, stage: str, parameters: Callable[[], dict]) -> bool:
     """Submit a pipeline run of ``video`` with ``parameters()`` to the served deployment and
     remember it for `rerun_progress`; False (after saying why) if Prefect refused it."""
     from flows.serve import submit_run
 
     started = utcnow()
     try:
-        run_id = submit_run(root, parameters())
+        run_id = submit_run(paths, parameters())
     except BadInput as error:
         st.error(f"Could not start the run: {error}")
         return False

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from storage.paths import DataPaths, data_paths
 from tasks import registry
 from tasks.config import apply_overrides, build, defaults_toml, read_toml
 
@@ -77,3 +78,10 @@ def load_config(path: Path | None = None, overrides: list[str] | None = None) ->
     else:
         tables = read_toml(path)
     return from_tables(apply_overrides(tables, overrides or []))
+
+
+def flow_inputs(data_root: str, config: dict | None) -> tuple[DataPaths, PipelineConfig]:
+    """A flow's parameters turned back into what the code below takes: the data directory's
+    paths and the checked settings. Prefect's parameters are JSON, so a flow is given the
+    directory as a string and the settings as tables; every flow crosses back here, once."""
+    return data_paths(data_root), from_tables(config or {})

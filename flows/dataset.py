@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from prefect import flow
 
-from flows.config import from_tables
+from flows.config import flow_inputs
 from flows.runs import StageSummary, reuse_or_run
-from storage.paths import data_paths
 from tasks.dataset.task import assemble_task, extra_clips_plan
 from tasks.errors import BadInput
 
@@ -20,8 +19,8 @@ def assemble_flow(
     The summary's key is the dataset key training takes. Raises BadInput, saying why in one
     line, when the dataset cannot be trained on (`tasks.dataset.verdict`).
     """
-    paths = data_paths(data_root)
-    settings = from_tables(config or {}).dataset
+    paths, pipeline = flow_inputs(data_root, config)
+    settings = pipeline.dataset
     extra = None
     if settings.extra_clips:
         plan = extra_clips_plan(paths, settings, adversary)

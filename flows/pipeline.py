@@ -9,7 +9,7 @@ import os
 from prefect import flow
 from prefect.task_runners import ThreadPoolTaskRunner
 
-from flows.config import from_tables
+from flows.config import flow_inputs
 from flows.dataset import assemble_flow
 from flows.runs import StageSummary
 from flows.stage import run_stage_flow
@@ -78,8 +78,9 @@ def video_to_opponent(
 
     A video that fails does not stop the others; the flow fails at the end, naming each failure.
     """
+    paths, settings = flow_inputs(data_root, config)
     stages = stages_until(until)
-    chunks = chunk_runner(from_tables(config or {}).pose.workers)
+    chunks = chunk_runner(settings.pose.workers)
     forced = set(rerun or [])
     unknown = forced - set(registry.names())
     if unknown:
@@ -88,9 +89,7 @@ def video_to_opponent(
         )
 
     def run(stage: str, subject: str, inputs: dict, **options) -> StageSummary:
-        summary = run_stage_flow(
-            stage, data_root, subject, inputs, config, stage in forced, **options
-        )
+        summary = run_stage_flow(stage, paths, subject, inputs, config, stage in forced, **options)
         summaries.append(summary)
         return summary
 
@@ -119,7 +118,7 @@ def video_to_opponent(
     if any(s.stage == "dataset" for s in summaries):
         # Every video of this adversary with a current dataset output, not only this run's.
         try:
-            assembled = assemble_flow(data_root, adversary, config, "dataset" in forced)
+            assembled = assemble_flow(str(paths.root), adversary, config, "dataset" in forced)
             summaries.append(assembled)
             done = {"dataset": assembled.key}
             for stage in registry.names(registry.Subject.DATASET, registry.Subject.RUN):

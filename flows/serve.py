@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from storage.files import write_atomic
-from storage.paths import data_paths
+from storage.paths import DataPaths, data_paths
 from storage.records import process_alive
 from tasks.errors import BadInput
 
@@ -79,27 +79,27 @@ class Served:
     pid: int  # the `ringside serve` process, which owns the server and the runner
 
 
-def served_file(data_root: str | Path) -> Path:
-    return data_paths(data_root).prefect_home / SERVED_FILE
+def served_file(paths: DataPaths) -> Path:
+    return paths.prefect_home / SERVED_FILE
 
 
-def write_served(data_root: str | Path, served: Served) -> None:
-    write_atomic(served_file(data_root), json.dumps(asdict(served)).encode())
+def write_served(paths: DataPaths, served: Served) -> None:
+    write_atomic(served_file(paths), json.dumps(asdict(served)).encode())
 
 
-def read_served(data_root: str | Path) -> Served | None:
+def read_served(paths: DataPaths) -> Served | None:
     """What ``served.json`` says, or None when there is none or it cannot be read."""
     try:
-        return Served(**json.loads(served_file(data_root).read_text()))
+        return Served(**json.loads(served_file(paths).read_text()))
     except (OSError, ValueError, TypeError):
         return None
 
 
-def clear_served(data_root: str | Path, pid: int) -> None:
+def clear_served(paths: DataPaths, pid: int) -> None:
     """Remove ``served.json`` if process ``pid`` wrote it (another serve may have replaced it)."""
-    served = read_served(data_root)
+    served = read_served(paths)
     if served is not None and served.pid == pid:
-        served_file(data_root).unlink(missing_ok=True)
+        served_file(paths).unlink(missing_ok=True)
 
 
 def answers(api_url: str, timeout_s: float = 2.0) -> bool:
@@ -111,13 +111,13 @@ def answers(api_url: str, timeout_s: float = 2.0) -> bool:
         return False
 
 
-def served_api(data_root: str | Path) -> str | None:
-    """The API URL of the Prefect server ``ringside serve`` runs for ``data_root``, if it is up.
+def served_api(paths: DataPaths) -> str | None:
+    """The API URL of the Prefect server ``ringside serve`` runs for ``paths``, if it is up.
 
     A ``served.json`` left by a killed serve names a dead process (or a port someone else may
     use now), so the process must be alive and the API must answer.
     """
-    served = read_served(data_root)
+    served = read_served(paths)
     if served is None or not process_alive(served.pid) or not answers(served.api_url):
         return None
     return served.api_url
@@ -159,13 +159,13 @@ def die_with_parent() -> None:
     ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
 
 
-def start_server(data_root: str | Path, port: int) -> subprocess.Popen:
+def start_server(paths: DataPaths, port: int) -> subprocess.Popen:
     """Start Ringside's Prefect server; its output goes to ``DATA/prefect/server.log``.
 
     It gets a session of its own so that Ctrl-C reaches only ``ringside serve``, which stops the
     runner first (it pauses the schedules through the server) and then the server.
     """
-    log_path = data_paths(data_root).prefect_home / SERVER_LOG
+    log_path = paths.prefect_home / SERVER_LOG
     log_path.parent.mkdir(parents=True, exist_ok=True)
     env = {**SERVER_SETTINGS, **os.environ, **SERVER_LOG_SETTINGS}
     env.pop("PREFECT_API_URL", None)  # the server does not report to anyone
@@ -192,7 +192,7 @@ def free_port() -> int:
 _private: list[subprocess.Popen] = []
 
 
-def private_server(data_root: str | Path) -> str:
+def private_server(paths: DataPaths) -> str:
     """Start a Prefect server for this command alone and return its API URL.
 
     Prefect would start a temporary server of its own, which outlives a command killed with
@@ -207,12 +207,12 @@ def private_server(data_root: str | Path) -> str:
     # Servers on one data directory share Prefect's database, which a server migrates as it
     # starts: two commands started at once on a new data directory both migrated it, and one
     # failed ("duplicate column name"). Starting one at a time on a lock avoids it.
-    home = data_paths(data_root).prefect_home
+    home = paths.prefect_home
     home.mkdir(parents=True, exist_ok=True)
     with (home / "server-start.lock").open("a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        written = server_log_size(data_root)
-        server = start_server(data_root, port)
+        written = server_log_size(paths)
+        server = start_server(paths, port)
         # Stopped on the way out from here on: a SIGTERM while it migrates its database once
         # left it running after the command had gone.
         atexit.register(stop_process, server, 5.0)
@@ -221,7 +221,7 @@ def private_server(data_root: str | Path) -> str:
     if not up:
         exited = server.poll() is not None
         stop_private_servers()
-        raise ServerError(startup_failure(data_root, written, exited, timeout_s))
+        raise ServerError(startup_failure(paths, written, exited, timeout_s))
     return api_url
 
 
@@ -229,16 +229,16 @@ class ServerError(RuntimeError):
     """Prefect's server could not be started for a command; the message says why in a line."""
 
 
-def server_log_size(data_root: str | Path) -> int:
+def server_log_size(paths: DataPaths) -> int:
     """Bytes in the server log now: a start's own lines follow (`startup_failure`)."""
-    log = data_paths(data_root).prefect_home / SERVER_LOG
+    log = paths.prefect_home / SERVER_LOG
     return log.stat().st_size if log.exists() else 0
 
 
-def startup_failure(data_root: str | Path, written: int, exited: bool, timeout_s: float) -> str:
+def startup_failure(paths: DataPaths, written: int, exited: bool, timeout_s: float) -> str:
     """Why a server started when its log held ``written`` bytes did not come up, in a line:
     its database damaged (from what it logged), it stopped, or it took too long."""
-    log = data_paths(data_root).prefect_home / SERVER_LOG
+    log = paths.prefect_home / SERVER_LOG
     with log.open("rb") as lines:
         lines.seek(written)
         said = lines.read().decode(errors="replace").splitlines()
@@ -349,7 +349,7 @@ class Supervised:
     runs: dict[Any, str | None]
 
 
-def supervise(data_root: str | Path, workers: list[Supervised]) -> list[str]:
+def supervise(paths: DataPaths, workers: list[Supervised]) -> list[str]:
     """Look at each worker once. A live one: note the flow runs below it. A dead one (killed,
     crashed): stop the runs it left (they would go on outside anyone's control), mark them
     Crashed in Prefect, so that the next run recomputes their outputs, and start a new worker
@@ -370,7 +370,7 @@ def supervise(data_root: str | Path, workers: list[Supervised]) -> list[str]:
         run_ids = sorted({worker.runs[p] for p in left} - {None})
         # The new worker first: the old one's runs may take seconds to stop. A run stopped by
         # SIGTERM marks itself Crashed; one that could not is marked here.
-        worker.process, worker.runs = start_worker(data_root), {}
+        worker.process, worker.runs = start_worker(paths), {}
         _end(left, 10.0)
         crash_flow_runs(run_ids, f"its worker (pid {dead}) died")
         how = f"signal {-code}" if code < 0 else f"exit {code}"
@@ -443,8 +443,8 @@ def stop_process(process: subprocess.Popen, timeout_s: float = 30.0) -> None:
         process.wait()
 
 
-def log_tail(data_root: str | Path, lines: int = 20) -> str:
-    path = data_paths(data_root).prefect_home / SERVER_LOG
+def log_tail(paths: DataPaths, lines: int = 20) -> str:
+    path = paths.prefect_home / SERVER_LOG
     try:
         return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
     except OSError:
@@ -478,7 +478,7 @@ def parse_when(text: str, *, now: datetime) -> datetime:
 
 
 def pipeline_parameters(
-    data_root: str | Path, video_id_prefix: str, *, rerun: list[str] | None
+    paths: DataPaths, video_id_prefix: str, *, rerun: list[str] | None
 ) -> dict[str, Any]:
     """The parameters of a ``video_to_opponent`` run that reruns an ingested video as it was
     declared, with the settings of ``./ringside.toml``; ``rerun`` names stages to recompute
@@ -487,10 +487,10 @@ def pipeline_parameters(
     from storage.db import connect
     from tasks.ingest.store import ingested_video
 
-    with connect(data_paths(data_root).db, read_only=True) as con:
+    with connect(paths.db, read_only=True) as con:
         video = ingested_video(con, video_id_prefix)
     return run_parameters(
-        data_root,
+        paths,
         [video.path],
         video.adversary,
         video.colour,
@@ -501,7 +501,7 @@ def pipeline_parameters(
 
 
 def run_parameters(
-    data_root: str | Path,
+    paths: DataPaths,
     videos: list[str],
     adversary: str,
     adversary_colour: str | None,
@@ -514,7 +514,7 @@ def run_parameters(
     """The parameters of one ``video_to_opponent`` run, by the flow's own names, with the data
     directory and the videos as absolute paths (a run may start in another directory)."""
     return {
-        "data_root": str(data_paths(data_root).root),
+        "data_root": str(paths.root),  # a flow parameter: JSON, so a string
         "videos": [str(Path(v).resolve()) for v in videos],
         "adversary": adversary,
         "adversary_colour": adversary_colour,
@@ -533,15 +533,16 @@ def run_name(parameters: dict[str, Any]) -> str:
     return f"{name} (rerun {', '.join(rerun)})" if rerun else name or PIPELINE_FLOW
 
 
-def submit_run(data_root: str | Path, parameters: dict, *, at: datetime | None = None) -> str:
+def submit_run(paths: DataPaths, parameters: dict, *, at: datetime | None = None) -> str:
     """Create a run of the served pipeline deployment with ``parameters``, to start now or at
     ``at`` (naive: local time); returns the flow run's id. The runner of ``ringside serve``
-    executes it."""
-    api = served_api(data_root)
+    executes it. A ``data_root`` among ``parameters`` must name ``paths``' data directory."""
+    api = served_api(paths)
     if api is None:
-        raise BadInput(str(data_paths(data_root).root), NO_SERVER)
-    root = str(data_paths(data_root).root)
+        raise BadInput(str(paths.root), NO_SERVER)
+    root = str(paths.root)
     named = parameters.get("data_root", root)
+    # A flow parameter, a string as a caller may have written it: resolved as the flow will.
     if str(data_paths(named).root) != root:
         raise ValueError(f"parameters name data_root {named}, not {root}")
     parameters = {**parameters, "data_root": root}
@@ -577,12 +578,12 @@ class RunProgress:
     message: str
 
 
-def run_progress(data_root: str | Path, flow_run_id: str) -> RunProgress:
+def run_progress(paths: DataPaths, flow_run_id: str) -> RunProgress:
     """The state of flow run ``flow_run_id`` on the served server; ``Unreachable`` (not
     finished) while no ``ringside serve`` runs, so a poller can wait for it to come back."""
     from uuid import UUID
 
-    api = served_api(data_root)
+    api = served_api(paths)
     if api is None:
         return RunProgress("Unreachable", False, False, NO_SERVER)
     from prefect.client.orchestration import get_client
@@ -626,9 +627,9 @@ def local_timezone() -> str:
     return key if found and key in known else "UTC"
 
 
-def deployments(data_root: str | Path, config: dict, watch: Watch | None) -> list:
+def deployments(paths: DataPaths, config: dict, watch: Watch | None) -> list:
     """Prefect deployments of the pipeline (on demand) and, with ``watch``, of the watcher (on
-    its schedule), with ``data_root`` and ``config`` as default parameters. Builds and checks
+    its schedule), with ``paths``' root and ``config`` as default parameters. Builds and checks
     them (a bad cron expression fails here) without talking to the server."""
     from prefect.client.schemas.schedules import CronSchedule, IntervalSchedule
     from prefect.types.entrypoint import EntrypointType
@@ -636,7 +637,7 @@ def deployments(data_root: str | Path, config: dict, watch: Watch | None) -> lis
     from flows.pipeline import video_to_opponent
     from flows.watch import watch_folder
 
-    root = str(data_paths(data_root).root)
+    root = str(paths.root)  # flow parameters are JSON: the root goes as a string
     # By module path, so a run finds the flow wherever the runner's working directory is.
     by_module = EntrypointType.MODULE_PATH
     found = [
@@ -677,7 +678,7 @@ def deployments(data_root: str | Path, config: dict, watch: Watch | None) -> lis
     return found
 
 
-def serve_deployments(found: list, data_root: str | Path, workers: int = 0) -> None:
+def serve_deployments(found: list, paths: DataPaths, workers: int = 0) -> None:
     """Serve ``found`` until Ctrl-C or SIGTERM: from one runner, ``RUN_LIMIT`` runs at a time,
     or, with ``workers``, the pipeline (``found[0]``) on the work pool, where that many process
     workers started here (and any `ringside worker` elsewhere) take its runs, one each at a time.
@@ -696,11 +697,11 @@ def serve_deployments(found: list, data_root: str | Path, workers: int = 0) -> N
         runner.add_deployment(deployment)
 
     def look() -> None:
-        for line in supervise(data_root, started):
+        for line in supervise(paths, started):
             print(line, file=sys.stderr, flush=True)
 
     try:
-        started.extend(Supervised(start_worker(data_root), {}) for _ in range(workers))
+        started.extend(Supervised(start_worker(paths), {}) for _ in range(workers))
         asyncio.run(_run_until_stopped(runner, look if workers else None))
     finally:
         stop_workers([worker.process for worker in started])
@@ -716,16 +717,16 @@ def ensure_work_pool() -> None:
         client.create_work_pool(WorkPoolCreate(name=WORK_POOL, type="process"))
 
 
-def worker_log(data_root: str | Path) -> Path:
+def worker_log(paths: DataPaths) -> Path:
     """Where the process workers started on this data directory write their log."""
-    return data_paths(data_root).prefect_home / WORKER_LOG
+    return paths.prefect_home / WORKER_LOG
 
 
-def start_worker(data_root: str | Path, limit: int = 1) -> subprocess.Popen:
+def start_worker(paths: DataPaths, limit: int = 1) -> subprocess.Popen:
     """A Prefect process worker on `WORK_POOL` of the server ``PREFECT_API_URL`` names, taking
     ``limit`` runs at a time, each in a process of its own; its log goes to
     ``DATA/prefect/worker.log``. It dies with this process, as the private servers do."""
-    log_path = worker_log(data_root)
+    log_path = worker_log(paths)
     log_path.parent.mkdir(parents=True, exist_ok=True)
     command = [sys.executable, "-m", "prefect", "worker", "start", "--pool", WORK_POOL]
     command += ["--type", "process", "--limit", str(limit)]

@@ -10,9 +10,9 @@ from typing import Any
 from prefect import flow
 from prefect.task_runners import ThreadPoolTaskRunner
 
-from flows.config import from_tables
+from flows.config import flow_inputs
 from flows.runs import StageSummary, reuse_or_run
-from storage.paths import data_paths
+from storage.paths import DataPaths
 from tasks import registry
 
 
@@ -29,9 +29,8 @@ def stage_flow(
     """Stage ``stage``'s output for ``subject`` (a video file for ingest, a video id, a dataset
     key or a training run key) from ``inputs`` (the upstream outputs' keys; ingest's are the
     adversary's declaration); ``force`` recomputes even when a committed output exists."""
-    paths = data_paths(data_root)
-    settings = getattr(from_tables(config or {}), stage)
-    plan = registry.stage(stage).planner()(paths, settings, subject, inputs or {})
+    paths, settings = flow_inputs(data_root, config)
+    plan = registry.stage(stage).planner()(paths, getattr(settings, stage), subject, inputs or {})
     result, state = reuse_or_run(paths, plan, force)
     plan.after()
     return StageSummary(
@@ -47,7 +46,7 @@ def stage_flow(
 
 def run_stage_flow(
     stage: str,
-    data_root: str,
+    paths: DataPaths,
     subject: str,
     inputs: Mapping[str, Any] | None = None,
     config: dict | None = None,
@@ -62,5 +61,5 @@ def run_stage_flow(
     if task_runner is not None:
         options["task_runner"] = task_runner
     return stage_flow.with_options(**options)(
-        data_root, stage, subject, dict(inputs or {}), config, force
+        str(paths.root), stage, subject, dict(inputs or {}), config, force
     )

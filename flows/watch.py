@@ -16,10 +16,11 @@ from pathlib import Path
 
 from prefect import flow, get_run_logger
 
+from flows.config import flow_inputs
 from flows.pipeline import PipelineFailed, video_to_opponent
 from storage.db import connect
 from storage.files import sha256_file, write_atomic
-from storage.paths import data_paths
+from storage.paths import DataPaths
 from tasks.ingest.store import Registered, registered_videos
 
 VIDEO_SUFFIXES = frozenset(
@@ -29,9 +30,9 @@ LEDGER_FILE = "watch-ledger.json"
 DEFAULT_SETTLE_S = 10.0
 
 
-def _registered(data_root: str | Path) -> Registered:
-    """The videos registered in ``data_root``'s database; none before the first one."""
-    db = data_paths(data_root).db
+def _registered(paths: DataPaths) -> Registered:
+    """The videos registered in the data directory's database; none before the first one."""
+    db = paths.db
     if not db.exists():
         return Registered({}, frozenset())
     with connect(db, read_only=True) as con:
@@ -96,12 +97,12 @@ def sort_files(
     return Sorted(candidates, waiting, known)
 
 
-def ledger_path(data_root: str | Path) -> Path:
-    return data_paths(data_root).prefect_home / LEDGER_FILE
+def ledger_path(paths: DataPaths) -> Path:
+    return paths.prefect_home / LEDGER_FILE
 
 
-def read_ledger(data_root: str | Path) -> dict[str, dict]:
-    path = ledger_path(data_root)
+def read_ledger(paths: DataPaths) -> dict[str, dict]:
+    path = ledger_path(paths)
     return json.loads(path.read_text()) if path.exists() else {}
 
 
@@ -128,9 +129,10 @@ def watch_folder(
     ``adversary``'s. Returns the paths it processed, those still being written, and the copies
     of registered videos it found."""
     logger = get_run_logger()
+    paths, _ = flow_inputs(data_root, config)
     files = list_videos(Path(folder))
-    ledger = read_ledger(data_root)
-    registered = _registered(data_root)
+    ledger = read_ledger(paths)
+    registered = _registered(paths)
     seen = sort_files(
         files,
         registered_sizes=registered.sizes_by_path,
@@ -156,7 +158,7 @@ def watch_folder(
     if new:
         try:
             video_to_opponent(
-                data_root,
+                str(paths.root),
                 [f.path for f in new],
                 adversary,
                 adversary_colour,
@@ -167,13 +169,13 @@ def watch_folder(
         except PipelineFailed as failed:
             failures = failed.failures
         # What ingest could not register would fail the same way next time, until it changes.
-        registered_now = _registered(data_root).sizes_by_path
+        registered_now = _registered(paths).sizes_by_path
         for f in new:
             if f.path not in registered_now:
                 why = failure_of(f.path, failures)
                 ledger[f.path] = {"size": f.size, "mtime_ns": f.mtime_ns, "why": why}
     if ledger != noted:
-        write_atomic(ledger_path(data_root), json.dumps(ledger, indent=1).encode())
+        write_atomic(ledger_path(paths), json.dumps(ledger, indent=1).encode())
     if failures:
         raise WatchFailed("; ".join(failures))
     return {

@@ -35,6 +35,7 @@ from flows.cli import build_parser, main
 from flows.serve import server_log_size
 from models.humanoid.kinematics import BODY_NAMES, Y_UP_TO_Z_UP
 from storage.db import connect
+from storage.paths import data_paths
 
 
 @pytest.fixture
@@ -325,7 +326,7 @@ def test_bad_input_is_one_clear_line_and_changes_nothing(
     path, problem = bad_input(kind, tmp_path, sample_video)
     db = populated / "ringside.duckdb"
     before = db_snapshot(db)
-    log = server_log_size(populated)
+    log = server_log_size(data_paths(populated))
     code, out, err = run_cli(
         capsys, "--data", str(populated), "process", str(path), "--adversary", "A"
     )
@@ -335,7 +336,7 @@ def test_bad_input_is_one_clear_line_and_changes_nothing(
     assert str(path) in lines[0] and problem in lines[0]
     assert db_snapshot(db) == before
     if kind in ("missing", "directory", "empty"):  # found without decoding: no server waited for
-        assert server_log_size(populated) == log, "a Prefect server was started for it"
+        assert server_log_size(data_paths(populated)) == log, "a Prefect server was started for it"
 
 
 def test_a_video_of_too_few_frames_is_refused_by_ingest(tmp_path, capsys, populated):
@@ -505,7 +506,7 @@ def test_the_next_command_marks_a_killed_commands_flow_runs_crashed(tmp_path, ca
 
     code, _, err = run_cli(capsys, *process_argv(data, sample_video, until="ingest"))
     assert code == 0, err
-    api = private_server(data)
+    api = private_server(data_paths(data))
     try:
         with (
             temporary_settings(updates={PREFECT_API_URL: api}),

@@ -387,10 +387,10 @@ def test_every_page_in_a_browser(capsys, trained, tmp_path):
             # The rerun button: ingest (the first stage) of the sample, through the served
             # deployment; the page follows the run to its end.
             deadline = time.monotonic() + 180
-            while served_api(data) is None and time.monotonic() < deadline:
+            while served_api(data_paths(data)) is None and time.monotonic() < deadline:
                 assert serving.poll() is None, (home / "serve.log").read_text()
                 time.sleep(1)
-            assert served_api(data), "`ringside serve` never came up"
+            assert served_api(data_paths(data)), "`ringside serve` never came up"
             text = _open(page, f"{url}/", "overview")
             # Training on the sample's dataset and the evaluation of that run, as `status` has them.
             opponents = {
@@ -430,7 +430,7 @@ def test_every_page_in_a_browser(capsys, trained, tmp_path):
                 [videos[0]["video_id"], before],
             )
             assert sorted(later) == [("dataset", "cached"), ("lift", "cached"), ("pose", "cached")]
-            assert run_progress(data, rerun[0][0]).state == "Completed"
+            assert run_progress(data_paths(data), rerun[0][0]).state == "Completed"
 
             # The fighter pick: the other track is the adversary, the pipeline reruns from pose.
             _open(page, f"{url}/pose?video={video_id}", "pose")

@@ -25,6 +25,7 @@ import flows.postgres
 from flows.cli import main
 from flows.postgres import PostgresError, running_port, server_programs
 from flows.serve import free_port, run_progress, served_api
+from storage.paths import data_paths
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -78,6 +79,7 @@ def served():
     # As root the cluster runs as the `postgres` user, who must reach DATA/postgres.
     root.chmod(0o755)
     data = root / "data"
+    paths = data_paths(data)
     port = free_port()
     start_line, serve_line, stop_line = readme_commands(port)
     env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_HOME", "PREFECT_API_URL")}
@@ -95,9 +97,9 @@ def served():
                 env=env, stdout=out, stderr=subprocess.STDOUT,
             )  # fmt: skip
         wait_for(
-            "`ringside serve` on PostgreSQL", lambda: served_api(data) or serve.poll() is not None
+            "`ringside serve` on PostgreSQL", lambda: served_api(paths) or serve.poll() is not None
         )
-        api = served_api(data)
+        api = served_api(paths)
         assert api, log.read_text(errors="replace")[-3000:]
         where = ("-h", "127.0.0.1", "-p", str(port), "-U", "ringside", "-d", "prefect")
         psql = [str(server_programs() / "psql"), "-X", *where, "-At", "-c"]
@@ -162,7 +164,7 @@ def test_serve_on_postgresql_runs_scheduled_and_cli_runs(served, sample_video):
     )["flow_run_id"]
     progress = wait_for(
         "the scheduled run to finish",
-        lambda: (p := run_progress(data, scheduled)).finished and p,
+        lambda: (p := run_progress(data_paths(data), scheduled)).finished and p,
         log=served.log,
     )
     assert progress.succeeded, progress.message

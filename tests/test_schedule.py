@@ -35,6 +35,7 @@ from flows.serve import (
     submit_run,
 )
 from flows.watch import SeenFile, list_videos, sort_files
+from storage.paths import data_paths
 
 REPO = Path(__file__).resolve().parent.parent
 EVERY_S = 10  # the watched folder's schedule in the test: an interval of seconds
@@ -65,6 +66,7 @@ def served(tmp_path_factory, sample_video: Path):
     """`ringside serve` watching an empty folder every few seconds; stopped with SIGTERM."""
     root = tmp_path_factory.mktemp("serve")
     data, inbox = root / "data", root / "inbox"
+    paths = data_paths(data)
     inbox.mkdir()
     port = free_port()
     env = dict(os.environ)
@@ -93,7 +95,7 @@ def served(tmp_path_factory, sample_video: Path):
     ]
     process = subprocess.Popen(command, cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
     try:
-        api = wait_for("`ringside serve` to come up", lambda: served_api(data), log=log_path)
+        api = wait_for("`ringside serve` to come up", lambda: served_api(paths), log=log_path)
         assert api == f"http://127.0.0.1:{port}/api"
         yield {"data": data, "inbox": inbox, "api": api, "port": port, "log": log_path}
     finally:
@@ -109,7 +111,7 @@ def served(tmp_path_factory, sample_video: Path):
     text = log_path.read_text(errors="replace")
     assert code == 0, text[-3000:]
     assert "serving stopped" in text
-    assert not served_file(data).exists()
+    assert not served_file(paths).exists()
     assert not answers(f"http://127.0.0.1:{port}/api", timeout_s=1)
 
 
@@ -225,10 +227,11 @@ def test_schedule_runs_later_and_shows_in_prefect(served, capsys, sample_video: 
     assert run["name"] == "cam02.mp4"
     expected = datetime.fromisoformat(run["expected_start_time"])
     assert abs(expected - at.replace(microsecond=0)) < timedelta(seconds=1)
-    assert not run_progress(data, run_id).finished
+    paths = data_paths(data)
+    assert not run_progress(paths, run_id).finished
     progress = wait_for(
         "the scheduled run to finish",
-        lambda: (p := run_progress(data, run_id)).finished and p,
+        lambda: (p := run_progress(paths, run_id)).finished and p,
         log=served["log"],
     )
     assert progress == RunProgress("Completed", True, True, progress.message)
@@ -249,7 +252,8 @@ def test_dashboard_rerun_goes_through_the_deployment(served, sample_video: Path)
     [(video_id,)] = query(
         data, "SELECT video_id FROM video_files WHERE path = ?", [str(video.resolve())]
     )
-    parameters = pipeline_parameters(data, video_id[:10], rerun=["ingest"])
+    paths = data_paths(data)
+    parameters = pipeline_parameters(paths, video_id[:10], rerun=["ingest"])
     assert parameters["videos"] == [str(video.resolve())]
     assert parameters["adversary"] == "Watched" and parameters["rerun"] == ["ingest"]
     assert set(parameters["config"]) >= {"ingest", "pose", "lift", "dataset"}
@@ -257,10 +261,10 @@ def test_dashboard_rerun_goes_through_the_deployment(served, sample_video: Path)
         "SELECT state FROM stage_runs WHERE video_id = ? AND stage = 'ingest' ORDER BY created_at"
     )
     before = query(data, ingest_runs, [video_id])
-    run_id = submit_run(data, {**parameters, "until": "ingest"})  # the whole pipeline: minutes
+    run_id = submit_run(paths, {**parameters, "until": "ingest"})  # the whole pipeline: minutes
     progress = wait_for(
         "the rerun to finish",
-        lambda: (p := run_progress(data, run_id)).finished and p,
+        lambda: (p := run_progress(paths, run_id)).finished and p,
         log=served["log"],
     )
     assert progress.succeeded, progress.message
@@ -322,9 +326,10 @@ def test_schedule_errors_without_server_or_with_a_bad_time(capsys, tmp_path: Pat
     missing = tmp_path / "missing.mp4"
     code, _, err = ringside(capsys, "--data", data, "schedule", str(missing), "--adversary", "X")
     assert code == 2 and f"{missing}: no such file" in err
+    paths = data_paths(data)
     with pytest.raises(ValueError, match="start `ringside serve` first"):
-        submit_run(data, {"videos": [str(sample_video)], "adversary": "X"})
-    assert run_progress(data, "00000000-0000-0000-0000-000000000000").state == "Unreachable"
+        submit_run(paths, {"videos": [str(sample_video)], "adversary": "X"})
+    assert run_progress(paths, "00000000-0000-0000-0000-000000000000").state == "Unreachable"
 
 
 def test_parse_when():

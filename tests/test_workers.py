@@ -51,6 +51,7 @@ def _overlap(a: dict, b: dict) -> float:
 @pytest.mark.slow
 def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video):
     data = tmp_path / "data"
+    paths = data_paths(data)
     videos = [sample_video.with_name(f"cam0{i}.mp4") for i in range(1, 5)]
     # As a user runs them: Prefect's home in the data directory.
     env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_HOME", "PREFECT_API_URL")}
@@ -62,7 +63,7 @@ def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video
     )  # fmt: skip
     worker = None
     try:
-        api = wait_for("`ringside serve --workers 1`", lambda: served_api(data))
+        api = wait_for("`ringside serve --workers 1`", lambda: served_api(paths))
         worker = subprocess.Popen(
             [*ringside, "worker"], cwd=REPO, env=env, stdout=logs["worker"],
             stderr=subprocess.STDOUT,
@@ -82,7 +83,7 @@ def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video
         for run_id in scheduled:
             progress = wait_for(
                 "the scheduled runs to finish",
-                lambda run_id=run_id: (p := run_progress(data, run_id)).finished and p,
+                lambda run_id=run_id: (p := run_progress(paths, run_id)).finished and p,
                 log=tmp_path / "serve.log",
             )
             assert progress.succeeded, progress.message
@@ -136,6 +137,7 @@ def test_a_killed_worker_is_replaced_its_run_crashed_and_the_next_run_completes(
     tmp_path, capsys, sample_video
 ):
     data = tmp_path / "data"
+    paths = data_paths(data)
     env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_HOME", "PREFECT_API_URL")}
     ringside = [sys.executable, "-m", "flows.cli", "--data", str(data)]
     log_path = tmp_path / "serve.log"
@@ -155,7 +157,7 @@ def test_a_killed_worker_is_replaced_its_run_crashed_and_the_next_run_completes(
         return json.loads(out)["flow_run_id"]
 
     try:
-        api = wait_for("`ringside serve --workers 1`", lambda: served_api(data), log=log_path)
+        api = wait_for("`ringside serve --workers 1`", lambda: served_api(paths), log=log_path)
         wait_for("a worker online on the pool", lambda: online_workers(api) >= 1, log=log_path)
         worker = _worker_below(serve)
         first = schedule("lift")
@@ -164,7 +166,7 @@ def test_a_killed_worker_is_replaced_its_run_crashed_and_the_next_run_completes(
             lambda: _run_process(worker, first),
             log=log_path,
         )
-        wait_for("the run to start", lambda: run_progress(data, first).state == "Running")
+        wait_for("the run to start", lambda: run_progress(paths, first).state == "Running")
         worker.kill()
         killed = time.monotonic()
         replacement = wait_for(
@@ -177,7 +179,7 @@ def test_a_killed_worker_is_replaced_its_run_crashed_and_the_next_run_completes(
         # The run the dead worker left is stopped and marked Crashed, not left to go on alone.
         progress = wait_for(
             "the killed worker's run to end",
-            lambda: (p := run_progress(data, first)).finished and p,
+            lambda: (p := run_progress(paths, first)).finished and p,
             timeout_s=30,
         )
         assert progress.state == "Crashed", progress
@@ -191,7 +193,7 @@ def test_a_killed_worker_is_replaced_its_run_crashed_and_the_next_run_completes(
         second = schedule("ingest")
         progress = wait_for(
             "the next run to finish",
-            lambda: (p := run_progress(data, second)).finished and p,
+            lambda: (p := run_progress(paths, second)).finished and p,
             log=log_path,
         )
         assert progress.succeeded, progress.message

@@ -41,7 +41,7 @@ def prepare_environment(paths: DataPaths, *, verbose: bool) -> None:
         # While `ringside serve` runs on this data directory, every run reports to its server
         # and shows in its UI; otherwise a flow command starts a server of its own
         # (`flow_server`).
-        api = served_api(paths.root)
+        api = served_api(paths)
         if api is not None:
             os.environ["PREFECT_API_URL"] = api
 
@@ -62,7 +62,7 @@ def flow_server(paths: DataPaths):
         from flows.serve import private_server
 
         # Not Prefect's temporary server: a killed command would leave that one running.
-        os.environ["PREFECT_API_URL"] = private_server(paths.root)
+        os.environ["PREFECT_API_URL"] = private_server(paths)
     with prefect_settings_of_this_command():
         _crash_stale_flow_runs(paths.db)
         yield

@@ -37,7 +37,7 @@ def run_pipeline(
     # Half-written files of a process killed mid-write (`storage.files.write_atomic`).
     remove_stale_temporaries(paths.artifacts)
     parameters = run_parameters(
-        paths.root,
+        paths,
         videos,
         adversary,
         colour,

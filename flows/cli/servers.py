@@ -148,7 +148,7 @@ def serve_command(args, paths: DataPaths) -> int:
             args.every,
             args.until,
         )
-    running = served.served_api(paths.root)
+    running = served.served_api(paths)
     if running is not None:
         raise ValueError(f"{paths.root} is served already, at {running.removesuffix('/api')}")
     own_server = "PREFECT_API_URL" not in os.environ
@@ -160,24 +160,24 @@ def serve_command(args, paths: DataPaths) -> int:
     api = os.environ.setdefault("PREFECT_API_URL", f"http://127.0.0.1:{args.port}/api")
     for name, value in served.RUNNER_SETTINGS.items():
         os.environ.setdefault(name, value)
-    deployments = served.deployments(paths.root, config, watch)
+    deployments = served.deployments(paths, config, watch)
     # SIGTERM stops it as Ctrl-C does, the server included (below); once serving, SIGTERM
     # cancels the runner instead (see serve_deployments).
     server = None
     with sigterm_as_ctrl_c():
         try:
             if own_server:
-                written = served.server_log_size(paths.root)
-                server = served.start_server(paths.root, args.port)
+                written = served.server_log_size(paths)
+                server = served.start_server(paths, args.port)
                 if not served.wait_until_up(api, server):
-                    print(served.log_tail(paths.root), file=sys.stderr)
+                    print(served.log_tail(paths), file=sys.stderr)
                     why = served.startup_failure(
-                        paths.root, written, server.poll() is not None, served.SERVER_START_S
+                        paths, written, server.poll() is not None, served.SERVER_START_S
                     )
                     print(f"ringside: error: {why}", file=sys.stderr)
                     return EXIT_FAILED
             ui = api.removesuffix("/api")
-            served.write_served(paths.root, served.Served(api, ui, os.getpid()))
+            served.write_served(paths, served.Served(api, ui, os.getpid()))
             print(f"Prefect UI: {ui} (Ctrl-C stops serving)", flush=True)
             print(
                 f"serving {served.PIPELINE_FLOW}/{served.DEPLOYMENT} on {paths.root}: "
@@ -190,11 +190,11 @@ def serve_command(args, paths: DataPaths) -> int:
                     f"watching {watch.folder.resolve()} {when} for new videos of {watch.adversary}",
                     flush=True,
                 )
-            served.serve_deployments(deployments, paths.root, args.workers)
+            served.serve_deployments(deployments, paths, args.workers)
         except (KeyboardInterrupt, SystemExit):  # SystemExit: Prefect's own SIGTERM handler
             pass
         finally:
-            served.clear_served(paths.root, os.getpid())
+            served.clear_served(paths, os.getpid())
             if server is not None:
                 served.stop_process(server)
     print("serving stopped", file=sys.stderr)
@@ -215,10 +215,10 @@ def worker_command(args, paths: DataPaths) -> int:
         )
     served.ensure_work_pool()
     with sigterm_as_ctrl_c():
-        worker = served.start_worker(paths.root, args.limit)
+        worker = served.start_worker(paths, args.limit)
         print(
             f"taking runs from work pool '{served.WORK_POOL}' of {api}, {args.limit} at a time "
-            f"(log: {served.worker_log(paths.root)}; Ctrl-C stops)",
+            f"(log: {served.worker_log(paths)}; Ctrl-C stops)",
             flush=True,
         )
         try:
@@ -244,7 +244,7 @@ def schedule_command(args, paths: DataPaths) -> int:
     at = served.parse_when(args.at, now=datetime.now().astimezone())
     config = load_config(args.config, overrides(args))
     parameters = served.run_parameters(
-        paths.root,
+        paths,
         args.videos,
         args.adversary,
         args.adversary_colour,
@@ -253,9 +253,9 @@ def schedule_command(args, paths: DataPaths) -> int:
         until=args.until,
     )
     run_id = served.submit_run(
-        paths.root, parameters, at=None if args.at.strip().lower() == "now" else at
+        paths, parameters, at=None if args.at.strip().lower() == "now" else at
     )
-    ui = (served.served_api(paths.root) or "").removesuffix("/api")
+    ui = (served.served_api(paths) or "").removesuffix("/api")
     url = f"{ui}/runs/flow-run/{run_id}"
     if args.json:
         print(json.dumps({"flow_run_id": run_id, "scheduled_time": at.isoformat(), "url": url}))

@@ -23,7 +23,7 @@ def train_command(args, paths: DataPaths) -> int:
     resolve_dataset(paths.db, args.dataset)  # fail fast, before Prefect starts
     with flow_server(paths):
         summary = run_stage_flow(
-            "train", str(paths.root), args.dataset, config=config.as_dict(), force=args.rerun
+            "train", paths, args.dataset, config=config.as_dict(), force=args.rerun
         )
     print_summary([summary], paths, args.json)
     return 0
@@ -82,7 +82,7 @@ def evaluate_command(args, paths: DataPaths) -> int:
 
     with flow_server(paths):
         summary = run_stage_flow(
-            "evaluate", str(paths.root), args.run, config=config.as_dict(), force=args.rerun
+            "evaluate", paths, args.run, config=config.as_dict(), force=args.rerun
         )
     with connect(db, read_only=True) as con:
         tables = evaluation_tables(con, summary.key, summary.video_id)
