@@ -29,7 +29,8 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from conftest import stage_contents  # noqa: E402
 
-from flows.serve import free_port, run_progress, served_api  # noqa: E402
+from flows.launch import run_progress, served_api  # noqa: E402
+from flows.serve import free_port  # noqa: E402
 from storage.assets import SAMPLE_VIDEO  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 

@@ -13,8 +13,10 @@ By hand: ``streamlit run dashboards/app.py -- --data DIR`` (default ``$RINGSIDE_
 
 from __future__ import annotations
 
+import argparse
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import streamlit as st
 
@@ -22,7 +24,8 @@ from dashboards.opponent import dataset_page, evaluation_page, training_page
 from dashboards.overview import overview_page
 from dashboards.perception import lift_page, pose_page
 from dashboards.stages import stage_page
-from dashboards.widgets import data_root
+from dashboards.widgets import DATA
+from storage.paths import DataPaths, data_paths
 
 # URL path -> (title, page), in the sidebar's order; the first is the home page.
 PAGES: dict[str, tuple[str, Callable[[], None]]] = {
@@ -36,7 +39,21 @@ PAGES: dict[str, tuple[str, Callable[[], None]]] = {
 }
 
 
+def open_data(argv: Sequence[str]) -> DataPaths:
+    """The data directory the pages show: ``--data DIR`` among the script's arguments, else
+    ``$RINGSIDE_DATA``, else ``./data``; kept for this render's pages (`widgets.data`)."""
+    # Streamlit passes the script its own arguments; anything else there (pytest's, when a test
+    # runs a page) is not ours to refuse.
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    parser.add_argument("--data", type=Path)
+    known, _ = parser.parse_known_args(list(argv))
+    paths = data_paths(known.data)
+    st.session_state[DATA] = paths
+    return paths
+
+
 def main() -> None:
+    paths = open_data(sys.argv[1:])
     st.set_page_config(page_title="Ringside", layout="wide")
     home = next(iter(PAGES))
     page = st.navigation(
@@ -45,7 +62,7 @@ def main() -> None:
             for path, (title, draw) in PAGES.items()
         ]
     )
-    st.sidebar.caption(f"Data: `{data_root(sys.argv[1:])}`")
+    st.sidebar.caption(f"Data: `{paths.root}`")
     # Pages read the database on each render; the button is one without touching a widget.
     st.sidebar.button("Reload", help="Read the database again")
     page.run()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -12,14 +11,14 @@ import streamlit as st
 from dashboards import queries
 from dashboards.widgets import (
     PROCESS_HINT,
-    data_root,
+    data,
     finish_page,
     follow_run,
     format_value,
     read,
     video_labels,
 )
-from storage.paths import DataPaths, data_paths
+from storage.paths import DataPaths
 from tasks.registry import names, per_video
 
 STATE_COLOURS = {
@@ -120,10 +119,10 @@ def opponent_section(rows: Sequence[Mapping[str, Any]]) -> None:
 def rerun_section(videos: Sequence[Mapping[str, Any]]) -> None:
     """Rerun one stage of one video (and what depends on it) through Prefect, and follow the
     runs started from this page."""
-    from flows.serve import pipeline_parameters, served_api
+    from flows.launch import pipeline_parameters, served_api
 
     st.subheader("Rerun a stage")
-    paths = data_paths(data_root(sys.argv[1:]))
+    paths = data()
     served = served_api(paths)
     labels = video_labels(videos)
     left, middle, right = st.columns([3, 2, 1], vertical_alignment="bottom")
@@ -155,7 +154,7 @@ def rerun_section(videos: Sequence[Mapping[str, Any]]) -> None:
 def rerun_progress(paths: DataPaths, labels: Mapping[str, str]) -> None:
     """The state of each rerun started here: Prefect's state of the flow run and the stages it
     has finished so far. Redraws the whole page once the last of them has finished."""
-    from flows.serve import run_progress
+    from flows.launch import run_progress
 
     reruns = st.session_state["reruns"]
     events = read(

@@ -3,8 +3,6 @@ the adversary; its lifted motion, cleanup series and review video."""
 
 from __future__ import annotations
 
-import sys
-
 import altair as alt
 import pandas as pd
 import streamlit as st
@@ -15,7 +13,7 @@ from dashboards.widgets import (
     LOCK_WAIT_S,
     ROLE_COLOURS,
     artifact_file,
-    data_root,
+    data,
     finish_page,
     follow_run,
     format_value,
@@ -25,7 +23,6 @@ from dashboards.widgets import (
     video_review,
 )
 from storage.db import connect
-from storage.paths import data_paths
 from tasks.pose.store import record_pick
 
 
@@ -111,10 +108,10 @@ def confidence_chart(confidence: pd.DataFrame) -> alt.Chart:
 def pick_section(video: str, review: queries.PoseReview) -> None:
     """Choose which track is the adversary: stored as the video's pick, then the pipeline
     reruns the pose stage and what depends on it through Prefect."""
-    from flows.serve import pipeline_parameters, served_api
+    from flows.launch import pipeline_parameters, served_api
 
     st.subheader("Which track is the adversary?")
-    paths = data_paths(data_root(sys.argv[1:]))
+    paths = data()
     tracks = list(review.tracks["track"])
     roles = dict(zip(review.tracks["track"], review.tracks["role"], strict=True))
     current = next((t for t in tracks if roles[t] == "adversary"), tracks[0] if tracks else None)

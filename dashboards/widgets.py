@@ -4,10 +4,8 @@ formats, videos and the colours of roles and fighters."""
 
 from __future__ import annotations
 
-import argparse
 import functools
 import math
-import sys
 from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime
 from pathlib import Path
@@ -21,9 +19,11 @@ import streamlit as st
 from dashboards import queries
 from storage.artifacts import NotAnArtifact, artifact_path, hashes_to_name
 from storage.db import DatabaseBusy, connect, damaged_database, error_line, utcnow
-from storage.paths import DataPaths, data_paths
+from storage.paths import DataPaths
 from tasks.errors import BadInput
 
+# Where a render keeps the data directory its script was given (`dashboards.app.open_data`).
+DATA = "ringside_data"
 # A page waits this long for the pipeline to let go of the database, then says so: a writer
 # holds it for seconds at most, and an analyst should not stare at a blank page meanwhile.
 LOCK_WAIT_S = 10.0
@@ -62,25 +62,16 @@ def format_value(value: float | None) -> str:
     return f"{value:.4g}"
 
 
-def data_root(argv: Sequence[str]) -> Path:
-    """The data directory: ``--data DIR`` among the script's arguments, else
-    ``$RINGSIDE_DATA``, else ``./data``."""
-    # Streamlit passes the script its own arguments; anything else there (pytest's, when a test
-    # runs a page) is not ours to refuse.
-    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
-    parser.add_argument("--data", type=Path)
-    known, _ = parser.parse_known_args(list(argv))
-    return data_paths(known.data).root
-
-
-def database() -> Path:
-    return data_paths(data_root(sys.argv[1:])).db
+def data() -> DataPaths:
+    """The data directory this dashboard shows, as its script found it for this render
+    (`dashboards.app.open_data`)."""
+    return st.session_state[DATA]
 
 
 def read(read_with: Callable[[duckdb.DuckDBPyConnection], T]) -> T | None:
     """``read_with``'s result on a fresh read-only connection, closed before the page draws; None
     after telling the analyst why there is nothing to read."""
-    db = database()
+    db = data().db
     if not db.exists():
         st.info(f"No database yet in `{db.parent}`: {PROCESS_HINT}.")
         return None
@@ -117,7 +108,7 @@ def read_rows(
 
 
 def finish_page() -> None:
-    st.caption(f"{READ_AT} {datetime.now():%H:%M:%S} from `{database()}`.")
+    st.caption(f"{READ_AT} {datetime.now():%H:%M:%S} from `{data().db}`.")
 
 
 def artifact_file(name: str | None) -> Path | None:
@@ -126,7 +117,7 @@ def artifact_file(name: str | None) -> Path | None:
     if name is None:
         return None
     try:
-        path = artifact_path(data_paths(data_root(sys.argv[1:])).artifacts, name)
+        path = artifact_path(data().artifacts, name)
     except NotAnArtifact as error:
         st.error(f"{error}; `ringside check` lists what the database names wrongly.")
         return None
@@ -237,7 +228,7 @@ def numbers_table(frame: pd.DataFrame) -> Any:
 def follow_run(paths: DataPaths, video: str, stage: str, parameters: Callable[[], dict]) -> bool:
     """Submit a pipeline run of ``video`` with ``parameters()`` to the served deployment and
     remember it for `rerun_progress`; False (after saying why) if Prefect refused it."""
-    from flows.serve import submit_run
+    from flows.launch import submit_run
 
     started = utcnow()
     try:

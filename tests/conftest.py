@@ -193,9 +193,10 @@ def copy_data(source: Path, data: Path) -> Path:
 
 def render_page(path: str) -> None:
     """One dashboard page as a script of its own, for Streamlit's AppTest (which runs a
-    function's body, so the import is inside)."""
-    from dashboards.app import PAGES
+    function's body, so the import is inside), on the data directory of ``$RINGSIDE_DATA``."""
+    from dashboards.app import PAGES, open_data
 
+    open_data([])
     PAGES[path][1]()
 
 

@@ -111,15 +111,31 @@ def test_truncated_artifacts_are_quarantined_then_recomputed(
     paths = data_paths(data)
     argv = process_argv(data, sample_video, "--ingest-chunk-frames", "30", *TINY_PIPELINE_FLAGS)
     argv[argv.index("--until") + 1] = "evaluate"
-    assert run_cli(capsys, *argv)[0] == 0
-    (run,) = query(data, "SELECT key FROM stage_outputs WHERE stage = 'train'")[0]
+    code, out, _ = run_cli(capsys, *argv, "--json")
+    assert code == 0
+    # This run's outputs (the shared run may hold other tests' runs and reruns).
+    keys = {summary["stage"]: summary["key"] for summary in json.loads(out)}
+    run = keys["train"]
     named = {
-        "checkpoint": "SELECT artifact FROM train_checkpoints ORDER BY iteration DESC LIMIT 1",
-        "bouts": "SELECT artifact FROM evaluate_artifacts WHERE artifact LIKE '%.npz' LIMIT 1",
-        "video": "SELECT artifact FROM lift_media WHERE kind = 'video'",
+        "checkpoint": (
+            "SELECT artifact FROM train_checkpoints WHERE key = ? ORDER BY iteration DESC LIMIT 1",
+            [run],
+        ),
+        "bouts": (
+            "SELECT artifact FROM evaluate_artifacts WHERE key = ? AND artifact LIKE '%.npz' "
+            "LIMIT 1",
+            [keys["evaluate"]],
+        ),
+        "video": (
+            "SELECT artifact FROM lift_media WHERE key = ? AND kind = 'video'",
+            [keys["lift"]],
+        ),
     }
-    names = {what: query(data, sql)[0][0] for what, sql in named.items()}
-    chunk = next(p for p in sorted(paths.artifacts.rglob("*.npz")) if p.name not in names.values())
+    names = {what: query(data, *sql)[0][0] for what, sql in named.items()}
+    # A pose chunk's file: an .npz no table names (the shared run may hold other tests' outputs).
+    tables = query(data, "SELECT table_name FROM duckdb_columns() WHERE column_name = 'artifact'")
+    rows = {n for (table,) in tables for (n,) in query(data, f"SELECT artifact FROM {table}")}
+    chunk = next(p for p in sorted(paths.artifacts.rglob("*.npz")) if p.name not in rows)
     names["chunk"] = chunk.name
     for name in names.values():
         path = artifact_path(paths.artifacts, name)
@@ -137,7 +153,7 @@ def test_truncated_artifacts_are_quarantined_then_recomputed(
     assert run_cli(capsys, *argv)[0] == 0
     assert check(capsys, data)[0] == 0
     for what in ("checkpoint", "bouts", "video"):
-        assert query(data, named[what])[0][0] == names[what], what
+        assert query(data, *named[what])[0][0] == names[what], what
         assert read_bytes(paths.artifacts, names[what])
     evaluate = ["--data", str(data), "evaluate", "--run", run[:12], *TINY_EVALUATE_FLAGS]
     code, _, err = run_cli(capsys, *evaluate)

@@ -41,7 +41,7 @@ from dashboards.opponent import EVALUATION_TILES, HEADLINES, TILES, sample_size
 from dashboards.widgets import READ_AT, format_value, output_labels, video_labels
 from flows.cli import build_parser, main
 from flows.cli.servers import wait_until_serving
-from flows.serve import run_progress, served_api
+from flows.launch import run_progress, served_api
 from storage.db import connect
 from storage.paths import data_paths
 from tasks.dataset.statistics import combine_videos
@@ -513,8 +513,10 @@ def show_artifact(name: str) -> None:
     """A script for AppTest: where `artifact_file` finds the artifact ``name``, if it serves it."""
     import streamlit as st
 
+    from dashboards.app import open_data
     from dashboards.widgets import artifact_file
 
+    open_data([])
     path = artifact_file(name)
     if path is not None:
         st.text(f"serving {path.name}")

@@ -23,8 +23,9 @@ from conftest import WAIT_S, api_post, flow_runs, wait_for
 
 import flows.postgres
 from flows.cli import main
+from flows.launch import run_progress, served_api
 from flows.postgres import PostgresError, running_port, server_programs
-from flows.serve import free_port, run_progress, served_api
+from flows.serve import free_port
 from storage.paths import data_paths
 
 REPO = Path(__file__).resolve().parent.parent

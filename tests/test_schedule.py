@@ -22,11 +22,9 @@ from unittest import mock
 import pytest
 from conftest import WAIT_S, api_post, flow_runs, query, run_cli, wait_for
 
-from flows.serve import (
+from flows.launch import (
     RunProgress,
     answers,
-    free_port,
-    parse_when,
     pipeline_parameters,
     run_name,
     run_progress,
@@ -34,6 +32,7 @@ from flows.serve import (
     served_file,
     submit_run,
 )
+from flows.serve import free_port, parse_when
 from flows.watch import SeenFile, list_videos, sort_files
 from storage.paths import data_paths
 

@@ -22,7 +22,8 @@ import psutil
 import pytest
 from conftest import api_post, flow_runs, run_cli, stage_contents, wait_for
 
-from flows.serve import WORK_POOL, free_port, run_progress, served_api
+from flows.launch import run_progress, served_api
+from flows.serve import WORK_POOL, free_port
 from storage.check import scan
 from storage.paths import data_paths
 

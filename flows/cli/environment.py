@@ -36,7 +36,7 @@ def prepare_environment(paths: DataPaths, *, verbose: bool) -> None:
         # Flow and task logs still reach the Prefect API and UI; the terminal shows our summary.
         os.environ.setdefault("PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL", "CRITICAL")
     if "PREFECT_API_URL" not in os.environ:
-        from flows.serve import served_api
+        from flows.launch import served_api
 
         # While `ringside serve` runs on this data directory, every run reports to its server
         # and shows in its UI; otherwise a flow command starts a server of its own

@@ -25,8 +25,8 @@ def run_pipeline(
     rerun: list[str] | None = None,
 ) -> int:
     from flows.config import load_config
+    from flows.launch import run_parameters
     from flows.pipeline import PipelineFailed, video_to_opponent
-    from flows.serve import run_parameters
     from storage.check import remove_stale_temporaries
     from tasks.ingest.probe import check_file
 

@@ -120,6 +120,7 @@ def dashboard_command(args, paths: DataPaths) -> int:
 
 
 def serve_command(args, paths: DataPaths) -> int:
+    from flows import launch
     from flows import serve as served
     from flows.config import load_config
     from tasks.errors import BadInput
@@ -148,7 +149,7 @@ def serve_command(args, paths: DataPaths) -> int:
             args.every,
             args.until,
         )
-    running = served.served_api(paths)
+    running = launch.served_api(paths)
     if running is not None:
         raise ValueError(f"{paths.root} is served already, at {running.removesuffix('/api')}")
     own_server = "PREFECT_API_URL" not in os.environ
@@ -177,10 +178,10 @@ def serve_command(args, paths: DataPaths) -> int:
                     print(f"ringside: error: {why}", file=sys.stderr)
                     return EXIT_FAILED
             ui = api.removesuffix("/api")
-            served.write_served(paths, served.Served(api, ui, os.getpid()))
+            launch.write_served(paths, launch.Served(api, ui, os.getpid()))
             print(f"Prefect UI: {ui} (Ctrl-C stops serving)", flush=True)
             print(
-                f"serving {served.PIPELINE_FLOW}/{served.DEPLOYMENT} on {paths.root}: "
+                f"serving {launch.PIPELINE_FLOW}/{launch.DEPLOYMENT} on {paths.root}: "
                 "`ringside schedule`, the dashboard's reruns and the UI's Run start it",
                 flush=True,
             )
@@ -194,7 +195,7 @@ def serve_command(args, paths: DataPaths) -> int:
         except (KeyboardInterrupt, SystemExit):  # SystemExit: Prefect's own SIGTERM handler
             pass
         finally:
-            served.clear_served(paths, os.getpid())
+            launch.clear_served(paths, os.getpid())
             if server is not None:
                 served.stop_process(server)
     print("serving stopped", file=sys.stderr)
@@ -202,6 +203,7 @@ def serve_command(args, paths: DataPaths) -> int:
 
 
 def worker_command(args, paths: DataPaths) -> int:
+    from flows import launch
     from flows import serve as served
     from tasks.errors import BadInput
 
@@ -211,7 +213,7 @@ def worker_command(args, paths: DataPaths) -> int:
     if api is None:
         raise BadInput(
             str(paths.root),
-            f"{served.NO_SERVER} (on another machine: set PREFECT_API_URL to its server)",
+            f"{launch.NO_SERVER} (on another machine: set PREFECT_API_URL to its server)",
         )
     served.ensure_work_pool()
     with sigterm_as_ctrl_c():
@@ -234,6 +236,7 @@ def worker_command(args, paths: DataPaths) -> int:
 def schedule_command(args, paths: DataPaths) -> int:
     from datetime import datetime
 
+    from flows import launch
     from flows import serve as served
     from flows.config import load_config
     from tasks.ingest.probe import check_file
@@ -243,7 +246,7 @@ def schedule_command(args, paths: DataPaths) -> int:
         check_file(Path(video))
     at = served.parse_when(args.at, now=datetime.now().astimezone())
     config = load_config(args.config, overrides(args))
-    parameters = served.run_parameters(
+    parameters = launch.run_parameters(
         paths,
         args.videos,
         args.adversary,
@@ -252,10 +255,10 @@ def schedule_command(args, paths: DataPaths) -> int:
         config.as_dict(),
         until=args.until,
     )
-    run_id = served.submit_run(
+    run_id = launch.submit_run(
         paths, parameters, at=None if args.at.strip().lower() == "now" else at
     )
-    ui = (served.served_api(paths) or "").removesuffix("/api")
+    ui = (launch.served_api(paths) or "").removesuffix("/api")
     url = f"{ui}/runs/flow-run/{run_id}"
     if args.json:
         print(json.dumps({"flow_run_id": run_id, "scheduled_time": at.isoformat(), "url": url}))
