@@ -48,5 +48,5 @@ def code_version(*packages: str) -> str:
 
 
 def stage_key(stage: str, config: Any, code: str, upstream: Mapping[str, Any]) -> str:
-    """The key of a stage output (ARCHITECTURE.md, Data): equal inputs give equal keys."""
+    """The key of a stage output: equal inputs give equal keys."""
     return digest({"stage": stage, "config": config, "code": code, "upstream": upstream})[:24]

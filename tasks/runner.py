@@ -56,7 +56,7 @@ def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | No
 class StageSpec:
     """What the record of one stage output says: its stage, its subject (a video, an
     assembled dataset or a training run), settings, code version and upstream keys. Its key is
-    derived from them (ARCHITECTURE.md, Data), so an output is described once."""
+    derived from them (`storage.keys.stage_key`), so an output is described once."""
 
     stage: str
     video_id: str
