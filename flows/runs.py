@@ -3,6 +3,7 @@ what a command does about the flow runs a killed one left running."""
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,8 +91,8 @@ def _compute(paths: DataPaths, plan: StagePlan) -> StageResult:
         with connect(paths.db) as con:
             record_run(con, current_run_id(), spec.video_id, spec.stage, spec.key, "running")
     try:
-        plan.before()
-        return run_stage_task(paths.db, spec, plan.compute, started)
+        arguments = plan.before()
+        return run_stage_task(paths.db, spec, functools.partial(plan.compute, *arguments), started)
     except BadInput as error:
         if plan.noted:
             with connect(paths.db) as con:

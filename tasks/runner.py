@@ -78,13 +78,18 @@ def _nothing() -> None:
     return None
 
 
+def _no_arguments() -> tuple:
+    return ()
+
+
 @dataclass(frozen=True)
 class StagePlan:
     """One stage output, planned by its stage's ``task.py`` and run by `flows.stage`.
 
     ``compute`` is called only when the database has no output under ``spec.key``, inside the
-    stage's Prefect task; ``before`` runs in the flow just before it (the pose stage tracks its
-    chunks there, each a Prefect task of its own), ``after`` in the flow whether the output was
+    stage's Prefect task, with the arguments ``before`` returns; ``before`` runs in the flow just
+    before it (the pose stage tracks its chunks there, each a Prefect task of its own, and hands
+    their artifacts' names to ``compute``), ``after`` in the flow whether the output was
     computed or reused. ``name`` is what the run's summary lists it by (the video's path, the
     adversary). ``noted``: the computation is noted as running, and a failure as failed, for
     `ringside status` (not ingest's: its video is registered only after it).
@@ -92,8 +97,8 @@ class StagePlan:
 
     spec: StageSpec
     name: str
-    compute: Callable[[], StageOutput]
-    before: Callable[[], None] = _nothing
+    compute: Callable[..., StageOutput]
+    before: Callable[[], tuple] = _no_arguments
     after: Callable[[], None] = _nothing
     noted: bool = True
 

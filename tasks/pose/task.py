@@ -55,9 +55,9 @@ def pose_plan(
         pick = newest_pick(con, video_id)
     spec = pose_spec(config, video_id, ingest.key, pick)
     spans = plan_spans(list(ingest.chunks), config.overlap_frames, ingest.source_frames)
-    names: list[str] = []  # the chunks' artifacts, filled in the flow by `before`
 
-    def compute():
+    def compute(names: list[str]):
+        """The pose output from the chunks' artifacts (``names``, tracked in the flow)."""
         return assemble(
             Path(ingest.path),
             spans,
@@ -80,7 +80,7 @@ def pose_plan(
         spec,
         ingest.path,
         compute,
-        before=lambda: names.extend(track_chunks(paths, ingest, config, spans)),
+        before=lambda: (track_chunks(paths, ingest, config, spans),),
     )
 
 
