@@ -30,7 +30,11 @@ def stage_flow(
     key or a training run key) from ``inputs`` (the upstream outputs' keys; ingest's are the
     adversary's declaration); ``force`` recomputes even when a committed output exists."""
     paths, settings = flow_inputs(data_root, config)
-    plan = registry.stage(stage).planner()(paths, getattr(settings, stage), subject, inputs or {})
+    declared = registry.stage(stage)
+    # A flow's parameters are JSON: the plan gets its stage's typed inputs.
+    plan = declared.planner()(
+        paths, getattr(settings, stage), subject, declared.inputs(**(inputs or {}))
+    )
     result, state = reuse_or_run(paths, plan, force)
     plan.after()
     return StageSummary(

@@ -11,7 +11,7 @@ import importlib
 import re
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from enum import StrEnum
 from importlib.resources.abc import Traversable
 from pathlib import Path
@@ -24,6 +24,38 @@ from tasks.ingest.config import IngestConfig
 from tasks.lift.config import LiftStageConfig
 from tasks.pose.config import PoseConfig
 from tasks.runner import StagePlan
+
+
+@dataclass(frozen=True)
+class Declared:
+    """Ingest's inputs: who the analyst declared the adversary to be."""
+
+    adversary: str
+    adversary_colour: str | None = None
+    notes: str | None = None
+
+
+@dataclass(frozen=True)
+class PoseInputs:
+    ingest: str  # the ingest output's key
+
+
+@dataclass(frozen=True)
+class LiftInputs:
+    ingest: str
+    pose: str
+
+
+@dataclass(frozen=True)
+class DatasetInputs:
+    ingest: str
+    lift: str
+
+
+@dataclass(frozen=True)
+class NoInputs:
+    """The inputs of a stage whose subject is its only upstream output (training's dataset,
+    evaluation's run)."""
 
 
 class Subject(StrEnum):
@@ -42,8 +74,10 @@ class Stage:
 
     name: its name, the prefix of its tables and its settings' section; subject: what each
     output is of; settings: its settings class (a frozen dataclass of `tasks.config.setting`
-    fields); upstream: the stages whose output keys its plan is given, by name (for a stage of
-    a dataset or a run, the first is the stage whose output that is); plan:
+    fields); upstream: the stages it needs, by name (for a stage of a dataset or a run, the
+    first is the stage whose output that is); inputs: the frozen dataclass its plan is given,
+    one field per upstream output it reads (its key), by the upstream stage's name (ingest's:
+    `Declared`); plan:
     ``"module:function"``, the function ``(paths, settings, subject, inputs) -> StagePlan``,
     imported only when the stage runs (training's imports torch, which the dashboard, reading
     this registry, must not); migrations: a folder of ``NNN_name.sql`` files creating its tables,
@@ -54,6 +88,7 @@ class Stage:
     subject: Subject
     settings: type
     upstream: tuple[str, ...]
+    inputs: type
     plan: str
     migrations: Path | Traversable | None = None
 
@@ -75,6 +110,12 @@ def register(stage: Stage) -> Stage:
     unknown = [u for u in stage.upstream if u not in _STAGES]
     if unknown:
         raise ValueError(f"stage {stage.name!r}: unknown upstream stages {unknown}")
+    read = stage.upstream[1:] if stage.subject in (Subject.DATASET, Subject.RUN) else stage.upstream
+    if stage.subject is not Subject.FILE and tuple(f.name for f in fields(stage.inputs)) != read:
+        raise ValueError(
+            f"stage {stage.name!r}: its inputs' fields must be the upstream outputs it reads, "
+            f"{list(read)}"
+        )
     if stage.migrations is not None:
         add_migrations(stage.name, stage.migrations)
     _STAGES[stage.name] = stage
@@ -143,10 +184,19 @@ def downstream(name: str) -> tuple[str, ...]:
     return tuple(n for n in names() if n in found)
 
 
-register(Stage("ingest", Subject.FILE, IngestConfig, (), "tasks.ingest.task:ingest_plan"))
-register(Stage("pose", Subject.VIDEO, PoseConfig, ("ingest",), "tasks.pose.task:pose_plan"))
+register(Stage("ingest", Subject.FILE, IngestConfig, (), Declared, "tasks.ingest.task:ingest_plan"))
 register(
-    Stage("lift", Subject.VIDEO, LiftStageConfig, ("ingest", "pose"), "tasks.lift.task:lift_plan")
+    Stage("pose", Subject.VIDEO, PoseConfig, ("ingest",), PoseInputs, "tasks.pose.task:pose_plan")
+)
+register(
+    Stage(
+        "lift",
+        Subject.VIDEO,
+        LiftStageConfig,
+        ("ingest", "pose"),
+        LiftInputs,
+        "tasks.lift.task:lift_plan",
+    )
 )
 register(
     Stage(
@@ -154,11 +204,23 @@ register(
         Subject.VIDEO,
         DatasetConfig,
         ("ingest", "lift"),
+        DatasetInputs,
         "tasks.dataset.task:dataset_plan",
     )
 )
 # Training's subject is the adversary's dataset assembled from every video's dataset output.
-register(Stage("train", Subject.DATASET, TrainConfig, ("dataset",), "tasks.train.task:train_plan"))
 register(
-    Stage("evaluate", Subject.RUN, EvaluateConfig, ("train",), "tasks.evaluate.task:evaluate_plan")
+    Stage(
+        "train", Subject.DATASET, TrainConfig, ("dataset",), NoInputs, "tasks.train.task:train_plan"
+    )
+)
+register(
+    Stage(
+        "evaluate",
+        Subject.RUN,
+        EvaluateConfig,
+        ("train",),
+        NoInputs,
+        "tasks.evaluate.task:evaluate_plan",
+    )
 )

@@ -24,11 +24,13 @@ def test_the_registry_orders_and_derives_the_stages():
     assert registry.until(None) == BUILT_IN
     assert registry.downstream("lift") == ("lift", "dataset", "train", "evaluate")
     with pytest.raises(ValueError, match="unknown upstream"):
-        registry.register(Stage("extra", Subject.VIDEO, object, ("nowhere",), "x:y"))
+        registry.register(Stage("extra", Subject.VIDEO, object, ("nowhere",), PACE.inputs, "x:y"))
     with pytest.raises(ValueError, match="registered already"):
-        registry.register(Stage("pose", Subject.VIDEO, object, (), "x:y"))
+        registry.register(Stage("pose", Subject.VIDEO, object, (), PACE.inputs, "x:y"))
     with pytest.raises(ValueError, match="lowercase"):
-        registry.register(Stage("pose_2", Subject.VIDEO, object, (), "x:y"))
+        registry.register(Stage("pose_2", Subject.VIDEO, object, (), PACE.inputs, "x:y"))
+    with pytest.raises(ValueError, match="the upstream outputs it reads"):
+        registry.register(Stage("extra", Subject.VIDEO, object, ("pose",), PACE.inputs, "x:y"))
     with pytest.raises(ValueError, match="upstream of"):
         registry.unregister("lift")
     assert registry.names() == BUILT_IN

@@ -3,7 +3,6 @@ an adversary's dataset from them."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
 from prefect import task
@@ -30,16 +29,17 @@ from tasks.dataset.store import (
 from tasks.errors import BadInput
 from tasks.ingest.store import load_ingest
 from tasks.lift.store import load_motion
+from tasks.registry import DatasetInputs
 from tasks.runner import StagePlan
 
 
 def dataset_plan(
-    paths: DataPaths, config: DatasetConfig, video_id: str, inputs: Mapping[str, str]
+    paths: DataPaths, config: DatasetConfig, video_id: str, inputs: DatasetInputs
 ) -> StagePlan:
-    """Cut lift output ``inputs["lift"]`` into clips, transitions, labels and statistics."""
+    """Cut lift output ``inputs.lift`` into clips, transitions, labels and statistics."""
     with connect(paths.db, read_only=True) as con:
-        ingest = load_ingest(con, video_id, inputs["ingest"])
-    lift_key = inputs["lift"]
+        ingest = load_ingest(con, video_id, inputs.ingest)
+    lift_key = inputs.lift
     spec = dataset_spec(config, video_id, lift_key)
 
     def compute():

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from prefect.artifacts import create_table_artifact
@@ -16,6 +16,7 @@ from tasks.errors import BadInput
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.stage import STAGE, evaluate, load_inputs
 from tasks.evaluate.store import RunInfo, compared_runs, evaluation_tables, resolve_run
+from tasks.registry import NoInputs
 from tasks.runner import StagePlan, StageSpec
 
 
@@ -45,7 +46,7 @@ def resolve_training_run(db: Path, run_key: str) -> RunInfo:
 
 
 def evaluate_plan(
-    paths: DataPaths, config: EvaluateConfig, run_key: str, inputs: Mapping[str, str]
+    paths: DataPaths, config: EvaluateConfig, run_key: str, inputs: NoInputs
 ) -> StagePlan:
     """Evaluate finished training run ``run_key`` (a prefix will do; `ringside metrics --stage
     train` lists them): bouts, tables, export, video. The run is checked before anything is

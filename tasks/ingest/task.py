@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
 from prefect import task
@@ -14,6 +13,7 @@ from storage.records import register_video
 from tasks.ingest.config import IngestConfig, declare
 from tasks.ingest.probe import VideoFile, identify
 from tasks.ingest.stage import ingest_spec, ingest_video
+from tasks.registry import Declared
 from tasks.runner import StagePlan
 
 
@@ -23,12 +23,10 @@ def identify_task(path: str) -> VideoFile:
     return identify(Path(path))
 
 
-def ingest_plan(
-    paths: DataPaths, config: IngestConfig, video: str, inputs: Mapping[str, str | None]
-) -> StagePlan:
+def ingest_plan(paths: DataPaths, config: IngestConfig, video: str, inputs: Declared) -> StagePlan:
     """Probe ``video`` (its shots, chunks, timing) and register it, under the adversary the
     analyst declared (``inputs``: adversary, adversary_colour, notes)."""
-    declaration = declare(inputs["adversary"], inputs.get("adversary_colour"), inputs.get("notes"))
+    declaration = declare(inputs.adversary, inputs.adversary_colour, inputs.notes)
     file = identify_task(video)
     spec = ingest_spec(config, file.video_id, declaration)
 

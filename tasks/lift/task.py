@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
 from tqdm import tqdm
@@ -15,23 +14,24 @@ from tasks.ingest.store import load_ingest
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.stage import fighter_tracks, lift_spec, lift_video
 from tasks.pose.store import fighter_keypoints
+from tasks.registry import LiftInputs
 from tasks.runner import StagePlan
 
 
 def lift_plan(
-    paths: DataPaths, config: LiftStageConfig, video_id: str, inputs: Mapping[str, str]
+    paths: DataPaths, config: LiftStageConfig, video_id: str, inputs: LiftInputs
 ) -> StagePlan:
-    """Lift both fighters of pose output ``inputs["pose"]`` to 3D and clean them up in MuJoCo
+    """Lift both fighters of pose output ``inputs.pose`` to 3D and clean them up in MuJoCo
     (with the calibration, when one is set, whose bytes are then part of the key)."""
     with connect(paths.db, read_only=True) as con:
-        ingest = load_ingest(con, video_id, inputs["ingest"])
+        ingest = load_ingest(con, video_id, inputs.ingest)
     calibration = Path(config.calibration) if config.calibration else None
     calibration_sha = None
     if calibration is not None:
         if not calibration.is_file():
             raise BadInput(str(calibration), "calibration file not found (lift.calibration)")
         calibration_sha = sha256_file(calibration)
-    pose_key = inputs["pose"]
+    pose_key = inputs.pose
     spec = lift_spec(config, video_id, pose_key, calibration_sha)
 
     def compute():

@@ -3,7 +3,6 @@ assembled into the video's pose output."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
 from prefect import task
@@ -20,6 +19,7 @@ from tasks.pose.config import PoseConfig
 from tasks.pose.merge import ChunkSpan
 from tasks.pose.stage import assemble, chunk_key, model_files, plan_spans, pose_spec, process_chunk
 from tasks.pose.store import newest_pick
+from tasks.registry import PoseInputs
 from tasks.runner import StagePlan
 
 
@@ -45,13 +45,11 @@ def pose_chunk_task(
     return put_bytes(paths.artifacts, tracks.to_bytes(), ".npz")
 
 
-def pose_plan(
-    paths: DataPaths, config: PoseConfig, video_id: str, inputs: Mapping[str, str]
-) -> StagePlan:
-    """Both fighters' tracks and refined keypoints of ingest output ``inputs["ingest"]``, with
+def pose_plan(paths: DataPaths, config: PoseConfig, video_id: str, inputs: PoseInputs) -> StagePlan:
+    """Both fighters' tracks and refined keypoints of ingest output ``inputs.ingest``, with
     the analyst's newest pick of the adversary's track."""
     with connect(paths.db, read_only=True) as con:
-        ingest = load_ingest(con, video_id, inputs["ingest"])
+        ingest = load_ingest(con, video_id, inputs.ingest)
         pick = newest_pick(con, video_id)
     spec = pose_spec(config, video_id, ingest.key, pick)
     spans = plan_spans(list(ingest.chunks), config.overlap_frames, ingest.source_frames)

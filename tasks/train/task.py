@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 
 from models.maaip.config import TrainConfig
@@ -11,6 +10,7 @@ from storage.keys import code_version
 from storage.paths import DataPaths
 from tasks.dataset.store import DatasetInfo, UnknownDataset, dataset_info
 from tasks.errors import BadInput
+from tasks.registry import NoInputs
 from tasks.runner import StagePlan, StageSpec
 from tasks.train.run import STAGE, train
 from tasks.train.store import WarmStart, warm_start_source
@@ -44,7 +44,7 @@ def resolve_dataset(db: Path, dataset_key: str) -> DatasetInfo:
 
 
 def train_plan(
-    paths: DataPaths, config: TrainConfig, dataset_key: str, inputs: Mapping[str, str]
+    paths: DataPaths, config: TrainConfig, dataset_key: str, inputs: NoInputs
 ) -> StagePlan:
     """Train the two fighters' policies on dataset ``dataset_key`` (a prefix of a key will
     do), resuming from the run's newest checkpoint, or starting from the networks of the

@@ -1,10 +1,9 @@
 """The pace stage's plan: the lifted pelvis's speed of each fighter."""
 
-from collections.abc import Mapping
-
 import numpy as np
 
 from models.humanoid.motion import RATE
+from pace import PaceInputs
 from pace.config import PaceConfig
 from storage.db import connect
 from storage.keys import code_version
@@ -13,10 +12,8 @@ from tasks.lift.store import load_motion
 from tasks.runner import StageOutput, StagePlan, StageSpec
 
 
-def pace_plan(
-    paths: DataPaths, config: PaceConfig, video_id: str, inputs: Mapping[str, str]
-) -> StagePlan:
-    lift_key = inputs["lift"]
+def pace_plan(paths: DataPaths, config: PaceConfig, video_id: str, inputs: PaceInputs) -> StagePlan:
+    lift_key = inputs.lift
     spec = StageSpec("pace", video_id, config, code_version("pace"), {"lift": lift_key})
 
     def compute() -> StageOutput:
