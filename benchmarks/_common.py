@@ -57,8 +57,6 @@ def lift_sample(
     ``config`` (called through the module, so a benchmark may wrap the functions it uses)."""
     return lift_stage.lift_video(
         fighters,
-        key="bench",
-        video_id="bench",
         fps=FPS,
         size=SIZE,
         shots=[(0, 0, FRAMES)],

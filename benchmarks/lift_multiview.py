@@ -127,7 +127,12 @@ def lift(
     write_calibration(calibration, cam1.K, cam1.dist, cam1.size, 0.0)
     out = lift_sample(tracks, tmp, calibration, config)
     camera = out.rows["lift_cameras"][0]
-    return out.rows["lift_motion"], np.reshape(camera[5], (3, 3)), np.asarray(camera[6]), camera[7]
+    return (
+        out.rows["lift_motion"],
+        np.reshape(camera.R, (3, 3)),
+        np.asarray(camera.t),
+        camera.height_m,
+    )
 
 
 def lifted_joints(motion: dict, role: str) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -59,6 +60,19 @@ def output_run(
 
 
 Columns = Mapping[str, np.ndarray]
+
+
+def insert_records(
+    con: duckdb.DuckDBPyConnection, table: str, key: str, video_id: str, records: Sequence[Any]
+) -> None:
+    """Insert one row per record (a dataclass instance), each field into the column of its
+    name, with ``key`` and ``video_id`` filled in."""
+    names = [f.name for f in dataclasses.fields(records[0])]
+    marks = ", ".join("?" * (len(names) + 2))
+    con.executemany(
+        f"INSERT INTO {table} (key, video_id, {', '.join(names)}) VALUES ({marks})",
+        [[key, video_id, *(getattr(r, n) for n in names)] for r in records],
+    )
 
 
 def insert_columns(
@@ -122,9 +136,10 @@ def write_output(
 ) -> None:
     """Replace the output ``record`` names, its table rows and its metrics, in one transaction.
 
-    ``rows`` maps a stage table to its rows: either tuples in the table's column order starting
-    with ``key, video_id``, or :data:`Columns` (see :func:`insert_columns`). A crash leaves either
-    the old output or the new one, never a mix.
+    ``rows`` maps a stage table to its rows: records (dataclass instances whose fields are
+    named as the table's columns, ``key`` and ``video_id`` left out: they are filled in), tuples
+    in the table's column order starting with ``key, video_id``, or :data:`Columns` (see
+    :func:`insert_columns`). A crash leaves either the old output or the new one, never a mix.
     """
     bad = {name: value for name, value in metrics.items() if not math.isfinite(value)}
     if bad:
@@ -136,6 +151,8 @@ def write_output(
             con.execute(f"DELETE FROM {table} WHERE key = ? AND video_id = ?", where)
             if isinstance(table_rows, Mapping):
                 insert_columns(con, table, record.key, record.video_id, table_rows)
+            elif table_rows and dataclasses.is_dataclass(table_rows[0]):
+                insert_records(con, table, record.key, record.video_id, table_rows)
             elif table_rows:
                 marks = ", ".join("?" * len(table_rows[0]))
                 con.executemany(f"INSERT INTO {table} VALUES ({marks})", list(table_rows))

@@ -91,8 +91,6 @@ def test_other_kernels_move_keypoints_by_a_fraction_of_a_pixel_and_no_decision(
 def _lift(fighters: dict[str, FighterTrack], ingest, tmp_path: Path) -> dict[str, list[int]]:
     out = lift_video(
         fighters,
-        key="noise",
-        video_id=ingest.video_id,
         fps=ingest.fps,
         size=(ingest.width, ingest.height),
         shots=list(ingest.shots),

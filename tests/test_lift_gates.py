@@ -115,8 +115,6 @@ def test_one_person_tracked_as_both_fighters_is_refused(assets, tmp_path):
             ),
             "opponent": FighterTrack(shifted, inputs.confidence, inputs.world_landmarks),
         },
-        key="k",
-        video_id="v",
         fps=case.fps,
         size=case.size,
         shots=[(0, 0, frames)],

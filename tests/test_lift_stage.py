@@ -176,8 +176,6 @@ def test_too_few_frames_is_a_clear_error(tmp_path):
     with pytest.raises(BadInput, match="no fighter is seen in 10 frames of any shot"):
         lift_video(
             {"adversary": track},
-            key="k",
-            video_id="v",
             fps=30.0,
             size=(640, 480),
             shots=[(0, 0, frames)],

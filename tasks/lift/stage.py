@@ -52,6 +52,7 @@ from tasks.lift.lifting import Lifted3D, lift_fighter
 from tasks.lift.metrics import HIPS, bone_length_std_mm
 from tasks.lift.resample import resample
 from tasks.lift.series import cleanup_series
+from tasks.lift.store import BoneRow, CameraRow, MediaRow
 from tasks.media import render_lift
 from tasks.roles import ROLES
 from tasks.runner import StageOutput, StageSpec
@@ -252,8 +253,6 @@ def _clean_shot(fitted: dict, fps: float, config: LiftStageConfig) -> dict[str, 
 def lift_video(
     fighters: Mapping[str, FighterTrack],
     *,
-    key: str,
-    video_id: str,
     fps: float,
     size: tuple[int, int],
     shots: list[tuple[int, int, int]],
@@ -432,9 +431,7 @@ def lift_video(
         video_artifact = put_bytes(artifacts, video.read_bytes(), ".mp4")
     rows = {
         "lift_cameras": [
-            (
-                key,
-                video_id,
+            CameraRow(
                 shot,
                 source,
                 camera.K.ravel().tolist(),
@@ -447,11 +444,11 @@ def lift_video(
         ],
         "lift_motion": _motion_columns(motion, [math.ceil(c / fps * RATE - 1e-9) for c in cuts]),
         "lift_bones": [
-            (key, video_id, role, name, float(value))
+            BoneRow(role, name, float(value))
             for role, (_, lengths) in bones.items()
             for name, value in dataclasses.asdict(lengths).items()
         ],
-        "lift_media": [(key, video_id, "video", video_artifact)],
+        "lift_media": [MediaRow("video", video_artifact)],
     }
     return StageOutput(rows, metrics, tuple(notes))
 

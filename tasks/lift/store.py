@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import duckdb
 import numpy as np
 
@@ -14,6 +16,36 @@ from models.humanoid.motion import (
     fighter_distance,
 )
 from tasks.errors import BadInput
+
+
+@dataclass(frozen=True)
+class CameraRow:
+    """A ``lift_cameras`` row: one shot's camera (K, R row-major, t; x_cam = R x_world + t)."""
+
+    shot: int
+    source: str  # "calibration" or "fov"
+    K: list[float]
+    R: list[float]
+    t: list[float]
+    height_m: float
+    pitch_deg: float
+
+
+@dataclass(frozen=True)
+class BoneRow:
+    """A ``lift_bones`` row: one fighter's bone length."""
+
+    role: str
+    bone: str
+    length_m: float
+
+
+@dataclass(frozen=True)
+class MediaRow:
+    """A ``lift_media`` row: a review file of the output in the artifact store."""
+
+    kind: str
+    artifact: str
 
 
 def _bone_rows(

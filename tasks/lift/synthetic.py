@@ -404,8 +404,6 @@ def evaluate_lift(
     )
     output = lift_video(
         {"adversary": track},
-        key="synthetic",
-        video_id=case.clip_name,
         fps=case.fps,
         size=case.size,
         shots=[(0, 0, frames)],
@@ -414,7 +412,7 @@ def evaluate_lift(
         artifacts=workdir / "artifacts",
     )
     camera = output.rows["lift_cameras"][0]
-    R_est, t_est = np.reshape(camera[5], (3, 3)), np.asarray(camera[6])
+    R_est, t_est = np.reshape(camera.R, (3, 3)), np.asarray(camera.t)
     motion = output.rows["lift_motion"]
     lifted = np.full((frames, 33, 3), np.nan)
     # The case is at 30 fps, the rate the stage stores motion at: step k is frame k.

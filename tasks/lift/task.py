@@ -43,8 +43,6 @@ def lift_plan(
         ) as bar:
             return lift_video(
                 fighters,
-                key=spec.key,
-                video_id=video_id,
                 fps=ingest.fps,
                 size=(ingest.width, ingest.height),
                 shots=list(ingest.shots),
