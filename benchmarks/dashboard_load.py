@@ -37,7 +37,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from tiny import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS  # noqa: E402
 
 from dashboards.app import PAGES  # noqa: E402
-from dashboards.queries import METRIC_STAGES  # noqa: E402
+from dashboards.queries import metric_stages  # noqa: E402
 from dashboards.widgets import READ_AT  # noqa: E402
 from flows.cli.servers import wait_until_serving  # noqa: E402
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
@@ -50,7 +50,7 @@ CHROMIUM = "/usr/bin/chromium"
 VISITS = 3
 TRAIN_ITERATIONS = 20
 # Query-parameter variants of a page, beyond its defaults, that draw different things.
-VARIANTS: dict[str, list[str]] = {"stages": [f"stage={stage}" for stage in METRIC_STAGES]}
+VARIANTS: dict[str, list[str]] = {"stages": [f"stage={stage}" for stage in metric_stages()]}
 # The layout must hold this long to count as settled (charts and videos resize as they load).
 STEADY_MS = 250
 # Polled in the page: the epoch milliseconds at which its final layout first appeared (the last
