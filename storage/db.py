@@ -6,6 +6,7 @@ wait for the file's lock when another process holds it.
 
 from __future__ import annotations
 
+import functools
 import re
 import threading
 import time
@@ -101,20 +102,11 @@ def _read_migrations(folder: Traversable) -> list[tuple[int, str, str]]:
     return sorted(found)
 
 
-def migrations() -> list[tuple[int, str, str]]:
+# Read once: every connection checks them, and the package's files do not change while it runs.
+@functools.cache
+def migrations() -> tuple[tuple[int, str, str], ...]:
     """The schema migrations shipped with the package, as (version, name, sql), in order."""
-    return _read_migrations(resources.files("storage") / "migrations")
-
-
-def _apply(con: duckdb.DuckDBPyConnection, sql: str, record: str, values: list) -> None:
-    con.begin()
-    try:
-        con.execute(sql)
-        con.execute(record, values)
-        con.commit()
-    except BaseException:
-        con.rollback()
-        raise
+    return tuple(_read_migrations(resources.files("storage") / "migrations"))
 
 
 def migrate(con: duckdb.DuckDBPyConnection) -> list[int]:
@@ -129,8 +121,11 @@ def migrate(con: duckdb.DuckDBPyConnection) -> list[int]:
     done = []
     for version, name, sql in migrations():
         if version not in applied:
-            record = "INSERT INTO schema_migrations VALUES (?, ?, ?)"
-            _apply(con, sql, record, [version, name, utcnow()])
+            with transaction(con):
+                con.execute(sql)
+                con.execute(
+                    "INSERT INTO schema_migrations VALUES (?, ?, ?)", [version, name, utcnow()]
+                )
             done.append(version)
     for stage, folder in _STAGE_MIGRATIONS.items():
         applied = {
@@ -141,8 +136,12 @@ def migrate(con: duckdb.DuckDBPyConnection) -> list[int]:
         }
         for version, name, sql in _read_migrations(folder):
             if version not in applied:
-                record = "INSERT INTO stage_migrations VALUES (?, ?, ?, ?)"
-                _apply(con, sql, record, [stage, version, name, utcnow()])
+                with transaction(con):
+                    con.execute(sql)
+                    con.execute(
+                        "INSERT INTO stage_migrations VALUES (?, ?, ?, ?)",
+                        [stage, version, name, utcnow()],
+                    )
     return done
 
 
