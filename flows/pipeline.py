@@ -100,7 +100,7 @@ def video_to_opponent(
     summaries: list[StageSummary] = []
     failures: list[str] = []
     declaration = {"adversary": adversary, "adversary_colour": adversary_colour, "notes": notes}
-    per_video = [s for s in registry.names(registry.Subject.VIDEO) if s in stages and s != "ingest"]
+    per_video = [s for s in registry.names(registry.Subject.VIDEO) if s in stages]
     for video in videos:
         try:
             ingested = run("ingest", video, declaration)
