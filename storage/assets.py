@@ -215,6 +215,32 @@ DEV_WHEELS: tuple[Wheel, ...] = (
                 "dev/motions/humanoid3d_run.txt",
                 "2cbe488023b243e5769299158ce7c78875ec4b701a2ffe6c0beeaf83d16ca87b",
             ),
+            # The walker's straight walk and four turns (`tasks.deepmimic.WALKER_CLIPS`).
+            Asset(
+                f"{_MOTIONS}/walker/0walk_forward.txt",
+                "dev/motions/walker/0walk_forward.txt",
+                "a8790c45361077ff07d99c3f00a1fa73b78ff3ec77d083188f13eac75dcc0a58",
+            ),
+            Asset(
+                f"{_MOTIONS}/walker/turn_left0.txt",
+                "dev/motions/walker/turn_left0.txt",
+                "5120bb55a4eb3ecfa75bcffcd472ad0b5be01647536f707896b9a9af655d6fce",
+            ),
+            Asset(
+                f"{_MOTIONS}/walker/turn_left1.txt",
+                "dev/motions/walker/turn_left1.txt",
+                "e78540dcccfad969ff1304182de293714c1db163096ee37a02dbf34930e0c3d0",
+            ),
+            Asset(
+                f"{_MOTIONS}/walker/turn_right0.txt",
+                "dev/motions/walker/turn_right0.txt",
+                "c1fa371a7d7d625970ad7fec0bb2d7ba59205acb74f8fac15f46799ae3a80ce3",
+            ),
+            Asset(
+                f"{_MOTIONS}/walker/turn_right1.txt",
+                "dev/motions/walker/turn_right1.txt",
+                "3a655a1e9334cef592b5b7bef4fd7a52e46fcacc8c7c807cfa1bee8249e6350d",
+            ),
         ),
     ),
 )

@@ -4,10 +4,16 @@ truth (`tasks.lift.synthetic`), the dataset's extra clips and training without f
 DeepMimic's example clips (Peng et al., "DeepMimic", ACM TOG 37(4), 2018) come in the
 pybullet==3.2.7 wheel, pulled by `ringside assets pull --dev` (the punch is a regular asset).
 
-The DeepMimic motion format, as checked against the four clips:
+The same wheel's five walker clips (`WALKER_CLIPS`: a straight walk and four walks that
+turn, by 30 and 56 degrees left and 99 and 53 degrees right, all 38 frames) are in the same
+format, on the same humanoid: same joint layout, unit quaternions, knees negative and elbows
+positive, turning left about +y towards -z.
+
+The DeepMimic motion format, as checked against the four humanoid3d clips and the walker's:
 - A JSON object {"Loop": "none" | "wrap", "Frames": [[...], ...]} (the run clip adds
   "RightJoints"/"LeftJoints" index lists, unused here).
-- Each frame is 44 numbers: its duration dt in seconds (1/30 s; the last frame's is 0),
+- Each frame is 44 numbers: its duration dt in seconds (1/30 s; the last frame's is 0 in
+  the humanoid3d clips and 1/30 in the walker's, and is not read),
   then 43 pose numbers: root position (3), root rotation (4), chest, neck, right hip (4
   each), right knee (1), right ankle, right shoulder (4 each), right elbow (1), left hip
   (4), left knee (1), left ankle, left shoulder (4 each), left elbow (1).
@@ -63,6 +69,18 @@ from tasks.errors import BadInput
 # The clips, by short name, and where `storage.assets` puts them under the assets folder.
 CLIPS: tuple[str, ...] = ("punch", "kick", "walk", "run")
 MOTIONS_DIR = "dev/motions"
+# The walker's clips (pybullet_data/data/motions/walker), by short name -> file name; put
+# under MOTIONS_DIR/walker. Not in CLIPS, whose order seeds `tasks.lift.synthetic`.
+WALKER_FILES: Mapping[str, str] = MappingProxyType(
+    {
+        "walker_forward": "0walk_forward.txt",
+        "walker_turn_left0": "turn_left0.txt",
+        "walker_turn_left1": "turn_left1.txt",
+        "walker_turn_right0": "turn_right0.txt",
+        "walker_turn_right1": "turn_right1.txt",
+    }
+)
+WALKER_CLIPS: tuple[str, ...] = tuple(WALKER_FILES)
 
 FPS = 30.0
 
@@ -231,9 +249,12 @@ def load_deepmimic(path: str | Path) -> DeepMimicClip:
 
 
 def clip_path(assets: str | Path, clip_name: str) -> Path:
-    """Where `storage.assets` puts clip `clip_name` (one of CLIPS) under the assets folder."""
+    """Where `storage.assets` puts clip `clip_name` (one of CLIPS or WALKER_CLIPS) under the
+    assets folder."""
+    if clip_name in WALKER_FILES:
+        return Path(assets) / MOTIONS_DIR / "walker" / WALKER_FILES[clip_name]
     if clip_name not in CLIPS:
-        raise ValueError(f"clip_name must be one of {CLIPS}, got {clip_name!r}")
+        raise ValueError(f"clip_name must be one of {CLIPS + WALKER_CLIPS}, got {clip_name!r}")
     return Path(assets) / MOTIONS_DIR / f"humanoid3d_{clip_name}.txt"
 
 

@@ -38,7 +38,7 @@ def model() -> mujoco.MjModel:
 def motions(assets: Path, model) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Clip name -> (qpos (T, 35), BlazePose keypoints (T, 33, 3)) of the retargeted clips."""
     out = {}
-    for name in ("punch", "walk", "run"):
+    for name in ("punch", "walk", "run", *deepmimic.WALKER_CLIPS):
         qpos = deepmimic.retarget(deepmimic.load_deepmimic(deepmimic.clip_path(assets, name)))
         out[name] = (qpos, keypoint_positions(model, qpos))
     return out
@@ -125,8 +125,10 @@ def test_deepmimic_punch_is_one_right_straight(motions):
     )
 
 
-@pytest.mark.parametrize("name", ["walk", "run"])
-def test_no_punches_when_walking_or_running(motions, name):
+@pytest.mark.parametrize("name", ["walk", "run", *deepmimic.WALKER_CLIPS])
+def test_no_punches_when_walking_running_or_turning(motions, name):
+    # The walker's clips: a straight walk, and walks turning 30 and 56 degrees left and 99 and
+    # 53 degrees right, the arms swinging as the body turns.
     qpos, keypoints = motions[name]
     assert label_punches(keypoints, qpos[:, 3:7], RATE, PunchConfig()) == []
     for seed in range(3):
@@ -306,8 +308,9 @@ def test_a_long_held_extension_ends_one_window_after_it(model):
 
 def test_video_like_noise_makes_no_punches(motions):
     # 1.5 cm of noise on every keypoint, about what BlazePose's 3D keypoints carry: the held
-    # punch is not split, and walking and running still hold none.
-    for name, count in (("punch", 1), ("walk", 0), ("run", 0)):
+    # punch is not split, and walking, running and turning still hold none.
+    negatives = ("walk", "run", *deepmimic.WALKER_CLIPS)
+    for name, count in (("punch", 1), *((name, 0) for name in negatives)):
         qpos, keypoints = motions[name]
         for seed in range(5):
             found = label_punches(noisy(keypoints, 0.015, seed), qpos[:, 3:7], RATE, PunchConfig())
