@@ -12,13 +12,22 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS, query, read_video, run_cli
+from conftest import (
+    TINY_EVALUATE_FLAGS,
+    TINY_TRAIN_FLAGS,
+    copy_data,
+    query,
+    read_video,
+    run_cli,
+)
 
 from storage.artifacts import artifact_path, read_bytes
+from storage.db import connect
 from storage.paths import data_paths
 from tasks.evaluate.metrics import RATES, SHARES, STYLE_DISTRIBUTIONS
 from tasks.evaluate.opponent import load_opponent
-from tasks.evaluate.stage import POLICIES
+from tasks.evaluate.stage import NO_REPLAY, POLICIES, TWO_SAMPLE_POLICIES
+from tasks.evaluate.store import heldout_footage
 
 TINY_TRAIN = [*TINY_TRAIN_FLAGS, "--train-iterations", "2"]
 REQUIRED = ("onnx_max_abs_diff", "style_score", "style_score_untrained", "falls_per_min")
@@ -92,6 +101,30 @@ def test_evaluate_fills_every_table_caches_and_reruns_identically(capsys, sample
     for r in tables["style"]:
         if r["kind"] != "distribution":
             assert r["real"] == pytest.approx(real[r["statistic"]])
+
+    # The two-sample test: the held-out footage against each simulated fighter, or NULL and why.
+    two_sample = {r["policy"]: r for r in tables["classifier"]}
+    assert list(two_sample) == sorted([*TWO_SAMPLE_POLICIES, "replay"])
+    assert two_sample["replay"]["auc"] is None and two_sample["replay"]["reason"] == NO_REPLAY
+    heldout = query(
+        sample_run,
+        "SELECT sum(end_step - start_step) FROM dataset_clips WHERE kind = 'interaction' "
+        "AND split = 'validation'",
+    )[0][0]
+    for policy in TWO_SAMPLE_POLICIES:
+        row = two_sample[policy]
+        if row["auc"] is None:
+            assert row["reason"] and row["auc_low"] is None and row["auc_high"] is None
+        else:
+            assert 0.0 <= row["auc_low"] <= row["auc"] <= row["auc_high"] <= 1.0
+            assert row["reason"] is None and row["real_windows"] >= 5
+    if not heldout:  # the demo's footage is too short to hold any out
+        assert all(two_sample[p]["auc"] is None for p in TWO_SAMPLE_POLICIES)
+        assert two_sample["adversary"]["reason"].startswith("no held-out footage")
+        assert "two_sample_auc" not in metrics
+        assert any(n.startswith("two-sample test: not measured") for n in summary["notes"])
+    else:
+        assert ("two_sample_auc" in metrics) == (two_sample["adversary"]["auc"] is not None)
 
     # The opponent folder comes back from the artifact store and loads with onnxruntime.
     paths = data_paths(sample_run)
@@ -179,3 +212,35 @@ def test_bad_evaluation_input_fails_fast(capsys, sample_run, flags, message):
     assert (
         query(sample_run, "SELECT count(*) FROM stage_outputs WHERE stage = 'evaluate'") == before
     )
+
+
+def test_the_held_out_footage_is_the_validation_interaction_clips(
+    sample_run, sample_dataset, tmp_path
+):
+    """The demo holds no footage out (its validation split is shorter than a clip); in a copy
+    whose interaction clips are marked held out, `heldout_footage` gives their lifted steps,
+    both fighters' qpos at the same steps."""
+    data = copy_data(sample_run, tmp_path / "data")
+    clips = query(
+        data,
+        "SELECT c.video_id, json_extract_string(o.upstream, '$.lift'), c.start_step, "
+        "c.end_step FROM dataset_clips c JOIN dataset_members m ON m.key = c.key "
+        "AND m.video_id = c.video_id JOIN stage_outputs o ON o.stage = 'dataset' "
+        "AND o.key = c.key AND o.video_id = c.video_id WHERE m.dataset_key = ? "
+        "AND c.kind = 'interaction' ORDER BY c.video_id, c.clip",
+        [sample_dataset],
+    )
+    with connect(data / "ringside.duckdb") as con:
+        assert heldout_footage(con, sample_dataset) == []
+        con.execute("UPDATE dataset_clips SET split = 'validation' WHERE kind = 'interaction'")
+        found = heldout_footage(con, sample_dataset)
+    assert [(c.video_id, len(c.qpos)) for c in found] == [(v, b - a) for v, _, a, b in clips]
+    for clip, (video_id, lift_key, start, end) in zip(found, clips, strict=True):
+        for role, qpos in (("adversary", clip.qpos), ("opponent", clip.other_qpos)):
+            rows = query(
+                data,
+                "SELECT qpos FROM lift_motion WHERE key = ? AND video_id = ? AND role = ? "
+                "AND step >= ? AND step < ? ORDER BY step",
+                [lift_key, video_id, role, start, end],
+            )
+            assert np.allclose(qpos, np.array([r[0] for r in rows]))

@@ -19,7 +19,13 @@ same tables:
    trained partner ('opponent') and agent 0 holding its guard pose, standing still
    ('still', `still_actor`: the number a policy that only stays up would score), each
    against the adversary's real statistics.
-5. The adversary's opponent folder (`export_opponent`: ONNX policy, MJCF, manifest) with
+5. The held-out two-sample classifier test (`tasks.evaluate.two_sample`), the headline "moves
+   like the footage" figure: the AUC, with its bootstrap interval, of a fresh classifier telling
+   1-second windows of the adversary's held-out footage (the dataset's validation interaction
+   clips, `heldout_footage`) from the trained adversary's, the untrained policy's and the still
+   guard's bout windows. Where it cannot be made (no held-out footage, too few windows; the
+   tracker replaying the held-out clips does not exist yet) its row holds NULL and the reason.
+6. The adversary's opponent folder (`export_opponent`: ONNX policy, MJCF, manifest) with
    onnxruntime's parity against torch on observations recorded in the bouts, and the first
    `evaluate.video_seconds` of the trained episodes, played one after another, rendered to MP4
    (`tasks.media.render_bout`), and the trained episodes' motion (`BOUTS`, which
@@ -60,7 +66,21 @@ from tasks.evaluate.export import (
 from tasks.evaluate.metrics import boxing_metrics, label_fighter, style_rows, style_score
 from tasks.evaluate.motion_files import BOUTS, bouts_npz
 from tasks.evaluate.opponent import FILES, MANIFEST, load_opponent
-from tasks.evaluate.store import DAMAGE_TASKS, STAGE, real_statistics, resolve_run
+from tasks.evaluate.store import (
+    DAMAGE_TASKS,
+    STAGE,
+    HeldOutClip,
+    heldout_footage,
+    real_statistics,
+    resolve_run,
+)
+from tasks.evaluate.two_sample import (
+    FOLDS,
+    WINDOW_S,
+    bout_windows,
+    classifier_test,
+    footage_windows,
+)
 from tasks.media import render_bout
 from tasks.runner import StageOutput
 
@@ -73,6 +93,10 @@ POLICIES = {
     "opponent": ("trained", 1),
     "still": ("still", 0),
 }
+# The simulated fighters the two-sample test compares with the adversary's held-out footage,
+# and the one it cannot make yet.
+TWO_SAMPLE_POLICIES = ("adversary", "untrained", "still")
+NO_REPLAY = "no tracker replays the held-out clips in the simulator yet"
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,6 +109,7 @@ class EvaluateInputs:
         real: the adversary's statistics over the dataset's footage.
         punch: the dataset's punch labelling settings.
         compared: other finished runs on the dataset (damage_min/max, heading).
+        heldout: the adversary's held-out footage (`heldout_footage`).
     """
 
     run: TrainedPolicy
@@ -92,6 +117,7 @@ class EvaluateInputs:
     real: FighterStatistics
     punch: PunchConfig
     compared: tuple[TrainedPolicy, ...] = ()
+    heldout: tuple[HeldOutClip, ...] = ()
 
 
 def load_inputs(
@@ -107,6 +133,7 @@ def load_inputs(
         }
         demos = load_demonstrations(con, info.dataset_key)
         real = real_statistics(con, info.dataset_key)
+        heldout = tuple(heldout_footage(con, info.dataset_key))
         dataset = build(
             DatasetConfig, dataset_info(con, info.dataset_key).config, section="dataset"
         )
@@ -116,6 +143,7 @@ def load_inputs(
         real=real,
         punch=dataset.punch,
         compared=tuple(load_trained(artifacts, i, metrics[i.run_key]) for i in others),
+        heldout=heldout,
     )
 
 
@@ -215,6 +243,53 @@ def _video(
     return "bout.mp4", put_bytes(artifacts, path.read_bytes(), ".mp4"), written
 
 
+def _windows(count: int) -> str:
+    return f"{count} window" + ("" if count == 1 else "s")
+
+
+def _two_sample(
+    head: tuple[str, str],
+    heldout: tuple[HeldOutClip, ...],
+    simulated: dict[str, np.ndarray],
+    *,
+    fps: float,
+    seed: int,
+) -> tuple[list[tuple], dict[str, float]]:
+    """The two-sample test's rows (one per policy of ``simulated``, its windows, then 'replay')
+    and metrics: the held-out footage's windows against each policy's, or NULL and why."""
+    real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], fps)
+    rows, metrics = [], {}
+    for policy, windows in simulated.items():
+        counts = (len(real), len(windows))
+        if not heldout:
+            reason = (
+                "no held-out footage: the dataset's validation split (the last "
+                "dataset.validation_fraction of each video) holds no interaction clip of at least "
+                "dataset.min_clip_s"
+            )
+        elif len(real) < FOLDS:
+            reason = (
+                f"the held-out footage gives {_windows(len(real))} of {WINDOW_S:g} s; the test "
+                f"needs {FOLDS}"
+            )
+        elif len(windows) < FOLDS:
+            reason = (
+                f"the bouts give {_windows(len(windows))} of {WINDOW_S:g} s; the test needs {FOLDS}"
+            )
+        else:
+            result = classifier_test(real, windows, seed=seed)
+            rows.append((*head, policy, result.auc, result.low, result.high, *counts, None))
+            suffix = "" if policy == "adversary" else f"_{policy}"
+            metrics[f"two_sample_auc{suffix}"] = result.auc
+            if policy == "adversary":
+                metrics["two_sample_auc_low"] = result.low
+                metrics["two_sample_auc_high"] = result.high
+            continue
+        rows.append((*head, policy, None, None, None, *counts, reason))
+    rows.append((*head, "replay", None, None, None, len(real), 0, NO_REPLAY))
+    return rows, metrics
+
+
 def evaluate(
     inputs: EvaluateInputs, config: EvaluateConfig, *, key: str, artifacts: Path
 ) -> StageOutput:
@@ -252,7 +327,19 @@ def evaluate(
         if policy == "adversary":
             adversary_boxing = measured
 
+    two_sample, two_sample_metrics = _two_sample(
+        head,
+        inputs.heldout,
+        {
+            p: bout_windows(model, bouts[POLICIES[p][0]], POLICIES[p][1])
+            for p in TWO_SAMPLE_POLICIES
+        },
+        fps=bouts["trained"].policy_hz,
+        seed=config.seed,
+    )
     notes = []
+    if "two_sample_auc" not in two_sample_metrics:
+        notes.append(f"two-sample test: not measured, {two_sample[0][-1]}")
     damage = _damage_rows(head, run, bouts["trained"], config.episode_frames)
     damage_runs = [c for c in inputs.compared if c.config.reward.control_task in DAMAGE_TASKS]
     for other in damage_runs:
@@ -327,6 +414,7 @@ def evaluate(
         "damage_dealt_n": float(trained.damage[:, 1].mean()),
         "unstable_episodes": float(unstable),
         "video_frames": float(video[2]) if video is not None else 0.0,
+        **two_sample_metrics,
     }
     for name in ("punch_accuracy_pct", "foot_skating_cm_per_frame", "time_in_guard_pct"):
         if name in adversary_boxing:
@@ -340,6 +428,7 @@ def evaluate(
             "evaluate_heading": heading,
             "evaluate_style": style,
             "evaluate_boxing": boxing,
+            "evaluate_classifier": two_sample,
             "evaluate_artifacts": media,
         },
         metrics={k: float(v) for k, v in metrics.items() if math.isfinite(v)},

@@ -9,11 +9,15 @@ from dataclasses import dataclass
 from typing import Any
 
 import duckdb
+import numpy as np
 
+from models.humanoid.boxer import BoneLengths
 from storage.records import newest_output, output_metrics
 from tasks.dataset.statistics import FighterStatistics
-from tasks.dataset.store import member_statistics
+from tasks.dataset.store import dataset_info, member_statistics, upstream_lift_key
 from tasks.errors import BadInput
+from tasks.lift.store import load_motion
+from tasks.roles import ROLES
 
 STAGE = "evaluate"
 # The tables the stage fills, in the order they are shown.
@@ -22,6 +26,7 @@ TABLES = (
     "evaluate_heading",
     "evaluate_style",
     "evaluate_boxing",
+    "evaluate_classifier",
     "evaluate_artifacts",
 )
 # Control tasks whose runs join the damage table (MAAIP Table 1) beside the evaluated run's.
@@ -84,6 +89,57 @@ def real_statistics(
             f"holds no statistics of the {role}: nothing to compare the simulated style with",
         )
     return combined[role]
+
+
+@dataclass(frozen=True, eq=False)
+class HeldOutClip:
+    """An unbroken run of a held-out (validation) interaction clip's lifted steps: the fighter's
+    qpos (T, 35), the other fighter's at the same steps, the fighter's bones and its video."""
+
+    video_id: str
+    qpos: np.ndarray
+    other_qpos: np.ndarray
+    bones: BoneLengths
+
+
+def heldout_footage(
+    con: duckdb.DuckDBPyConnection, dataset_key: str, role: str = "adversary"
+) -> list[HeldOutClip]:
+    """The ``role``'s held-out footage in dataset ``dataset_key``: its members' interaction
+    clips in the validation split (the last `dataset.validation_fraction` of each video, which
+    training never reads), cut where a step was not lifted for both fighters (a step the
+    dataset bridged is not footage); empty when there is none."""
+    if role not in ROLES:
+        raise ValueError(f"role must be one of {ROLES}, got {role!r}")
+    other = ROLES[1 - ROLES.index(role)]
+    found = []
+    for video_id, key in dataset_info(con, dataset_key).members:
+        clips = con.execute(
+            "SELECT start_step, end_step FROM dataset_clips WHERE key = ? AND video_id = ? "
+            "AND kind = 'interaction' AND split = 'validation' ORDER BY clip",
+            [key, video_id],
+        ).fetchall()
+        lift_key = upstream_lift_key(con, video_id, key)
+        if not clips or lift_key is None:
+            continue
+        fighters = load_motion(con, video_id, lift_key)
+        if role not in fighters or other not in fighters:
+            continue
+        mine, theirs = fighters[role], fighters[other]
+        lifted = np.intersect1d(mine.step, theirs.step)
+        for start, end in clips:
+            steps = lifted[(lifted >= start) & (lifted < end)]
+            for run in np.split(steps, np.flatnonzero(np.diff(steps) != 1) + 1):
+                if len(run):
+                    found.append(
+                        HeldOutClip(
+                            video_id,
+                            mine.qpos[mine.rows(run)],
+                            theirs.qpos[theirs.rows(run)],
+                            mine.bones,
+                        )
+                    )
+    return found
 
 
 def evaluation_tables(
