@@ -22,7 +22,7 @@ FPS, FRAMES, SIZE = 60.0, 100, (1088, 1920)
 
 
 def sample_fighters(
-    video: Path, assets: Path, artifacts: Path, pose_model: Path | None = None
+    video: Path, assets: Path, pose_model: Path | None = None
 ) -> dict[str, FighterTrack]:
     """Both fighters of a sample video as the pose stage's own functions see them (with the
     default landmark model, or the one `pose_model` names)."""
@@ -33,8 +33,6 @@ def sample_fighters(
         video,
         spans,
         chunks,
-        key="bench",
-        video_id=video.stem,
         frames=FRAMES,
         fps=FPS,
         size=SIZE,
@@ -42,28 +40,27 @@ def sample_fighters(
         colour=None,
         pick=None,
         config=config,
-        artifacts=artifacts,
     )
     return fighter_tracks(out.rows["pose_keypoints"], FRAMES)
 
 
 def lift_sample(
     fighters: dict[str, FighterTrack],
-    artifacts: Path,
     calibration: Path | None = None,
     config: LiftStageConfig | None = None,
 ) -> StageOutput:
-    """The lift stage's output for a sample video's fighters, with the default settings or
-    ``config`` (called through the module, so a benchmark may wrap the functions it uses)."""
-    return lift_stage.lift_video(
+    """The lift stage's output for a sample video's fighters, review video included, with the
+    default settings or ``config`` (called through the module, so a benchmark may wrap the
+    functions it uses)."""
+    lift = lift_stage.lift_video(
         fighters,
         fps=FPS,
         size=SIZE,
         shots=[(0, 0, FRAMES)],
         config=config or LiftStageConfig(),
         calibration=calibration,
-        artifacts=artifacts,
     )
+    return lift_stage.lift_output(lift)
 
 
 class Timer:

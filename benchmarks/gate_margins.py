@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -61,9 +60,8 @@ def main() -> None:
     gates = GateConfig()
     for name in SEEN:
         setattr(lift_stage, name, _recording(name, getattr(lift_stage, name)))
-    with tempfile.TemporaryDirectory() as tmp:
-        tracks = sample_fighters(assets / SAMPLE_VIDEO, assets, Path(tmp))
-        out = lift_sample(tracks, Path(tmp))
+    tracks = sample_fighters(assets / SAMPLE_VIDEO, assets)
+    out = lift_sample(tracks)
     rejected = {k: v for k, v in out.metrics.items() if k.startswith("frames_rejected_")}
     print(f"sample: {FRAMES} frames at {FPS:g} fps; frames the gates dropped: {rejected}")
     depth = max(SEEN["depth_jumps"])

@@ -125,7 +125,7 @@ def lift(
     the motion rows and the estimated camera (rotation, translation, height)."""
     calibration = tmp / "cam01.json"
     write_calibration(calibration, cam1.K, cam1.dist, cam1.size, 0.0)
-    out = lift_sample(tracks, tmp, calibration, config)
+    out = lift_sample(tracks, calibration, config)
     camera = out.rows["lift_cameras"][0]
     return (
         out.rows["lift_motion"],
@@ -178,8 +178,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         views = [folder / f"{name}.mp4" for name, _ in cameras]
-        heavy = [sample_fighters(v, assets, tmp, assets / HEAVY_LANDMARKER) for v in views]
-        full = [sample_fighters(v, assets, tmp) for v in views]
+        heavy = [sample_fighters(v, assets, assets / HEAVY_LANDMARKER) for v in views]
+        full = [sample_fighters(v, assets) for v in views]
         reference, agree, error, left_out = labelled_reference(heavy, cams)
         full_reference, full_agree, full_error, _ = labelled_reference(full, cams)
         motion, R_est, t_est, height = lift(full[0], cam1, tmp)

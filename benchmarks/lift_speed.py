@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -29,22 +28,19 @@ def main() -> None:
     paths = data_paths()
     pull(paths.assets, log=lambda _line: None)
     video = paths.assets / SAMPLE_VIDEO
-    with tempfile.TemporaryDirectory() as tmp:
-        fighters = sample_fighters(video, paths.assets, Path(tmp))
-        timer = Timer()
-        for name in ("ground_fighters", "lift_fighter", "fit_humanoid", "cleanup", "cleanup_pair"):
-            setattr(lift, name, timer.wrap(name, getattr(lift, name)))
-        best, lifted = float("inf"), 0
-        for run in range(3):
-            start = time.perf_counter()
-            out = lift_sample(fighters, Path(tmp))
-            seconds = time.perf_counter() - start
-            if run == 0:
-                first = dict(timer.spent), seconds
-            best = min(best, seconds)
-            lifted = int(
-                out.metrics["adversary_frames_lifted"] + out.metrics["opponent_frames_lifted"]
-            )
+    fighters = sample_fighters(video, paths.assets)
+    timer = Timer()
+    for name in ("ground_fighters", "lift_fighter", "fit_humanoid", "cleanup", "cleanup_pair"):
+        setattr(lift, name, timer.wrap(name, getattr(lift, name)))
+    best, lifted = float("inf"), 0
+    for run in range(3):
+        start = time.perf_counter()
+        out = lift_sample(fighters)
+        seconds = time.perf_counter() - start
+        if run == 0:
+            first = dict(timer.spent), seconds
+        best = min(best, seconds)
+        lifted = int(out.metrics["adversary_frames_lifted"] + out.metrics["opponent_frames_lifted"])
     split, total = first
     print(
         f"input: {video.name}, {FRAMES} frames, {len(fighters)} fighters, "

@@ -11,7 +11,6 @@ first seconds of a video and is a review aid, not part of the analysis).
 from __future__ import annotations
 
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -47,36 +46,32 @@ def run_once(video: Path, config: PoseConfig, models) -> tuple[float, float, dic
         chunk_s = time.perf_counter() - start
         timer.spent["track"] = chunk_s - sum(timer.spent.values())
         stage.read_frames = real_frames
-        with tempfile.TemporaryDirectory() as tmp:
-            render = stage.render_overlay
-            overlay_s = 0.0
+        render = stage.render_overlay
+        overlay_s = 0.0
 
-            def timed_render(*a, **k):
-                nonlocal overlay_s
-                t = time.perf_counter()
-                out = render(*a, **k)
-                overlay_s = time.perf_counter() - t
-                return out
+        def timed_render(*a, **k):
+            nonlocal overlay_s
+            t = time.perf_counter()
+            out = render(*a, **k)
+            overlay_s = time.perf_counter() - t
+            return out
 
-            stage.render_overlay = timed_render
-            start = time.perf_counter()
-            assemble(
-                video,
-                spans,
-                chunks,
-                key="bench",
-                video_id="bench",
-                frames=FRAMES,
-                fps=FPS,
-                size=SIZE,
-                shots={0: FRAMES},
-                colour=None,
-                pick=None,
-                config=config,
-                artifacts=Path(tmp),
-            )
-            assemble_s = time.perf_counter() - start
-            stage.render_overlay = render
+        stage.render_overlay = timed_render
+        start = time.perf_counter()
+        assemble(
+            video,
+            spans,
+            chunks,
+            frames=FRAMES,
+            fps=FPS,
+            size=SIZE,
+            shots={0: FRAMES},
+            colour=None,
+            pick=None,
+            config=config,
+        )
+        assemble_s = time.perf_counter() - start
+        stage.render_overlay = render
         timer.spent["merge+fighters+refine"] = assemble_s - overlay_s
         total = chunk_s + assemble_s - overlay_s
         return total, overlay_s, timer.spent

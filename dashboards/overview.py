@@ -19,7 +19,11 @@ from dashboards.widgets import (
     video_labels,
 )
 from storage.paths import DataPaths
-from tasks.registry import names, per_video
+from tasks import registry
+from tasks.registry import Subject, names, per_video
+
+# How a stage's subject is named in the opponent table.
+SUBJECT_NAMES = {Subject.DATASET: "dataset", Subject.RUN: "run"}
 
 STATE_COLOURS = {
     "done": "#d4f0da",
@@ -89,14 +93,15 @@ def opponent_section(rows: Sequence[Mapping[str, Any]]) -> None:
     if not rows:
         st.info(f"No dataset yet: {PROCESS_HINT}.")
         return
+    of = [
+        f"{SUBJECT_NAMES[registry.stage(r['stage']).subject]} {queries.short(r['video_id'])}"
+        for r in rows
+    ]
     table = pd.DataFrame(
         {
             "adversary": [r["adversary"] for r in rows],
             "stage": [r["stage"] for r in rows],
-            "of": [
-                ("dataset " if r["stage"] == "train" else "run ") + queries.short(r["video_id"])
-                for r in rows
-            ],
+            "of": of,
             "state": [r["state"] for r in rows],
             "key": [queries.short(r["key"]) if r["key"] else "" for r in rows],
             "ran at": [f"{r['ran_at']:%Y-%m-%d %H:%M:%S}" if r["ran_at"] else "" for r in rows],

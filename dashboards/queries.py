@@ -21,9 +21,9 @@ import pandas as pd
 
 from models.pose.types import BLAZEPOSE_33
 from storage.records import (
+    chained_states,
     latest_metrics,
     newest_output,
-    opponent_states,
     output_history,
     stage_states,
 )
@@ -40,7 +40,7 @@ from tasks.pose.store import (
     pose_tracks,
     track_handovers,
 )
-from tasks.registry import names, per_video
+from tasks.registry import Subject, names, per_video
 from tasks.train import store as train_store
 
 
@@ -73,13 +73,14 @@ def stage_overview(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
 
 def opponent_overview(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
     """Per dataset (oldest first) its newest training run, and the evaluation of each finished
-    one: the rows `ringside status` prints after the videos', with the dataset's adversary."""
+    one (the stages of a dataset and of a run): the rows `ringside status` prints after the
+    videos', each with its dataset's adversary."""
     datasets = {d["dataset_key"]: d["adversary"] for d in reversed(list_datasets(con))}
-    rows = opponent_states(con, list(datasets))
+    rows = chained_states(con, list(datasets), names(Subject.DATASET, Subject.RUN))
     adversary: dict[str, str] = dict(datasets)
-    for row in rows:
-        if row["stage"] == "train":
-            adversary[row["key"]] = datasets[row["video_id"]]
+    for row in rows:  # each after the row whose output is its subject
+        if row["key"]:
+            adversary[row["key"]] = adversary.get(row["video_id"], "")
     return [{**row, "adversary": adversary.get(row["video_id"], "")} for row in rows]
 
 

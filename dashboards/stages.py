@@ -20,9 +20,11 @@ from dashboards.widgets import (
     output_labels,
     read,
 )
+from tasks import registry
+from tasks.registry import Subject
 
 # What the Stages page compares, for the stages whose outputs are not per video.
-COMPARED = {"train": "datasets", "evaluate": "training runs"}
+COMPARED = {Subject.DATASET: "datasets", Subject.RUN: "training runs"}
 
 
 def stage_page() -> None:
@@ -50,7 +52,8 @@ def stage_page() -> None:
         return
     table = queries.metrics_table(rows)
     table = table.rename(columns=output_labels(stage, list(table.columns), videos, sets))
-    st.subheader(f"Metric to compare across {COMPARED.get(stage, 'videos')}")
+    compared = COMPARED.get(registry.stage(stage).subject, "videos")
+    st.subheader(f"Metric to compare across {compared}")
     metric = choose("Metric", list(table.index), "metric", label_visibility="collapsed")
     bars = pd.DataFrame({"output": table.columns, "value": table.loc[metric].to_numpy()})
     chart = (

@@ -20,7 +20,9 @@ from dashboards import queries
 from storage.artifacts import NotAnArtifact, artifact_path, hashes_to_name
 from storage.db import DatabaseBusy, connect, damaged_database, error_line, utcnow
 from storage.paths import DataPaths
+from tasks import registry
 from tasks.errors import BadInput
+from tasks.registry import Subject
 
 # Where a render keeps the data directory its script was given (`dashboards.app.open_data`).
 DATA = "ringside_data"
@@ -215,8 +217,10 @@ def output_labels(
     sets: Sequence[Mapping[str, Any]],
 ) -> dict[str, str]:
     """Each output id of ``stage`` -> its column label on the Stages page: a video as
-    `video_labels` names it, for train a dataset as `dataset_labels` does, else the short id."""
-    known = dataset_labels(sets) if stage == "train" else video_labels(videos)
+    `video_labels` names it, for a stage of a dataset (training) as `dataset_labels` does, else
+    the short id."""
+    of_datasets = registry.stage(stage).subject is Subject.DATASET
+    known = dataset_labels(sets) if of_datasets else video_labels(videos)
     return {output: known.get(output, queries.short(output)) for output in outputs}
 
 

@@ -25,7 +25,7 @@ def assemble_flow(
     if settings.extra_clips:
         plan = extra_clips_plan(paths, settings, adversary)
         result, _ = reuse_or_run(paths, plan, force)
-        extra = (result.video_id, result.key)
+        extra = (result.subject, result.key)
     key, members, new, unusable = assemble_task(paths, adversary, settings, extra)
     if unusable is not None:
         # Recorded all the same, as is every stage's output (nothing computed is lost): the

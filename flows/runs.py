@@ -45,11 +45,11 @@ def settle(paths: DataPaths, result: StageResult) -> str:
     state = "done" if result.run_id == run_id else "cached"
     if state == "cached":
         with connect(paths.db) as con:
-            record_run(con, run_id, result.video_id, result.stage, result.key, "cached")
+            record_run(con, run_id, result.subject, result.stage, result.key, "cached")
     create_table_artifact(
-        key=f"{result.stage}-{result.video_id[:12]}",
+        key=f"{result.stage}-{result.subject[:12]}",
         table=[{"name": k, "value": v} for k, v in sorted(result.metrics.items())],
-        description=f"{result.stage} metrics of video {result.video_id[:12]} (key {result.key})",
+        description=f"{result.stage} metrics of video {result.subject[:12]} (key {result.key})",
     )
     return state
 
@@ -63,19 +63,19 @@ def reuse_or_run(paths: DataPaths, plan: StagePlan, force: bool) -> tuple[StageR
     """
     spec = plan.spec
     key = spec.key
-    result = None if force else committed(paths.db, spec.stage, spec.video_id, key)
+    result = None if force else committed(paths.db, spec.stage, spec.subject, key)
     if result is not None:
         return result, settle(paths, result)
 
     def waiting(holder: str) -> None:
         get_run_logger().info(
-            f"{spec.stage} {key[:12]} of {spec.video_id[:12]} is being computed by "
+            f"{spec.stage} {key[:12]} of {spec.subject[:12]} is being computed by "
             f"{holder}: waiting for it"
         )
 
-    with claimed(paths.claims, spec.stage, spec.video_id, key, waiting) as waited:
+    with claimed(paths.claims, spec.stage, spec.subject, key, waiting) as waited:
         if waited:
-            result = committed(paths.db, spec.stage, spec.video_id, key)
+            result = committed(paths.db, spec.stage, spec.subject, key)
         if result is None:
             result = _compute(paths, plan)
     return result, settle(paths, result)
@@ -89,15 +89,15 @@ def _compute(paths: DataPaths, plan: StagePlan) -> StageResult:
     if plan.noted:
         # Seen by `ringside status` and the dashboard while the stage computes.
         with connect(paths.db) as con:
-            record_run(con, current_run_id(), spec.video_id, spec.stage, spec.key, "running")
+            record_run(con, current_run_id(), spec.subject, spec.stage, spec.key, "running")
     try:
         arguments = plan.before()
-        return run_stage_task(paths.db, spec, functools.partial(plan.compute, *arguments), started)
+        return run_stage_task(paths, spec, functools.partial(plan.compute, *arguments), started)
     except BadInput as error:
         if plan.noted:
             with connect(paths.db) as con:
                 record_run(
-                    con, current_run_id(), spec.video_id, spec.stage, spec.key, "failed", str(error)
+                    con, current_run_id(), spec.subject, spec.stage, spec.key, "failed", str(error)
                 )
         raise
 

@@ -38,7 +38,7 @@ def stage_flow(
     result, state = reuse_or_run(paths, plan, force)
     plan.after()
     return StageSummary(
-        plan.spec.video_id,
+        plan.spec.subject,
         plan.name,
         plan.spec.stage,
         result.key,

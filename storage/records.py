@@ -130,16 +130,16 @@ def insert_columns(
 def write_output(
     con: duckdb.DuckDBPyConnection,
     record: OutputRecord,
-    rows: Mapping[str, Sequence[tuple] | Columns],
+    rows: Mapping[str, Sequence[Any] | Columns],
     metrics: Mapping[str, float],
     notes: Sequence[str] = (),
 ) -> None:
     """Replace the output ``record`` names, its table rows and its metrics, in one transaction.
 
     ``rows`` maps a stage table to its rows: records (dataclass instances whose fields are
-    named as the table's columns, ``key`` and ``video_id`` left out: they are filled in), tuples
-    in the table's column order starting with ``key, video_id``, or :data:`Columns` (see
-    :func:`insert_columns`). A crash leaves either the old output or the new one, never a mix.
+    named as the table's columns, ``key`` and ``video_id`` left out: they are filled in) or
+    :data:`Columns` (see :func:`insert_columns`). A crash leaves either the old output or the
+    new one, never a mix.
     """
     bad = {name: value for name, value in metrics.items() if not math.isfinite(value)}
     if bad:
@@ -151,11 +151,8 @@ def write_output(
             con.execute(f"DELETE FROM {table} WHERE key = ? AND video_id = ?", where)
             if isinstance(table_rows, Mapping):
                 insert_columns(con, table, record.key, record.video_id, table_rows)
-            elif table_rows and dataclasses.is_dataclass(table_rows[0]):
-                insert_records(con, table, record.key, record.video_id, table_rows)
             elif table_rows:
-                marks = ", ".join("?" * len(table_rows[0]))
-                con.executemany(f"INSERT INTO {table} VALUES ({marks})", list(table_rows))
+                insert_records(con, table, record.key, record.video_id, table_rows)
         con.execute(
             "DELETE FROM stage_outputs WHERE stage = ? AND video_id = ? AND key = ?",
             [record.stage, record.video_id, record.key],
@@ -301,21 +298,21 @@ def stage_states(con: duckdb.DuckDBPyConnection, stages: Sequence[str]) -> list[
     return _states(con, [(video_id, stage) for video_id in videos for stage in stages])
 
 
-def opponent_states(
-    con: duckdb.DuckDBPyConnection, dataset_keys: Sequence[str]
+def chained_states(
+    con: duckdb.DuckDBPyConnection, subjects: Sequence[str], chain: Sequence[str]
 ) -> list[dict[str, Any]]:
-    """The rows `stage_states` gives, for the stages after the per-video ones: per dataset key
-    (in the order given) the newest training run on it (``video_id`` is the dataset key, as in
-    ``stage_runs``), and after each finished one the evaluation of that run (``video_id`` is
-    the training run's key)."""
-    trains = _states(con, [(key, "train") for key in dataset_keys])
-    finished = [t["key"] for t in trains if t["state"] in ("done", "cached")]
-    evaluations = iter(_states(con, [(key, "evaluate") for key in finished]))
+    """The rows `stage_states` gives, for stages whose subject is the output of the stage
+    before (`tasks.registry`: training's is a dataset, evaluation's a training run): per
+    subject of ``chain[0]`` (in the order given) its newest output, and after each finished
+    one, the same for the rest of the chain on that output's key (``video_id`` is the subject,
+    as in ``stage_runs``)."""
+    if not chain:
+        return []
     rows = []
-    for train in trains:
-        rows.append(train)
-        if train["state"] in ("done", "cached"):
-            rows.append(next(evaluations))
+    for row in _states(con, [(subject, chain[0]) for subject in subjects]):
+        rows.append(row)
+        if row["state"] in ("done", "cached"):
+            rows += chained_states(con, [row["key"]], chain[1:])
     return rows
 
 

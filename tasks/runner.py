@@ -8,30 +8,36 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from storage.artifacts import put_bytes
 from storage.db import connect
 from storage.keys import stage_key
+from storage.paths import DataPaths
 from storage.records import Columns, OutputRecord, output_metrics, output_run, write_output
 
 
 @dataclass(frozen=True)
 class StageOutput:
-    """What a stage computed: rows per table (tuples starting with key, video_id), metrics."""
+    """What a stage computed: rows per table (records named as the table's columns, or
+    `Columns`), metrics, notes, and the files its rows name (artifact name -> bytes,
+    `storage.artifacts.artifact_name`), which `run_stage` stores before it commits the rows."""
 
-    rows: Mapping[str, Sequence[tuple] | Columns]
+    rows: Mapping[str, Sequence[Any] | Columns]
     metrics: Mapping[str, float]
     notes: tuple[str, ...] = ()
+    files: Mapping[str, bytes] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class StageResult:
     """The small record a stage task returns and Prefect persists: keys, never arrays.
 
-    ``run_id`` is the flow run that computed the output; when it differs from the current run's
-    id, the output came from the cache.
+    ``subject`` is what the output is of (`StageSpec`). ``run_id`` is the flow run that
+    computed the output; when it differs from the current run's id, the output came from the
+    cache.
     """
 
     stage: str
-    video_id: str
+    subject: str
     key: str
     run_id: str
     seconds: float
@@ -39,27 +45,32 @@ class StageResult:
     notes: tuple[str, ...] = ()
 
 
-def committed(db: Path, stage: str, video_id: str, key: str) -> StageResult | None:
-    """The committed output of ``stage`` for ``video_id`` under ``key``, if there is one."""
+def committed(db: Path, stage: str, subject: str, key: str) -> StageResult | None:
+    """The committed output of ``stage`` for ``subject`` under ``key``, if there is one."""
     if not db.exists():
         return None
     with connect(db, read_only=True) as con:
-        found = output_run(con, stage, video_id, key)
+        found = output_run(con, stage, subject, key)
         if found is None:
             return None
-        metrics = output_metrics(con, stage, video_id, key)
+        metrics = output_metrics(con, stage, subject, key)
     run_id, seconds, notes = found
-    return StageResult(stage, video_id, key, run_id, seconds, metrics, notes)
+    return StageResult(stage, subject, key, run_id, seconds, metrics, notes)
 
 
 @dataclass(frozen=True)
 class StageSpec:
-    """What the record of one stage output says: its stage, its subject (a video, an
-    assembled dataset or a training run), settings, code version and upstream keys. Its key is
-    derived from them (`storage.keys.stage_key`), so an output is described once."""
+    """What the record of one stage output says: its stage, its subject, settings, code version
+    and upstream keys. Its key is derived from them (`storage.keys.stage_key`), so an output is
+    described once.
+
+    ``subject`` is the id of what the output is of, of the kind its stage declares
+    (`tasks.registry.Subject`): a video id (ingest's and the per-video stages'), a dataset key
+    (training's) or a training run's key (evaluation's). The tables keep it in their
+    ``video_id`` column, the name they had when every output was a video's."""
 
     stage: str
-    video_id: str
+    subject: str
     config: Any
     code: str
     upstream: Mapping[str, Any]
@@ -71,7 +82,7 @@ class StageSpec:
     @property
     def run_name(self) -> str:
         """The name of the Prefect task run that computes it."""
-        return f"{self.stage}-{self.video_id:.12}"
+        return f"{self.stage}-{self.subject:.12}"
 
 
 def _nothing() -> None:
@@ -104,7 +115,7 @@ class StagePlan:
 
 
 def run_stage(
-    db: Path,
+    paths: DataPaths,
     spec: StageSpec,
     compute: Callable[[], StageOutput],
     run_id: str,
@@ -117,20 +128,24 @@ def run_stage(
     taken when the stage began, before its plan's ``before``: the pose stage tracks its chunks
     there) to the commit.
 
-    The database is opened only to write, never while the computation runs, so other processes
-    can use it meanwhile.
+    The output's files go to the artifact store first, so that no committed row names a file
+    that is not there. The database is opened only to write, never while the computation
+    runs, so other processes can use it meanwhile.
     """
     output = compute()
+    for name, data in output.files.items():
+        if put_bytes(paths.artifacts, data, Path(name).suffix) != name:
+            raise ValueError(f"{spec.stage}: file {name!r} is not named for its bytes")
     seconds = time.perf_counter() - started
     key = spec.key
     record = OutputRecord(
-        spec.stage, spec.video_id, key, spec.config, spec.code, spec.upstream, run_id, seconds
+        spec.stage, spec.subject, key, spec.config, spec.code, spec.upstream, run_id, seconds
     )
-    with connect(db) as con:
+    with connect(paths.db) as con:
         write_output(con, record, output.rows, output.metrics, output.notes)
     return StageResult(
         spec.stage,
-        spec.video_id,
+        spec.subject,
         key,
         run_id,
         seconds,

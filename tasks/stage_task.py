@@ -3,24 +3,24 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from pathlib import Path
 
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 from prefect.runtime import flow_run
 
+from storage.paths import DataPaths
 from tasks.runner import StageOutput, StageResult, StageSpec, run_stage
 
 
 @task(name="stage", cache_policy=NO_CACHE)
 def _stage_task(
-    db: Path, spec: StageSpec, compute: Callable[[], StageOutput], started: float
+    paths: DataPaths, spec: StageSpec, compute: Callable[[], StageOutput], started: float
 ) -> StageResult:
-    return run_stage(db, spec, compute, str(flow_run.id), started)
+    return run_stage(paths, spec, compute, str(flow_run.id), started)
 
 
 def run_stage_task(
-    db: Path,
+    paths: DataPaths,
     spec: StageSpec,
     compute: Callable[[], StageOutput],
     started: float,
@@ -35,4 +35,4 @@ def run_stage_task(
     database had lost the output); only the pose chunks keep one, where it pays.
     """
     named = _stage_task.with_options(name=spec.stage, task_run_name=spec.run_name)
-    return named(db, spec, compute, started)
+    return named(paths, spec, compute, started)

@@ -129,9 +129,13 @@ def test_two_lost_steps_are_bridged_not_cut(pair, assets):
     }
     config = DatasetConfig(min_clip_s=0.2, validation_fraction=0.2)
     shots = [(0, 0, 2 * n)]
-    out = build_dataset(fighters, key="k", video_id="v", shots=shots, fps=2 * RATE, config=config)
+    out = build_dataset(fighters, shots=shots, fps=2 * RATE, config=config)
     validation_from = int(np.ceil(n * 0.8))
-    spans = [(c[3], c[4], c[7], c[8]) for c in out.rows["dataset_clips"] if c[6] == "train"]
+    spans = [
+        (c.kind, c.role, c.start_step, c.end_step)
+        for c in out.rows["dataset_clips"]
+        if c.split == "train"
+    ]
     assert ("single", "opponent", 0, validation_from) in spans
     assert ("interaction", None, 0, validation_from) in spans
     assert out.metrics["steps_bridged"] == 2
@@ -145,23 +149,19 @@ def test_two_lost_steps_are_bridged_not_cut(pair, assets):
     np.testing.assert_allclose(np.stack(t["self"][mine])[:, 0], root_height, atol=0.02)
 
     unbridged = dataclasses.replace(config, max_bridge_steps=0)
-    out = build_dataset(
-        fighters, key="k", video_id="v", shots=shots, fps=2 * RATE, config=unbridged
-    )
-    spans = [(c[3], c[4], c[7], c[8]) for c in out.rows["dataset_clips"]]
+    out = build_dataset(fighters, shots=shots, fps=2 * RATE, config=unbridged)
+    spans = [(c.kind, c.role, c.start_step, c.end_step) for c in out.rows["dataset_clips"]]
     assert ("single", "opponent", 0, 20) in spans and out.metrics["steps_bridged"] == 0
 
 
 def test_build_dataset_on_two_deepmimic_fighters(pair):
     frames = int(pair["adversary"].step[-1]) + 1
     config = DatasetConfig(min_clip_s=0.2, validation_fraction=0.2)
-    out = build_dataset(
-        pair, key="k", video_id="v", shots=[(0, 0, 2 * frames)], fps=2 * RATE, config=config
-    )
+    out = build_dataset(pair, shots=[(0, 0, 2 * frames)], fps=2 * RATE, config=config)
     clips = out.rows["dataset_clips"]
-    spans = {(c[3], c[4]): [] for c in clips}
+    spans = {(c.kind, c.role): [] for c in clips}
     for c in clips:
-        spans[(c[3], c[4])].append((c[7], c[8], c[6]))
+        spans[(c.kind, c.role)].append((c.start_step, c.end_step, c.split))
     validation_from = int(np.ceil(frames * 0.8))
     # The walker's 5 lost steps cut its clip and the interaction; the split cuts every run.
     assert spans[("single", "adversary")] == [
@@ -196,9 +196,9 @@ def test_build_dataset_on_two_deepmimic_fighters(pair):
 
     # The punch clip's boxer throws punches at the walker; the walker throws none.
     punches = out.rows["dataset_punches"]
-    assert punches and {p[2] for p in punches} == {"adversary"}
+    assert punches and {p.role for p in punches} == {"adversary"}
     assert out.metrics["punches"] == len(punches)
-    stats = {(r[2], r[3]): r[4] for r in out.rows["dataset_statistics"]}
+    stats = {(r.role, r.name): r.value for r in out.rows["dataset_statistics"]}
     assert stats[("adversary", "punches_per_min")] > 0
     assert stats[("opponent", "punches_per_min")] == 0
     # Distance is measured where the other fighter is there all clip long: the last clip.
@@ -214,8 +214,6 @@ def test_no_long_enough_clip_is_a_clear_error(pair):
     with pytest.raises(BadInput, match="dataset.min_clip_s"):
         build_dataset(
             pair,
-            key="k",
-            video_id="v",
             shots=[(0, 0, 1000)],
             fps=RATE,
             config=DatasetConfig(min_clip_s=60.0),
@@ -225,8 +223,6 @@ def test_no_long_enough_clip_is_a_clear_error(pair):
 def test_transitions_round_trip_through_duckdb(tmp_path, pair):
     out = build_dataset(
         pair,
-        key="k1",
-        video_id="v1",
         shots=[(0, 0, 1000)],
         fps=RATE,
         config=DatasetConfig(min_clip_s=0.2),
@@ -402,9 +398,7 @@ def test_steps_no_boxer_could_make_never_become_transitions(pair):
     }
     frames = int(pair["adversary"].step[-1]) + 1
     config = DatasetConfig(min_clip_s=0.2, validation_fraction=0.2)
-    out = build_dataset(
-        flawed, key="k", video_id="v", shots=[(0, 0, 2 * frames)], fps=2 * RATE, config=config
-    )
+    out = build_dataset(flawed, shots=[(0, 0, 2 * frames)], fps=2 * RATE, config=config)
     # Three steps 300 m apart drop for both fighters, the two fast ones for the adversary.
     assert out.metrics["steps_rejected"] == 3 * 2 + 2
     assert any("8 steps left out as implausible" in note for note in out.notes)

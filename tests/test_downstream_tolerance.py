@@ -88,7 +88,7 @@ def test_other_kernels_move_keypoints_by_a_fraction_of_a_pixel_and_no_decision(
     assert clips(data) == clips(sample_run) and clips(data)
 
 
-def _lift(fighters: dict[str, FighterTrack], ingest, tmp_path: Path) -> dict[str, list[int]]:
+def _lift(fighters: dict[str, FighterTrack], ingest) -> dict[str, list[int]]:
     out = lift_video(
         fighters,
         fps=ingest.fps,
@@ -96,13 +96,11 @@ def _lift(fighters: dict[str, FighterTrack], ingest, tmp_path: Path) -> dict[str
         shots=list(ingest.shots),
         config=LiftStageConfig(),
         calibration=None,
-        artifacts=tmp_path,
     )
-    motion = out.rows["lift_motion"]
-    return {role: sorted(motion["step"][motion["role"] == role].tolist()) for role in fighters}
+    return {role: sorted(out.motion[role].step.tolist()) for role in fighters}
 
 
-def test_keypoint_noise_of_another_kernel_moves_no_lift_decision(sample_run, tmp_path):
+def test_keypoint_noise_of_another_kernel_moves_no_lift_decision(sample_run):
     """Every joint of every frame moved by Gaussian noise of 2 px (the kernels' 95th percentile)
     and one joint in a hundred by 30 px more (their tail): the lift believes the same steps of
     both fighters, all 50 of each, for three draws of the noise."""
@@ -123,4 +121,4 @@ def test_keypoint_noise_of_another_kernel_moves_no_lift_decision(sample_run, tmp
             angle = rng.uniform(0, 2 * np.pi, shape[:2])
             noise[tail] += 30.0 * np.stack([np.cos(angle), np.sin(angle)], axis=-1)[tail]
             noisy[role] = FighterTrack(track.keypoints + noise, track.confidence, track.world)
-        assert _lift(noisy, ingest, tmp_path) == expected, seed
+        assert _lift(noisy, ingest) == expected, seed

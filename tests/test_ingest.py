@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+from dataclasses import astuple
 from pathlib import Path
 
 import cv2
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import dropped_frames_copy, moving_box_frames, read_video, write_video
 
-from storage.artifacts import read_bytes
+from storage.artifacts import artifact_name
 from tasks.errors import BadInput
 from tasks.ingest.config import IngestConfig, declare, parse_colour
 from tasks.ingest.probe import (
@@ -21,6 +22,7 @@ from tasks.ingest.probe import (
     scan_video,
 )
 from tasks.ingest.stage import ingest_video
+from tasks.ingest.store import AdversaryRow
 from tasks.pose.frames import read_frames
 
 
@@ -82,20 +84,22 @@ def test_sample_video_probe(sample_video: Path):
     assert len(scan.shots) == 1
 
 
-def test_ingest_output_rows(two_shot_video: Path, tmp_path: Path):
+def test_ingest_output_rows(two_shot_video: Path):
     video = identify(two_shot_video)
     config = IngestConfig(chunk_frames=20)
-    out = ingest_video(video, declare("Smith", "red"), config, key="k", artifacts=tmp_path / "a")
-    assert [r[2:6] for r in out.rows["ingest_chunks"]] == [
+    out = ingest_video(video, declare("Smith", "red"), config)
+    assert [astuple(r) for r in out.rows["ingest_chunks"]] == [
         (0, 0, 0, 20),
         (1, 0, 20, 30),
         (2, 1, 30, 50),
         (3, 1, 50, 60),
     ]
-    assert out.rows["ingest_adversaries"] == [("k", video.video_id, "Smith", "#c81e1e", None)]
+    assert out.rows["ingest_adversaries"] == [AdversaryRow("Smith", "#c81e1e", None)]
     assert out.metrics["shot_cuts"] == 1 and out.metrics["chunks"] == 4
-    for shot in out.rows["ingest_shots"]:
-        assert read_bytes(tmp_path / "a", shot[-1])[:4] == b"\x89PNG"
+    # The thumbnails are the files the runner stores, each named for its bytes.
+    assert sorted(out.files) == sorted(shot.thumbnail for shot in out.rows["ingest_shots"])
+    for name, png in out.files.items():
+        assert png[:4] == b"\x89PNG" and artifact_name(png, ".png") == name
 
 
 def test_identity_is_the_bytes(two_shot_video: Path, tmp_path: Path):
@@ -185,9 +189,7 @@ def test_a_camera_dropping_frames_is_retimed_by_its_timestamps(sample_video: Pat
         for i, frame in read_frames(video, 60, 75, probe.source_frames[60:75])
     )
 
-    output = ingest_video(
-        identify(video), declare("A"), IngestConfig(), key="k", artifacts=tmp_path / "store"
-    )
+    output = ingest_video(identify(video), declare("A"), IngestConfig())
     assert output.metrics["variable_frame_rate"] == 1.0 and output.metrics["fps"] == 60.0
     assert output.metrics["frames"] == 99 and output.metrics["frames_decoded"] == 67
     assert output.notes == (

@@ -120,7 +120,6 @@ def test_one_person_tracked_as_both_fighters_is_refused(assets, tmp_path):
         shots=[(0, 0, frames)],
         config=LiftStageConfig(),
         calibration=calibration,
-        artifacts=tmp_path / "artifacts",
         progress=told.append,
     )
     # The progress bar is told the shot's frames once its work is done.
@@ -128,7 +127,7 @@ def test_one_person_tracked_as_both_fighters_is_refused(assets, tmp_path):
     m = output.metrics
     assert m["frames_rejected_one_person"] == 2 * 16
     assert m["adversary_frames_lifted"] == m["opponent_frames_lifted"] == frames - 16
-    steps = output.rows["lift_motion"]["step"][output.rows["lift_motion"]["role"] == "adversary"]
+    steps = output.motion["adversary"].step
     assert not set(range(10, 26)) & set(steps.tolist())
     assert any("dropped as implausible: one_person" in note for note in output.notes)
 

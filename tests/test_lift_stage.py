@@ -166,7 +166,7 @@ def test_bad_calibration_is_one_line_and_writes_nothing(sample_run, sample_video
     assert query(sample_run, "SELECT count(*) FROM lift_motion")[0][0] == before
 
 
-def test_too_few_frames_is_a_clear_error(tmp_path):
+def test_too_few_frames_is_a_clear_error():
     frames = 40
     track = FighterTrack(
         np.full((frames, 33, 2), np.nan), np.zeros((frames, 33)), np.full((frames, 33, 3), np.nan)
@@ -181,7 +181,6 @@ def test_too_few_frames_is_a_clear_error(tmp_path):
             shots=[(0, 0, frames)],
             config=LiftStageConfig(),
             calibration=None,
-            artifacts=tmp_path,
         )
 
 

@@ -22,14 +22,15 @@ from storage.records import (
     register_video,
     write_output,
 )
+from tasks.ingest.store import ChunkRow, ShotRow
 
 
 def record(key: str = "k1", run_id: str = "run-1") -> OutputRecord:
     return OutputRecord("ingest", "vid", key, {"a": 1}, "code", {"video": "vid"}, run_id, 0.5)
 
 
-def chunk_rows(key: str, n: int) -> list[tuple]:
-    return [(key, "vid", i, 0, i * 10, i * 10 + 10) for i in range(n)]
+def chunk_rows(n: int) -> list[ChunkRow]:
+    return [ChunkRow(i, 0, i * 10, i * 10 + 10) for i in range(n)]
 
 
 def test_migrations_apply_once(tmp_path: Path):
@@ -70,10 +71,8 @@ def test_a_reader_of_a_database_left_unmigrated_migrates_it_first(tmp_path: Path
 def test_rewrite_replaces_rows_and_metrics(tmp_path: Path):
     db = tmp_path / "r.duckdb"
     with connect(db) as con:
-        write_output(con, record(), {"ingest_chunks": chunk_rows("k1", 3)}, {"chunks": 3.0})
-        write_output(
-            con, record(run_id="run-2"), {"ingest_chunks": chunk_rows("k1", 2)}, {"chunks": 2.0}
-        )
+        write_output(con, record(), {"ingest_chunks": chunk_rows(3)}, {"chunks": 3.0})
+        write_output(con, record(run_id="run-2"), {"ingest_chunks": chunk_rows(2)}, {"chunks": 2.0})
         assert con.execute("SELECT count(*) FROM ingest_chunks").fetchone()[0] == 2
         assert con.execute("SELECT count(*) FROM stage_outputs").fetchone()[0] == 1
         assert latest_metrics(con) == [
@@ -85,8 +84,8 @@ def test_rewrite_replaces_rows_and_metrics(tmp_path: Path):
 def test_failed_write_keeps_previous_output(tmp_path: Path):
     db = tmp_path / "r.duckdb"
     with connect(db) as con:
-        write_output(con, record(), {"ingest_chunks": chunk_rows("k1", 3)}, {"chunks": 3.0})
-        broken = {"ingest_chunks": chunk_rows("k1", 1), "ingest_shots": [("k1", "vid", 0)]}
+        write_output(con, record(), {"ingest_chunks": chunk_rows(3)}, {"chunks": 3.0})
+        broken = {"ingest_chunks": chunk_rows(1), "ingest_shots": [ShotRow(0, 0, 10, None, None)]}
         with pytest.raises(duckdb.Error):
             write_output(con, record(run_id="run-2"), broken, {"chunks": 1.0})
         assert con.execute("SELECT count(*) FROM ingest_chunks").fetchone()[0] == 3
@@ -197,7 +196,7 @@ def test_code_version_hashes_the_stage_sources():
 def test_process_killed_inside_a_transaction_leaves_the_old_output(tmp_path: Path):
     db = tmp_path / "r.duckdb"
     with connect(db) as con:
-        write_output(con, record(), {"ingest_chunks": chunk_rows("k1", 3)}, {"chunks": 3.0})
+        write_output(con, record(), {"ingest_chunks": chunk_rows(3)}, {"chunks": 3.0})
     writer = subprocess.Popen(
         [
             sys.executable,

@@ -161,7 +161,7 @@ def test_a_run_with_a_time_budget_ends_at_the_first_checkpoint_after_it(sample_r
         db=paths.db, artifacts=paths.artifacts, dataset_key=dataset_key, key="timed", config=budget
     )
     # The budget ran out in the first iteration; the run stops at the checkpoint after two.
-    assert out.rows["train_policies"][0][2] == 2 and out.metrics["iterations"] == 2
+    assert out.rows["train_policies"][0].iteration == 2 and out.metrics["iterations"] == 2
     assert query(sample_run, "SELECT iteration FROM train_checkpoints WHERE key = 'timed'") == [
         (2,)
     ]

@@ -78,9 +78,9 @@ def process_command(args, paths: DataPaths) -> int:
 
 def status_command(args, paths: DataPaths) -> int:
     from storage.db import connect
-    from storage.records import opponent_states, stage_states
+    from storage.records import chained_states, stage_states
     from tasks.dataset.store import list_datasets
-    from tasks.registry import per_video
+    from tasks.registry import Subject, names, per_video
 
     db = paths.db
     videos: list[dict[str, Any]] = []
@@ -93,7 +93,8 @@ def status_command(args, paths: DataPaths) -> int:
             videos = [{f: r[f] for f in fields} for r in stage_states(con, per_video())]
             listed = list_datasets(con)
             datasets = [d["dataset_key"] for d in reversed(listed)]
-            opponents = [{f: r[f] for f in fields} for r in opponent_states(con, datasets)]
+            chain = names(Subject.DATASET, Subject.RUN)
+            opponents = [{f: r[f] for f in fields} for r in chained_states(con, datasets, chain)]
             unusable = [d for d in listed if d["unusable"] is not None]
     if args.json:
         print(json.dumps(videos + opponents))

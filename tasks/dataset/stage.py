@@ -34,7 +34,14 @@ from tasks.dataset.bridging import bridge, gaps
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.labels import Punch, label_punches, label_steps
 from tasks.dataset.statistics import FighterStatistics, combine, fighter_statistics
-from tasks.dataset.store import STAGE
+from tasks.dataset.store import (
+    STAGE,
+    ClipRow,
+    DistributionRow,
+    PunchRow,
+    StatisticRow,
+    StepRow,
+)
 from tasks.dataset.verdict import unusable_reason
 from tasks.deepmimic import load_deepmimic, retarget
 from tasks.errors import BadInput
@@ -188,11 +195,10 @@ def _concat(parts: list[dict]) -> dict:
 
 
 def _punch_rows(
-    head: tuple[str, str],
     role: str,
     punches: list[tuple[Clip, Punch]],
     fighters: Mapping[str, FighterMotion],
-) -> list[tuple]:
+) -> list[PunchRow]:
     other = ROLES[1 - ROLES.index(role)] if role in ROLES else None
     present = set(fighters[other].step.tolist()) if other in fighters else set()
     rows = []
@@ -205,8 +211,7 @@ def _punch_rows(
             heading = heading_frame(them[3:7])
             local = (heading.T @ (punch.target - them[:3])).tolist()
         rows.append(
-            (
-                *head,
+            PunchRow(
                 role,
                 number,
                 punch.hand,
@@ -223,18 +228,17 @@ def _punch_rows(
 
 
 def _label_fighter(
-    head: tuple[str, str],
     role: str,
     clips: list[Clip],
     fighters: Mapping[str, FighterMotion],
     config: DatasetConfig,
-) -> tuple[list[tuple[Clip, Punch]], list[tuple], FighterStatistics | None]:
+) -> tuple[list[tuple[Clip, Punch]], list[StepRow], FighterStatistics | None]:
     """Punches, step rows and statistics of one fighter over its single clips."""
     motion = fighters[role]
     arm = motion.bones.upper_arm + motion.bones.forearm
     other = ROLES[1 - ROLES.index(role)]
     punches: list[tuple[Clip, Punch]] = []
-    steps: list[tuple] = []
+    steps: list[StepRow] = []
     stats: list[FighterStatistics] = []
     durations: list[float] = []
     for clip in clips:
@@ -245,8 +249,7 @@ def _label_fighter(
         walked = label_steps(motion.contacts[rows], keypoints[:, _ANKLES])
         punches.extend((clip, p) for p in found)
         steps.extend(
-            (
-                *head,
+            StepRow(
                 role,
                 s.foot,
                 clip.start + s.lift_off,
@@ -307,8 +310,6 @@ def _without(motion: FighterMotion, drop: np.ndarray) -> FighterMotion:
 def build_dataset(
     fighters: Mapping[str, FighterMotion],
     *,
-    key: str,
-    video_id: str,
     shots: Sequence[tuple[int, int, int]],
     fps: float,
     config: DatasetConfig,
@@ -317,7 +318,6 @@ def build_dataset(
 
     Args:
         fighters: role -> its motion (the lift output's roles).
-        key, video_id: the output's key and video.
         shots: the video's (shot, start_frame, end_frame) ranges.
         fps: the video's frame rate.
         config: the stage's settings.
@@ -390,28 +390,27 @@ def build_dataset(
     parts.sort(key=lambda p: (order[p["kind"][0]], int(p["agent"][0]), int(p["clip"][0])))
     transitions = _concat(parts)
 
-    head = (key, video_id)
     punch_rows, step_rows, statistics = [], [], {}
     for role in fighters:
         own = [c for c in clips if c.kind == "single" and c.role == role]
-        punches, steps, stats = _label_fighter(head, role, own, fighters, config)
-        punch_rows += _punch_rows(head, role, punches, fighters)
+        punches, steps, stats = _label_fighter(role, own, fighters, config)
+        punch_rows += _punch_rows(role, punches, fighters)
         step_rows += steps
         if stats is not None:
             statistics[role] = stats
     return StageOutput(
         rows={
-            "dataset_clips": _clip_rows(head, clips),
+            "dataset_clips": _clip_rows(clips),
             "dataset_transitions": transitions,
             "dataset_punches": punch_rows,
             "dataset_steps": step_rows,
             "dataset_statistics": [
-                (*head, role, name, float(value))
+                StatisticRow(role, name, float(value))
                 for role, s in statistics.items()
                 for name, value in s.scalars.items()
             ],
             "dataset_distributions": [
-                (*head, role, name, np.asarray(values, dtype=float).tolist())
+                DistributionRow(role, name, np.asarray(values, dtype=float).tolist())
                 for role, s in statistics.items()
                 for name, values in s.distributions.items()
             ],
@@ -425,9 +424,9 @@ def build_dataset(
     )
 
 
-def _clip_rows(head: tuple[str, str], clips: list[Clip]) -> list[tuple]:
+def _clip_rows(clips: list[Clip]) -> list[ClipRow]:
     return [
-        (*head, n, c.kind, c.role, c.shot, c.split, c.start, c.end) for n, c in enumerate(clips)
+        ClipRow(n, c.kind, c.role, c.shot, c.split, c.start, c.end) for n, c in enumerate(clips)
     ]
 
 
@@ -452,9 +451,7 @@ def _metrics(
     return {k: float(v) for k, v in metrics.items() if math.isfinite(v)}
 
 
-def extra_clip_output(
-    folder: Path, bones: Sequence[BoneLengths], *, key: str, video_id: str
-) -> StageOutput:
+def extra_clip_output(folder: Path, bones: Sequence[BoneLengths]) -> StageOutput:
     """Single-actor clips (agent 2) from the DeepMimic-format motion files in ``folder``, each
     retargeted (`tasks.deepmimic.retarget`, 30 Hz) onto every body in ``bones`` (the
     dataset's fighters), so that the motion prior sees them on the humanoids it judges; the
@@ -480,7 +477,7 @@ def extra_clip_output(
     transitions = _concat(parts)
     return StageOutput(
         rows={
-            "dataset_clips": _clip_rows((key, video_id), clips),
+            "dataset_clips": _clip_rows(clips),
             "dataset_transitions": transitions,
         },
         metrics={

@@ -29,6 +29,65 @@ from tasks.roles import AGENTS, ROLES
 STAGE = "dataset"
 
 
+@dataclass(frozen=True)
+class ClipRow:
+    """A ``dataset_clips`` row: a clip of one fighter ('single') or both ('interaction')."""
+
+    clip: int
+    kind: str
+    role: str | None
+    shot: int
+    split: str
+    start_step: int
+    end_step: int
+
+
+@dataclass(frozen=True)
+class PunchRow:
+    """A ``dataset_punches`` row; the target is the wrist at full extension, in the world and
+    in the other fighter's heading frame when he is there."""
+
+    role: str
+    punch: int
+    hand: str
+    kind: str
+    start_step: int
+    peak_step: int
+    end_step: int
+    extension_m: float
+    target: list[float]
+    target_local: list[float] | None
+
+
+@dataclass(frozen=True)
+class StepRow:
+    """A ``dataset_steps`` row."""
+
+    role: str
+    foot: str
+    lift_off_step: int
+    touch_down_step: int
+    length_m: float
+
+
+@dataclass(frozen=True)
+class StatisticRow:
+    """A ``dataset_statistics`` row: one number of a fighter's statistics."""
+
+    role: str
+    name: str
+    value: float
+
+
+@dataclass(frozen=True)
+class DistributionRow:
+    """A ``dataset_distributions`` row: one distribution of a fighter's statistics."""
+
+    role: str
+    name: str
+    samples: list[float]
+
+
 class UnknownDataset(KeyError):
     """A dataset key that was never assembled."""
 

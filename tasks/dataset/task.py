@@ -49,8 +49,6 @@ def dataset_plan(
             raise BadInput(STAGE, f"lift output {lift_key} of video {video_id} is empty")
         return build_dataset(
             fighters,
-            key=spec.key,
-            video_id=video_id,
             shots=list(ingest.shots),
             fps=ingest.fps,
             config=config,
@@ -76,7 +74,7 @@ def extra_clips_plan(paths: DataPaths, config: DatasetConfig, adversary: str) ->
     return StagePlan(
         spec,
         folder,
-        compute=lambda: extra_clip_output(path, bones, key=spec.key, video_id=spec.video_id),
+        compute=lambda: extra_clip_output(path, bones),
     )
 
 

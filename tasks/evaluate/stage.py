@@ -47,7 +47,7 @@ from models.maaip.arena import arena_mjcf
 from models.maaip.config import TrainConfig
 from models.maaip.demonstrations import ReferenceMotions
 from models.maaip.networks import Policy, make_networks
-from storage.artifacts import put_bytes
+from storage.artifacts import artifact_name
 from storage.db import connect
 from storage.files import scratch_dir
 from storage.records import output_metrics
@@ -69,7 +69,13 @@ from tasks.evaluate.opponent import FILES, MANIFEST, load_opponent
 from tasks.evaluate.store import (
     DAMAGE_TASKS,
     STAGE,
+    ArtifactRow,
+    BoxingRow,
+    ClassifierRow,
+    DamageRow,
+    HeadingRow,
     HeldOutClip,
+    StyleDistanceRow,
     heldout_footage,
     real_statistics,
     resolve_run,
@@ -197,10 +203,9 @@ def _bouts(
     )
 
 
-def _damage_rows(head: tuple[str, str], run: TrainedPolicy, bouts: Bouts, frames: int) -> list:
+def _damage_rows(run: TrainedPolicy, bouts: Bouts, frames: int) -> list[DamageRow]:
     return [
-        (
-            *head,
+        DamageRow(
             run.run_key,
             run.config.reward.control_task,
             agent,
@@ -213,34 +218,28 @@ def _damage_rows(head: tuple[str, str], run: TrainedPolicy, bouts: Bouts, frames
     ]
 
 
-def _export(
-    run: TrainedPolicy, bouts: Bouts, artifacts: Path, folder: Path
-) -> tuple[float, list[tuple[str, str]]]:
+def _export(run: TrainedPolicy, bouts: Bouts, folder: Path) -> tuple[float, dict[str, bytes]]:
     """Export the adversary, check onnxruntime against torch on the bouts' observations of
-    agent 0, store the files; (max abs difference, [(name, artifact)])."""
+    agent 0; (max abs difference, {name in the opponent folder: bytes})."""
     out = run.export(0, folder)
     opponent = load_opponent(out)
     tasks = None if bouts.tasks is None else bouts.tasks[:, 0]
     diff = onnx_max_abs_diff(run.policy, 0, opponent, bouts.observations[:, 0], tasks)
-    stored = [
-        (f"opponent/{name}", put_bytes(artifacts, (out / name).read_bytes(), Path(name).suffix))
-        for name in (*FILES, MANIFEST)
-    ]
-    return diff, stored
+    return diff, {f"opponent/{name}": (out / name).read_bytes() for name in (*FILES, MANIFEST)}
 
 
 def _video(
-    model: mujoco.MjModel, bouts: Bouts, seconds: float, artifacts: Path, folder: Path
-) -> tuple[str, str, int] | None:
+    model: mujoco.MjModel, bouts: Bouts, seconds: float, folder: Path
+) -> tuple[bytes, int] | None:
     """The bouts' episodes in arena ``model`` one after another, their first ``seconds``, as
-    an MP4."""
+    an MP4: its bytes and frames."""
     count = round(seconds * bouts.policy_hz)
     if count < 1:
         return None
     played = np.concatenate([bouts.episode_qpos(e) for e in range(bouts.episodes)])[:count]
     path = folder / "bout.mp4"
     written = render_bout(model, played, path, fps=bouts.policy_hz)
-    return "bout.mp4", put_bytes(artifacts, path.read_bytes(), ".mp4"), written
+    return path.read_bytes(), written
 
 
 def _windows(count: int) -> str:
@@ -248,13 +247,12 @@ def _windows(count: int) -> str:
 
 
 def _two_sample(
-    head: tuple[str, str],
     heldout: tuple[HeldOutClip, ...],
     simulated: dict[str, np.ndarray],
     *,
     fps: float,
     seed: int,
-) -> tuple[list[tuple], dict[str, float]]:
+) -> tuple[list[ClassifierRow], dict[str, float]]:
     """The two-sample test's rows (one per policy of ``simulated``, its windows, then 'replay')
     and metrics: the held-out footage's windows against each policy's, or NULL and why."""
     real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], fps)
@@ -278,25 +276,22 @@ def _two_sample(
             )
         else:
             result = classifier_test(real, windows, seed=seed)
-            rows.append((*head, policy, result.auc, result.low, result.high, *counts, None))
+            rows.append(ClassifierRow(policy, result.auc, result.low, result.high, *counts, None))
             suffix = "" if policy == "adversary" else f"_{policy}"
             metrics[f"two_sample_auc{suffix}"] = result.auc
             if policy == "adversary":
                 metrics["two_sample_auc_low"] = result.low
                 metrics["two_sample_auc_high"] = result.high
             continue
-        rows.append((*head, policy, None, None, None, *counts, reason))
-    rows.append((*head, "replay", None, None, None, len(real), 0, NO_REPLAY))
+        rows.append(ClassifierRow(policy, None, None, None, *counts, reason))
+    rows.append(ClassifierRow("replay", None, None, None, len(real), 0, NO_REPLAY))
     return rows, metrics
 
 
-def evaluate(
-    inputs: EvaluateInputs, config: EvaluateConfig, *, key: str, artifacts: Path
-) -> StageOutput:
-    """The evaluate stage's rows and metrics for run ``inputs.run`` (module docstring); the
-    exported files and the video go to the artifact store at ``artifacts``."""
+def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
+    """The evaluate stage's rows, metrics and files (the exported opponent, the video, the
+    bouts' motion) for run ``inputs.run`` (module docstring)."""
     run = inputs.run
-    head = (key, run.run_key)
     size = {"episodes": config.episodes, "frames": config.episode_frames, "seed": config.seed}
     bouts = {
         "trained": _bouts(_agents(run.policy), run, inputs.reference, **size),
@@ -315,7 +310,8 @@ def evaluate(
         rows = style_rows(fighter.statistics, inputs.real)
         scores[policy] = style_score(rows)
         style += [
-            (*head, policy, r.statistic, r.kind, r.simulated, r.real, r.distance) for r in rows
+            StyleDistanceRow(policy, r.statistic, r.kind, r.simulated, r.real, r.distance)
+            for r in rows
         ]
         measured = boxing_metrics(
             fighter,
@@ -323,12 +319,11 @@ def evaluate(
             opponent_bones=run.bones[1 - agent],
             radius_m=config.punch_target_radius_m,
         )
-        boxing += [(*head, policy, name, value) for name, value in measured.items()]
+        boxing += [BoxingRow(policy, name, value) for name, value in measured.items()]
         if policy == "adversary":
             adversary_boxing = measured
 
     two_sample, two_sample_metrics = _two_sample(
-        head,
         inputs.heldout,
         {
             p: bout_windows(model, bouts[POLICIES[p][0]], POLICIES[p][1])
@@ -339,12 +334,11 @@ def evaluate(
     )
     notes = []
     if "two_sample_auc" not in two_sample_metrics:
-        notes.append(f"two-sample test: not measured, {two_sample[0][-1]}")
-    damage = _damage_rows(head, run, bouts["trained"], config.episode_frames)
+        notes.append(f"two-sample test: not measured, {two_sample[0].reason}")
+    damage = _damage_rows(run, bouts["trained"], config.episode_frames)
     damage_runs = [c for c in inputs.compared if c.config.reward.control_task in DAMAGE_TASKS]
     for other in damage_runs:
         damage += _damage_rows(
-            head,
             other,
             _bouts(_agents(other.policy), other, inputs.reference, **size),
             config.episode_frames,
@@ -369,8 +363,7 @@ def evaluate(
             # Normalised by the episode's full length: a fall forfeits the rest (reward 0).
             value = float((played.task_return[:, agent] / config.heading_frames).mean())
             heading.append(
-                (
-                    *head,
+                HeadingRow(
                     other.run_key,
                     other.config.reward.w_motion > 0,
                     agent,
@@ -388,13 +381,14 @@ def evaluate(
 
     trained = bouts["trained"]
     with scratch_dir("evaluate") as tmp:
-        diff, stored = _export(run, trained, artifacts, Path(tmp) / "opponent")
-        video = _video(model, trained, config.video_seconds, artifacts, Path(tmp))
-    media = [(*head, name, artifact) for name, artifact in stored]
+        diff, files = _export(run, trained, Path(tmp) / "opponent")
+        video = _video(model, trained, config.video_seconds, Path(tmp))
     if video is not None:
-        media.append((*head, video[0], video[1]))
-    motion = bouts_npz(trained.qpos, trained.frames, run.bones)
-    media.append((*head, BOUTS, put_bytes(artifacts, motion, ".npz")))
+        files["bout.mp4"] = video[0]
+    files[BOUTS] = bouts_npz(trained.qpos, trained.frames, run.bones)
+    # Each file under the name the evaluation gives it, stored by its bytes' name.
+    stored = {name: artifact_name(data, Path(name).suffix) for name, data in files.items()}
+    media = [ArtifactRow(name, artifact) for name, artifact in stored.items()]
 
     unstable = int(trained.unstable.sum())
     if unstable:
@@ -413,15 +407,15 @@ def evaluate(
         "damage_received_n": float(trained.damage[:, 0].mean()),
         "damage_dealt_n": float(trained.damage[:, 1].mean()),
         "unstable_episodes": float(unstable),
-        "video_frames": float(video[2]) if video is not None else 0.0,
+        "video_frames": float(video[1]) if video is not None else 0.0,
         **two_sample_metrics,
     }
     for name in ("punch_accuracy_pct", "foot_skating_cm_per_frame", "time_in_guard_pct"):
         if name in adversary_boxing:
             metrics[name] = adversary_boxing[name]
     for row in heading:
-        if row[2] == run.run_key:
-            metrics[f"heading_return_{row[4]}"] = row[5]
+        if row.run_key == run.run_key:
+            metrics[f"heading_return_{row.agent}"] = row.normalized_return
     return StageOutput(
         rows={
             "evaluate_damage": damage,
@@ -433,4 +427,5 @@ def evaluate(
         },
         metrics={k: float(v) for k, v in metrics.items() if math.isfinite(v)},
         notes=tuple(notes),
+        files={stored[name]: data for name, data in files.items()},
     )

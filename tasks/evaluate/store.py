@@ -34,6 +34,74 @@ DAMAGE_TASKS = ("damage_min", "damage_max")
 
 
 @dataclass(frozen=True)
+class DamageRow:
+    """An ``evaluate_damage`` row: one agent's mean damage per episode in a run's bouts."""
+
+    run_key: str
+    control_task: str
+    agent: int
+    received_n: float
+    dealt_n: float
+    episodes: int
+    frames: int
+
+
+@dataclass(frozen=True)
+class HeadingRow:
+    """An ``evaluate_heading`` row: one agent's normalised heading return in a heading run."""
+
+    run_key: str
+    motion_prior: bool
+    agent: int
+    normalized_return: float
+    episodes: int
+    frames: int
+
+
+@dataclass(frozen=True)
+class StyleDistanceRow:
+    """An ``evaluate_style`` row: a simulated fighter's statistic against the footage's."""
+
+    policy: str
+    statistic: str
+    kind: str
+    simulated: float
+    real: float
+    distance: float
+
+
+@dataclass(frozen=True)
+class BoxingRow:
+    """An ``evaluate_boxing`` row: one boxing metric of a simulated fighter."""
+
+    policy: str
+    metric: str
+    value: float
+
+
+@dataclass(frozen=True)
+class ClassifierRow:
+    """An ``evaluate_classifier`` row: the two-sample test of one simulated fighter, or NULL
+    and the reason it could not be made."""
+
+    policy: str
+    auc: float | None
+    auc_low: float | None
+    auc_high: float | None
+    real_windows: int
+    simulated_windows: int
+    reason: str | None
+
+
+@dataclass(frozen=True)
+class ArtifactRow:
+    """An ``evaluate_artifacts`` row: a file of the evaluation in the artifact store."""
+
+    name: str
+    artifact: str
+
+
+@dataclass(frozen=True)
 class RunInfo:
     """A finished training run: its key, its dataset's, its final iteration and policy (an
     artifact), its settings (the `train` section)."""

@@ -62,8 +62,6 @@ def evaluate_plan(
         compute=lambda: evaluate(
             load_inputs(paths.db, paths.artifacts, info.run_key, compared),
             config,
-            key=spec.key,
-            artifacts=paths.artifacts,
         ),
         after=lambda: publish_tables(paths, spec.key, info.run_key),
     )

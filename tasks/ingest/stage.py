@@ -5,10 +5,11 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from storage.artifacts import put_bytes
+from storage.artifacts import artifact_name
 from storage.keys import code_version
 from tasks.ingest.config import AdversaryDeclaration, IngestConfig
 from tasks.ingest.probe import VideoFile, plan_chunks, scan_video
+from tasks.ingest.store import AdversaryRow, ChunkRow, ProbeRow, ShotRow
 from tasks.runner import StageOutput, StageSpec
 
 STAGE = "ingest"
@@ -27,43 +28,25 @@ def ingest_spec(
 
 
 def ingest_video(
-    video: VideoFile,
-    declaration: AdversaryDeclaration,
-    config: IngestConfig,
-    *,
-    key: str,
-    artifacts: Path,
+    video: VideoFile, declaration: AdversaryDeclaration, config: IngestConfig
 ) -> StageOutput:
-    """Scan ``video`` and return the rows and metrics of its ingest output under ``key``.
-
-    Thumbnails go to the artifact store first; they are content-addressed, so an output that is
-    never committed leaves only unreferenced files, never a wrong row.
-    """
+    """Scan ``video``: the rows, metrics and files (the shots' thumbnails) of its ingest output."""
     start = time.perf_counter()
     scan = scan_video(Path(video.path), config)
     seconds = time.perf_counter() - start
-    p, vid = scan.probe, video.video_id
+    p = scan.probe
+    thumbnails = [artifact_name(s.thumbnail, ".png") for s in scan.shots]
     shots = [
-        (
-            key,
-            vid,
-            s.index,
-            s.start,
-            s.end,
-            s.cut_distance,
-            put_bytes(artifacts, s.thumbnail, ".png"),
-        )
-        for s in scan.shots
+        ShotRow(s.index, s.start, s.end, s.cut_distance, name)
+        for s, name in zip(scan.shots, thumbnails, strict=True)
     ]
     chunks = [
-        (key, vid, c.index, c.shot, c.start, c.end)
+        ChunkRow(c.index, c.shot, c.start, c.end)
         for c in plan_chunks(scan.shots, config.chunk_frames)
     ]
     rows = {
         "ingest_probes": [
-            (
-                key,
-                vid,
+            ProbeRow(
                 video.path,
                 p.fps,
                 p.frames,
@@ -75,7 +58,9 @@ def ingest_video(
                 None if p.source_frames is None else p.source_frames.tolist(),
             )
         ],
-        "ingest_adversaries": [(key, vid, declaration.name, declaration.colour, declaration.notes)],
+        "ingest_adversaries": [
+            AdversaryRow(declaration.name, declaration.colour, declaration.notes)
+        ],
         "ingest_shots": shots,
         "ingest_chunks": chunks,
     }
@@ -101,4 +86,5 @@ def ingest_video(
             f"container's timestamps to {p.fps:.4g} fps, {p.frames_decoded} decoded frames on "
             f"{p.frames} grid frames ({repeated} show the frame before again)",
         )
-    return StageOutput(rows, metrics, notes)
+    files = {name: s.thumbnail for name, s in zip(thumbnails, scan.shots, strict=True)}
+    return StageOutput(rows, metrics, notes, files)

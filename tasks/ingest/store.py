@@ -12,6 +12,51 @@ from tasks.errors import BadInput
 
 
 @dataclass(frozen=True)
+class ProbeRow:
+    """An ``ingest_probes`` row: what the video is (`tasks.ingest.probe.Probe`)."""
+
+    path: str
+    fps: float
+    frames: int
+    frames_declared: int
+    width: int
+    height: int
+    codec: str
+    duration_s: float
+    source_frames: list[int] | None
+
+
+@dataclass(frozen=True)
+class AdversaryRow:
+    """An ``ingest_adversaries`` row: who the analyst says the adversary is."""
+
+    name: str
+    colour: str | None
+    notes: str | None
+
+
+@dataclass(frozen=True)
+class ShotRow:
+    """An ``ingest_shots`` row: a shot between cuts, frames [start_frame, end_frame)."""
+
+    shot: int
+    start_frame: int
+    end_frame: int
+    cut_distance: float | None
+    thumbnail: str  # artifact name of a PNG of the shot's first frame
+
+
+@dataclass(frozen=True)
+class ChunkRow:
+    """An ``ingest_chunks`` row: frames [start_frame, end_frame) later stages process together."""
+
+    chunk: int
+    shot: int
+    start_frame: int
+    end_frame: int
+
+
+@dataclass(frozen=True)
 class IngestOutput:
     """What later stages need to know about an ingested video."""
 

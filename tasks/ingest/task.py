@@ -38,9 +38,7 @@ def ingest_plan(paths: DataPaths, config: IngestConfig, video: str, inputs: Decl
     return StagePlan(
         spec,
         file.path,
-        compute=lambda: ingest_video(
-            file, declaration, config, key=spec.key, artifacts=paths.artifacts
-        ),
+        compute=lambda: ingest_video(file, declaration, config),
         after=register,
         noted=False,
     )

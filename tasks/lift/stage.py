@@ -22,7 +22,7 @@ from models.humanoid.boxer import BoneLengths, single_scene_mjcf
 from models.humanoid.fitting import fit_humanoid
 from models.humanoid.kinematics import NQ, NV
 from models.humanoid.motion import RATE, FighterMotion, fighter_distance
-from storage.artifacts import put_bytes
+from storage.artifacts import artifact_name
 from storage.files import scratch_dir
 from storage.keys import code_version
 from tasks.errors import BadInput
@@ -250,6 +250,162 @@ def _clean_shot(fitted: dict, fps: float, config: LiftStageConfig) -> dict[str, 
     return dict(zip(roles, pair, strict=True))
 
 
+@dataclass(frozen=True, eq=False)
+class FighterShot:
+    """One fighter's lift over one shot: frames [start, start + len(cleaned.qpos))."""
+
+    start: int
+    cleaned: Cleaned
+    dropped: np.ndarray  # (n,) frames the cleanup's gates drop
+    bones: BoneLengths
+    bone_length_std_mm: float
+    cleanup_change_mm: float
+    cleanup_metrics: dict[str, float]
+
+
+@dataclass(frozen=True, eq=False)
+class ShotLift:
+    """One shot's lift: its camera (None when the shot is left out), each fighter lifted in
+    it, the frames each gate rejected, the frames a fighter was seen, and notes."""
+
+    shot: int
+    camera: Camera | None
+    fighters: dict[str, FighterShot]
+    rejected: dict[str, int]
+    seen_frames: int
+    notes: tuple[str, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class Lift:
+    """A video's lift, before it becomes the stage's rows (`lift_output`).
+
+    cameras: (shot, where K came from: 'fov' or 'calibration', camera) of each lifted shot;
+    motion: each lifted fighter's cleaned motion on the 30 Hz grid; bones: each one's bone
+    lengths (from its longest lifted span); cut_steps: the first grid step of each shot after
+    the first.
+    """
+
+    cameras: list[tuple[int, str, Camera]]
+    motion: dict[str, FighterMotion]
+    bones: dict[str, BoneLengths]
+    cut_steps: list[int]
+    metrics: dict[str, float]
+    notes: tuple[str, ...]
+
+
+def lift_shot(
+    fighters: Mapping[str, FighterTrack],
+    twice: np.ndarray,
+    shot: int,
+    start: int,
+    end: int,
+    *,
+    K: np.ndarray,
+    size: tuple[int, int],
+    fps: float,
+    config: LiftStageConfig,
+) -> ShotLift:
+    """Lift the fighters over frames [start, end) of one shot: place the camera from their
+    bodies, lift and fit each, clean them up together. ``twice`` (F,) marks the frames where
+    both roles are on one person (`one_person`)."""
+    gates = config.gates
+    rejected = dict.fromkeys(REASONS, 0)
+    seen_frames = 0
+    gated, refused, spans = {}, {}, {}
+    for role, track in fighters.items():
+        seen = _segment(track, start, end, config.min_frames)
+        if seen is None:
+            continue
+        seen_frames += seen[1] - seen[0]
+        gated[role], far, fast = _gate_placement(track, *seen, K, gates, twice)
+        refused[role] = twice | far | fast
+        rejected["one_person"] += int(twice[seen[0] : seen[1]].sum())
+        rejected["depth"] += int((far & ~twice).sum())
+        rejected["speed"] += int((fast & ~far & ~twice).sum())
+        span = _segment(gated[role], start, end, config.min_frames)
+        if span is None:
+            rejected["short"] += int((seen[1] - seen[0]) - refused[role].sum())
+            continue
+        spans[role] = span
+    if not spans:
+        return ShotLift(shot, None, {}, rejected, seen_frames, ())
+    inputs = {
+        r: (gated[r].keypoints[a:b], gated[r].confidence[a:b], gated[r].world[a:b])
+        for r, (a, b) in spans.items()
+    }
+    # Known statures set the scene's metric scale (BlazePose's is an average body's).
+    known = [config.statures()[r] for r in inputs]
+    camera, roots, scales = ground_fighters(list(inputs.values()), K, size, known)
+    inputs = {r: (k, c, w * s) for (r, (k, c, w)), s in zip(inputs.items(), scales, strict=True)}
+    problem = shot_problem(float(camera.centre[2]), _median_distance(spans, roots), gates)
+    if problem is not None:
+        rejected["shot"] += sum(b - a for a, b in spans.values())
+        note = f"shot {shot} left out: {problem}"
+        return ShotLift(shot, None, {}, rejected, seen_frames, (note,))
+    fitted, believed = {}, {}
+    for (role, (a, b)), root in zip(spans.items(), roots, strict=True):
+        lifted = lift_fighter(
+            *inputs[role],
+            camera.K,
+            camera.R,
+            camera.t,
+            fps=fps,
+            config=config.solve,
+            root_init=root,
+        )
+        hips = lifted.points[:, list(HIPS)].mean(1)
+        far, fast = too_far(hips, camera.centre, gates), too_fast(hips, fps, gates)
+        earlier = refused[role][a:b]  # refused before the lift, which bridged them
+        far, fast = far & ~earlier, fast & ~far & ~earlier
+        rejected["depth"] += int(far.sum())
+        rejected["speed"] += int(fast.sum())
+        kept = _believed(lifted, ~(far | fast | earlier), config.min_frames)
+        if kept is None:
+            rejected["short"] += int((~far & ~fast & ~earlier).sum())
+            continue
+        first, lifted, believed[role] = kept
+        a, b = a + first, a + first + len(lifted.points)
+        fitted[role] = (
+            a,
+            b,
+            lifted,
+            fit_humanoid(
+                lifted.points,
+                lifted.bones,
+                iterations=config.solve.ik_iterations,
+                damping=config.solve.ik_damping,
+                face_weight=config.solve.ik_face_weight,
+            ),
+        )
+    lifted_fighters = {}
+    if fitted:
+        for role, cleaned in _clean_shot(fitted, fps, config).items():
+            a, _, lifted, _ = fitted[role]
+            fine = believed[role]
+            high = floating(cleaned.settle, gates) & fine
+            fast = too_fast(cleaned.qpos[:, :3], fps, gates) & fine & ~high
+            rejected["floating"] += int(high.sum())
+            rejected["speed"] += int(fast.sum())
+            model = mujoco.MjModel.from_xml_string(single_scene_mjcf(lifted.bones))
+            sunk = floor_depth(model, cleaned.qpos)
+            lifted_fighters[role] = FighterShot(
+                start=a,
+                cleaned=cleaned,
+                dropped=high | fast | ~fine,
+                bones=lifted.bones,
+                bone_length_std_mm=bone_length_std_mm(lifted.points),
+                cleanup_change_mm=float(
+                    np.nanmean(np.linalg.norm(cleaned.points - lifted.points, axis=-1)) * 1000
+                ),
+                cleanup_metrics={
+                    **cleaned.metrics,
+                    "floor_penetration_mean_mm": float(sunk.mean() * 1000),
+                },
+            )
+    return ShotLift(shot, camera, lifted_fighters, rejected, seen_frames, ())
+
+
 def lift_video(
     fighters: Mapping[str, FighterTrack],
     *,
@@ -258,10 +414,9 @@ def lift_video(
     shots: list[tuple[int, int, int]],
     config: LiftStageConfig,
     calibration: Path | None,
-    artifacts: Path,
     progress: Callable[[int], None] | None = None,
-) -> StageOutput:
-    """Lift every shot of a video; the rows and metrics of its lift output.
+) -> Lift:
+    """Lift every shot of a video (`lift_shot`) and put the shots' motions on one grid.
 
     ``fighters`` maps role to its 2D input; ``shots`` are (shot, start, end) frame ranges.
     ``progress(frames)`` is told each shot's frames once the shot is done.
@@ -271,125 +426,22 @@ def lift_video(
     """
     advance = progress or (lambda frames: None)
     frames = next(iter(fighters.values())).keypoints.shape[0]
-    qpos = {r: np.full((frames, NQ), np.nan) for r in fighters}
-    qvel = {r: np.full((frames, NV), np.nan) for r in fighters}
-    joints = {r: np.full((frames, 33, 3), np.nan) for r in fighters}
-    contacts = {r: np.zeros((frames, 2), bool) for r in fighters}
-    bones: dict[str, tuple[int, BoneLengths]] = {}
-    lifted_std: dict[str, list[float]] = {r: [] for r in fighters}
-    change_mm: dict[str, list[float]] = {r: [] for r in fighters}
-    cleanup_metrics: dict[str, list[dict[str, float]]] = {r: [] for r in fighters}
-    camera_rows = []
-    gates = config.gates
-    rejected = dict.fromkeys(REASONS, 0)
-    fighter_frames = 0
-    notes: list[str] = []
     K, dist, source = _intrinsics(config, size, calibration)
     fighters = {r: _without_distortion(track, K, dist) for r, track in fighters.items()}
     twice = np.zeros(frames, bool)
     if all(r in fighters for r in ROLES):
-        twice = one_person(*(fighters[r].keypoints for r in ROLES), gates)
-    finished = 0  # frames of the shot before, told when the next one starts
+        twice = one_person(*(fighters[r].keypoints for r in ROLES), config.gates)
+    lifted: list[ShotLift] = []
     for shot, start, end in shots:
-        advance(finished)
-        finished = end - start
-        gated, refused, spans = {}, {}, {}
-        for role, track in fighters.items():
-            seen = _segment(track, start, end, config.min_frames)
-            if seen is None:
-                continue
-            fighter_frames += seen[1] - seen[0]
-            gated[role], far, fast = _gate_placement(track, *seen, K, gates, twice)
-            refused[role] = twice | far | fast
-            rejected["one_person"] += int(twice[seen[0] : seen[1]].sum())
-            rejected["depth"] += int((far & ~twice).sum())
-            rejected["speed"] += int((fast & ~far & ~twice).sum())
-            span = _segment(gated[role], start, end, config.min_frames)
-            if span is None:
-                rejected["short"] += int((seen[1] - seen[0]) - refused[role].sum())
-                continue
-            spans[role] = span
-        if not spans:
-            continue
-        inputs = {
-            r: (gated[r].keypoints[a:b], gated[r].confidence[a:b], gated[r].world[a:b])
-            for r, (a, b) in spans.items()
-        }
-        # Known statures set the scene's metric scale (BlazePose's is an average body's).
-        known = [config.statures()[r] for r in inputs]
-        camera, roots, scales = ground_fighters(list(inputs.values()), K, size, known)
-        inputs = {
-            r: (k, c, w * s) for (r, (k, c, w)), s in zip(inputs.items(), scales, strict=True)
-        }
-        problem = shot_problem(float(camera.centre[2]), _median_distance(spans, roots), gates)
-        if problem is not None:
-            rejected["shot"] += sum(b - a for a, b in spans.values())
-            notes.append(f"shot {shot} left out: {problem}")
-            continue
-        camera_rows.append((shot, source, camera))
-        fitted, believed = {}, {}
-        for (role, (a, b)), root in zip(spans.items(), roots, strict=True):
-            lifted = lift_fighter(
-                *inputs[role],
-                camera.K,
-                camera.R,
-                camera.t,
-                fps=fps,
-                config=config.solve,
-                root_init=root,
-            )
-            hips = lifted.points[:, list(HIPS)].mean(1)
-            far, fast = too_far(hips, camera.centre, gates), too_fast(hips, fps, gates)
-            earlier = refused[role][a:b]  # refused before the lift, which bridged them
-            far, fast = far & ~earlier, fast & ~far & ~earlier
-            rejected["depth"] += int(far.sum())
-            rejected["speed"] += int(fast.sum())
-            kept = _believed(lifted, ~(far | fast | earlier), config.min_frames)
-            if kept is None:
-                rejected["short"] += int((~far & ~fast & ~earlier).sum())
-                continue
-            first, lifted, believed[role] = kept
-            a, b = a + first, a + first + len(lifted.points)
-            fitted[role] = (
-                a,
-                b,
-                lifted,
-                fit_humanoid(
-                    lifted.points,
-                    lifted.bones,
-                    iterations=config.solve.ik_iterations,
-                    damping=config.solve.ik_damping,
-                    face_weight=config.solve.ik_face_weight,
-                ),
-            )
-            lifted_std[role].append(bone_length_std_mm(lifted.points))
-            if role not in bones or b - a > bones[role][0]:
-                bones[role] = (b - a, lifted.bones)
-        if not fitted:
-            continue
-        for role, cleaned in _clean_shot(fitted, fps, config).items():
-            a, b, lifted, _ = fitted[role]
-            fine = believed[role]
-            high = floating(cleaned.settle, gates) & fine
-            fast = too_fast(cleaned.qpos[:, :3], fps, gates) & fine & ~high
-            bad = high | fast | ~fine
-            rejected["floating"] += int(high.sum())
-            rejected["speed"] += int(fast.sum())
-            qpos[role][a:b], qvel[role][a:b] = cleaned.qpos, cleaned.qvel
-            joints[role][a:b], contacts[role][a:b] = cleaned.points, cleaned.contacts
-            for array in (qpos[role], qvel[role], joints[role]):
-                array[a:b][bad] = np.nan
-            contacts[role][a:b][bad] = False
-            change_mm[role].append(
-                float(np.nanmean(np.linalg.norm(cleaned.points - lifted.points, axis=-1)) * 1000)
-            )
-            model = mujoco.MjModel.from_xml_string(single_scene_mjcf(lifted.bones))
-            sunk = floor_depth(model, cleaned.qpos)
-            cleanup_metrics[role].append(
-                {**cleaned.metrics, "floor_penetration_mean_mm": float(sunk.mean() * 1000)}
-            )
-    advance(finished)
-    if not camera_rows:
+        lifted.append(
+            lift_shot(fighters, twice, shot, start, end, K=K, size=size, fps=fps, config=config)
+        )
+        advance(end - start)
+    notes = [note for one in lifted for note in one.notes]
+    fighter_frames = sum(one.seen_frames for one in lifted)
+    rejected = {reason: sum(one.rejected[reason] for one in lifted) for reason in REASONS}
+    cameras = [(one.shot, source, one.camera) for one in lifted if one.camera is not None]
+    if not cameras:
         # Seen long enough (fighter_frames), yet no shot lifted: their size may be why.
         tall = median_height_px(fighters) if fighter_frames else None
         if tall is not None and tall < MIN_PERSON_PX:
@@ -406,29 +458,67 @@ def lift_video(
             f"(lift.min_frames); nothing to lift",
         )
 
-    metrics = _metrics(qpos, cleanup_metrics, lifted_std, change_mm)
+    parts = {r: [one.fighters[r] for one in lifted if r in one.fighters] for r in fighters}
+    grids = {role: _on_grid(mine, frames) for role, mine in parts.items()}
+    qpos = {role: grid[0] for role, grid in grids.items()}
+    # Each fighter's bones are those of its longest lifted span.
+    bones = {
+        r: max(mine, key=lambda p: len(p.cleaned.qpos)).bones for r, mine in parts.items() if mine
+    }
+    metrics = _metrics(qpos, parts)
     metrics.update({f"frames_rejected_{reason}": float(n) for reason, n in rejected.items()})
     metrics["frames_rejected"] = float(sum(rejected.values()))
-    notes += gate_notes(rejected, fighter_frames, gates)
-    notes += stature_notes(config.statures(), {r: joints[r] for r in bones})
+    notes += gate_notes(rejected, fighter_frames, config.gates)
+    notes += stature_notes(config.statures(), {r: grids[r][2] for r in bones})
     # Each shot has its own camera and world: nothing on the grid is taken across a cut.
     cuts = sorted(start for _, start, _ in shots if start > 0)
     motion = {
         role: resample(
             qpos[role],
-            joints[role],
-            contacts[role],
+            grids[role][2],
+            grids[role][3],
             fps=fps,
             rate=RATE,
-            bones=bones[role][1],
+            bones=bones[role],
             cuts=cuts,
         )
         for role in bones
     }
+    return Lift(
+        cameras,
+        motion,
+        bones,
+        [math.ceil(c / fps * RATE - 1e-9) for c in cuts],
+        metrics,
+        tuple(notes),
+    )
+
+
+def _on_grid(
+    parts: Sequence[FighterShot], frames: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A fighter's shots on the video's frames: qpos (F, NQ), qvel (F, NV), joints (F, 33, 3)
+    and foot contacts (F, 2); NaN (no contact) where it is not lifted or a gate dropped it."""
+    qpos, qvel = np.full((frames, NQ), np.nan), np.full((frames, NV), np.nan)
+    joints, contacts = np.full((frames, 33, 3), np.nan), np.zeros((frames, 2), bool)
+    for part in parts:
+        a, b = part.start, part.start + len(part.cleaned.qpos)
+        qpos[a:b], qvel[a:b] = part.cleaned.qpos, part.cleaned.qvel
+        joints[a:b], contacts[a:b] = part.cleaned.points, part.cleaned.contacts
+        for array in (qpos, qvel, joints):
+            array[a:b][part.dropped] = np.nan
+        contacts[a:b][part.dropped] = False
+    return qpos, qvel, joints, contacts
+
+
+def lift_output(lift: Lift) -> StageOutput:
+    """The lift output's rows, and its review video (both humanoids, `render_lift`) as the
+    file the runner stores."""
     with scratch_dir("lift") as tmp:
-        video = Path(tmp) / "lift.mp4"
-        render_lift(motion, video)
-        video_artifact = put_bytes(artifacts, video.read_bytes(), ".mp4")
+        path = Path(tmp) / "lift.mp4"
+        render_lift(lift.motion, path)
+        video = path.read_bytes()
+    name = artifact_name(video, ".mp4")
     rows = {
         "lift_cameras": [
             CameraRow(
@@ -440,17 +530,17 @@ def lift_video(
                 float(camera.centre[2]),
                 _pitch_deg(camera),
             )
-            for shot, source, camera in camera_rows
+            for shot, source, camera in lift.cameras
         ],
-        "lift_motion": _motion_columns(motion, [math.ceil(c / fps * RATE - 1e-9) for c in cuts]),
+        "lift_motion": _motion_columns(lift.motion, lift.cut_steps),
         "lift_bones": [
             BoneRow(role, name, float(value))
-            for role, (_, lengths) in bones.items()
+            for role, lengths in lift.bones.items()
             for name, value in dataclasses.asdict(lengths).items()
         ],
-        "lift_media": [MediaRow("video", video_artifact)],
+        "lift_media": [MediaRow("video", name)],
     }
-    return StageOutput(rows, metrics, tuple(notes))
+    return StageOutput(rows, lift.metrics, lift.notes, files={name: video})
 
 
 def _pitch_deg(camera: Camera) -> float:
@@ -509,20 +599,26 @@ _CLEANUP_NAMES = {
 }
 
 
-def _metrics(qpos, cleanup_metrics, lifted_std, change_mm) -> dict[str, float]:
+def _metrics(
+    qpos: Mapping[str, np.ndarray], shots: Mapping[str, Sequence[FighterShot]]
+) -> dict[str, float]:
     """Per fighter (prefixed with its role) and, unprefixed, the worst of the two fighters."""
     metrics: dict[str, float] = {}
     worst: dict[str, float] = {}
-    for role, shot_metrics in cleanup_metrics.items():
-        if not shot_metrics:
+    for role, parts in shots.items():
+        if not parts:
             continue
         merged = {}
         for source, name in _CLEANUP_NAMES.items():
-            values = [m[source] for m in shot_metrics if np.isfinite(m.get(source, np.nan))]
+            values = [
+                p.cleanup_metrics[source]
+                for p in parts
+                if np.isfinite(p.cleanup_metrics.get(source, np.nan))
+            ]
             if values:
                 merged[name] = max(values) if "max" in name else float(np.mean(values))
-        merged["bone_length_std_mm"] = float(np.mean(lifted_std[role]))
-        merged["cleanup_change_mm"] = float(np.mean(change_mm[role]))
+        merged["bone_length_std_mm"] = float(np.mean([p.bone_length_std_mm for p in parts]))
+        merged["cleanup_change_mm"] = float(np.mean([p.cleanup_change_mm for p in parts]))
         merged["frames_lifted"] = float(np.isfinite(qpos[role]).all(axis=1).sum())
         for name, value in merged.items():
             metrics[f"{role}_{name}"] = value

@@ -409,14 +409,13 @@ def evaluate_lift(
         shots=[(0, 0, frames)],
         config=config,
         calibration=calibration,
-        artifacts=workdir / "artifacts",
     )
-    camera = output.rows["lift_cameras"][0]
-    R_est, t_est = np.reshape(camera.R, (3, 3)), np.asarray(camera.t)
-    motion = output.rows["lift_motion"]
+    ((_, _, camera),) = output.cameras
+    R_est, t_est = camera.R, camera.t
+    motion = output.motion["adversary"]
     lifted = np.full((frames, 33, 3), np.nan)
     # The case is at 30 fps, the rate the stage stores motion at: step k is frame k.
-    lifted[motion["step"]] = motion["joints"].reshape(-1, 33, 3)
+    lifted[motion.step] = motion.joints
     # Stage world -> camera -> truth world.
     in_truth_world = ((lifted @ R_est.T + t_est) - case.t) @ case.R
     # The noisy input: hip-centred landmarks in camera axes, turned into the world's axes.

@@ -12,7 +12,7 @@ from storage.paths import DataPaths
 from tasks.errors import BadInput
 from tasks.ingest.store import load_ingest
 from tasks.lift.config import LiftStageConfig
-from tasks.lift.stage import fighter_tracks, lift_spec, lift_video
+from tasks.lift.stage import fighter_tracks, lift_output, lift_spec, lift_video
 from tasks.pose.store import fighter_keypoints
 from tasks.registry import LiftInputs
 from tasks.runner import StagePlan
@@ -41,15 +41,15 @@ def lift_plan(
         with tqdm(
             total=ingest.frames, unit="frame", desc=f"lift {Path(ingest.path).name}", disable=None
         ) as bar:
-            return lift_video(
+            lift = lift_video(
                 fighters,
                 fps=ingest.fps,
                 size=(ingest.width, ingest.height),
                 shots=list(ingest.shots),
                 config=config,
                 calibration=calibration,
-                artifacts=paths.artifacts,
                 progress=bar.update,
             )
+        return lift_output(lift)
 
     return StagePlan(spec, ingest.path, compute)

@@ -17,7 +17,7 @@ import numpy as np
 
 from models.pose.tiling import TiledDetector
 from models.pose.types import BLAZEPOSE_33, BLAZEPOSE_TO_COCO17, COCO_17, Detector, PoseEstimator
-from storage.artifacts import put_bytes
+from storage.artifacts import artifact_name
 from storage.files import scratch_dir
 from storage.keys import code_version, digest
 from tasks.errors import BadInput
@@ -36,6 +36,7 @@ from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, VideoTracks, merge_chunks, summaries
 from tasks.pose.overlay import draw_people, overlay_size
 from tasks.pose.refine import flip_bones, flip_groups, flip_permutation, refine
+from tasks.pose.store import MediaRow, TrackRow
 from tasks.pose.tracking import colour_distance
 from tasks.roles import ROLES
 from tasks.runner import StageOutput, StageSpec
@@ -428,20 +429,24 @@ def render_overlay(
     frames: int,
     size: tuple[int, int],
     config: PoseConfig,
-    artifacts: Path,
     source_frames: Sequence[int] | None = None,
-) -> list[tuple]:
+) -> tuple[list[MediaRow], dict[str, bytes]]:
     """The overlay MP4 of ``overlay_seconds`` from where the fighters are first seen (together
     if they ever are: the review must show the skeletons the later stages use, however late in
-    the video they appear) and the PNG stills, stored as artifacts. ``source_frames``: ingest's
-    re-timing of a variable-rate video.
+    the video they appear) and the PNG stills. ``source_frames``: ingest's re-timing of a
+    variable-rate video.
 
-    Returns ``pose_media`` rows without their key and video id: (kind, frame, artifact); the
-    overlay's frame is the video frame it starts at.
+    Returns their ``pose_media`` rows and the files they name (artifact name -> bytes).
     """
     import cv2
 
-    media = []
+    media, files = [], {}
+
+    def add(kind: str, frame: int, data: bytes, suffix: str) -> None:
+        name = artifact_name(data, suffix)
+        media.append(MediaRow(kind, frame, name))
+        files[name] = data
+
     seen = np.array([np.isfinite(f.keypoints).any(axis=(1, 2)) for f in fighters.values()])
     both = np.flatnonzero(seen.all(axis=0))
     anyone = np.flatnonzero(seen.any(axis=0))
@@ -462,7 +467,7 @@ def render_overlay(
         with H264Writer(path, out_size, fps) as writer:
             for index, frame in frames_of(start, end):
                 writer.write(draw_people(frame, _people_at(index, fighters)))
-        media.append(("overlay", start, put_bytes(artifacts, path.read_bytes(), ".mp4")))
+        add("overlay", start, path.read_bytes(), ".mp4")
     pool = both if len(both) else np.arange(frames)
     for index in (
         sorted(set(pool[np.linspace(0, len(pool) - 1, config.stills).round().astype(int)].tolist()))
@@ -475,8 +480,8 @@ def render_overlay(
             drawn, overlay_size(*size, config.overlay_max_side), interpolation=cv2.INTER_AREA
         )
         ok, png = cv2.imencode(".png", small)
-        media.append(("still", index, put_bytes(artifacts, png.tobytes(), ".png")))
-    return media
+        add("still", index, png.tobytes(), ".png")
+    return media, files
 
 
 def _flat(values: np.ndarray) -> np.ndarray:
@@ -488,8 +493,6 @@ def assemble(
     spans: list[ChunkSpan],
     chunks: list[ChunkTracks],
     *,
-    key: str,
-    video_id: str,
     frames: int,
     fps: float,
     size: tuple[int, int],
@@ -497,10 +500,10 @@ def assemble(
     colour: str | None,
     pick: int | None,
     config: PoseConfig,
-    artifacts: Path,
     source_frames: Sequence[int] | None = None,
 ) -> StageOutput:
-    """Join the chunks, choose and refine the fighters, render the overlay; rows and metrics.
+    """Join the chunks, choose and refine the fighters, render the overlay: rows, metrics and
+    the overlay's files.
 
     Raises :class:`BadInput` when nobody in the video qualifies as a fighter.
     """
@@ -531,14 +534,13 @@ def assemble(
             "no colour or pick given: the adversary is a guess; set it with `ringside pick`"
         )
     notes += roles.choice_notes(config.min_together_share, config.min_choice_margin)
-    media = render_overlay(
+    media, files = render_overlay(
         video,
         fighters,
         fps=fps,
         frames=frames,
         size=size,
         config=config,
-        artifacts=artifacts,
         source_frames=source_frames,
     )
     seconds = sum(c.seconds for c in chunks) + time.perf_counter() - start
@@ -573,9 +575,7 @@ def assemble(
     metrics = {k: v for k, v in metrics.items() if np.isfinite(v)}
 
     track_rows = [
-        (
-            key,
-            video_id,
+        TrackRow(
             s.track_id,
             int(tracks.track_shot[s.track_id]),
             roles.by_track[s.track_id],
@@ -616,6 +616,6 @@ def assemble(
             "box": _flat(tracks.obs_box),
         },
         "pose_keypoints": {k: np.concatenate(v) for k, v in keypoint_columns.items()},
-        "pose_media": [(key, video_id, kind, frame, name) for kind, frame, name in media],
+        "pose_media": media,
     }
-    return StageOutput(rows, metrics, tuple(notes))
+    return StageOutput(rows, metrics, tuple(notes), files)

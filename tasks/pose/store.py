@@ -3,11 +3,34 @@ lift starts from."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import duckdb
 import numpy as np
 
 from storage.db import utcnow
 from tasks.errors import BadInput
+
+
+@dataclass(frozen=True)
+class TrackRow:
+    """A ``pose_tracks`` row: one track of a person and the role it was given."""
+
+    track: int
+    shot: int
+    role: str  # 'adversary', 'opponent' or 'other'
+    first_frame: int
+    last_frame: int
+    frames_observed: int
+
+
+@dataclass(frozen=True)
+class MediaRow:
+    """A ``pose_media`` row: the overlay (``frame``: the video frame it starts at) or a still."""
+
+    kind: str  # 'overlay' or 'still'
+    frame: int
+    artifact: str
 
 
 def newest_pick(con: duckdb.DuckDBPyConnection, video_id: str) -> int | None:

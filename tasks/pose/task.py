@@ -60,8 +60,6 @@ def pose_plan(paths: DataPaths, config: PoseConfig, video_id: str, inputs: PoseI
             Path(ingest.path),
             spans,
             [ChunkTracks.from_bytes(read_bytes(paths.artifacts, name)) for name in names],
-            key=spec.key,
-            video_id=ingest.video_id,
             frames=ingest.frames,
             fps=ingest.fps,
             size=(ingest.width, ingest.height),
@@ -69,7 +67,6 @@ def pose_plan(paths: DataPaths, config: PoseConfig, video_id: str, inputs: PoseI
             colour=ingest.colour,
             pick=pick,
             config=config,
-            artifacts=paths.artifacts,
             source_frames=ingest.source_frames,
         )
 

@@ -29,6 +29,7 @@ from tasks.dataset.demonstrations import load_demonstrations
 from tasks.runner import StageOutput
 from tasks.train.mappo import Trainer
 from tasks.train.store import (
+    PolicyRow,
     WarmStart,
     drop_iterations,
     iteration_means,
@@ -147,7 +148,7 @@ def train(
     summary["iterations"] = float(total)
     summary["train_minutes_this_session"] = (time.perf_counter() - start) / 60
     return StageOutput(
-        rows={"train_policies": [(key, dataset_key, total, final)]},
+        rows={"train_policies": [PolicyRow(total, final)]},
         metrics=summary,
         notes=tuple(notes),
     )

@@ -18,6 +18,14 @@ from tasks.errors import BadInput
 
 
 @dataclass(frozen=True)
+class PolicyRow:
+    """A ``train_policies`` row: a finished run's final checkpoint."""
+
+    iteration: int
+    artifact: str
+
+
+@dataclass(frozen=True)
 class WarmStart:
     """A finished run whose networks a new run starts from."""
 

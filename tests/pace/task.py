@@ -1,5 +1,7 @@
 """The pace stage's plan: the lifted pelvis's speed of each fighter."""
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from models.humanoid.motion import RATE
@@ -10,6 +12,14 @@ from storage.keys import code_version
 from storage.paths import DataPaths
 from tasks.lift.store import load_motion
 from tasks.runner import StageOutput, StagePlan, StageSpec
+
+
+@dataclass(frozen=True)
+class SpeedRow:
+    """A ``pace_speeds`` row."""
+
+    role: str
+    speed_m_s: float
 
 
 def pace_plan(paths: DataPaths, config: PaceConfig, video_id: str, inputs: PaceInputs) -> StagePlan:
@@ -26,7 +36,7 @@ def pace_plan(paths: DataPaths, config: PaceConfig, video_id: str, inputs: PaceI
             moved = np.diff(fighter.qpos[:, :2], axis=0)[next_step]
             speed = np.linalg.norm(moved, axis=1) * RATE
             value = float(np.percentile(speed, config.percentile))
-            rows.append((spec.key, video_id, role, value))
+            rows.append(SpeedRow(role, value))
             metrics[f"{role}_speed_m_s"] = value
         return StageOutput({"pace_speeds": rows}, metrics)
 
