@@ -44,6 +44,27 @@ def print_summary(summaries: list, paths: DataPaths, as_json: bool) -> None:
     print("see them with: ringside status | ringside metrics")
 
 
+# The two-sample test's fighters, as the lines below name them.
+CLASSIFIED = {"adversary": "trained", "untrained": "untrained", "still": "standing still"}
+
+
+def classifier_line(rows: list[dict]) -> str:
+    """The held-out two-sample test in one line: each fighter's AUC and its 95 % interval, or
+    why it was not measured."""
+    found = {r["policy"]: r for r in rows}
+    measured = [p for p in CLASSIFIED if p in found and found[p]["auc"] is not None]
+    head = "moves like its footage? held-out classifier AUC, 0.5 = indistinguishable, 1 = always"
+    if not measured:
+        reason = next((r["reason"] for r in rows if r["reason"]), "no evaluation rows")
+        return f"{head} told apart: not measured ({reason})"
+    parts = [
+        f"{CLASSIFIED[p]} {found[p]['auc']:.2f} [{found[p]['auc_low']:.2f}, "
+        f"{found[p]['auc_high']:.2f}]"
+        for p in measured
+    ]
+    return f"{head} told apart: {', '.join(parts)}"
+
+
 def print_opponent(paths: DataPaths, evaluated) -> None:
     """Where the pipeline's opponent is (the folder its evaluation exported, written where
     `ringside export` writes it), its bout and its headline numbers against the evaluation's
@@ -53,12 +74,13 @@ def print_opponent(paths: DataPaths, evaluated) -> None:
     from storage.records import output_metrics
     from tasks.evaluate.export import stored_opponent
     from tasks.evaluate.opponent import MANIFEST
-    from tasks.evaluate.store import evaluation_artifacts
+    from tasks.evaluate.store import evaluation_artifacts, evaluation_tables
 
     run_key = evaluated.video_id
     with connect(paths.db, read_only=True) as con:
         metrics = output_metrics(con, "evaluate", run_key, evaluated.key)
         media = evaluation_artifacts(con, evaluated.key, run_key)
+        classifier = evaluation_tables(con, evaluated.key, run_key)["classifier"]
     out = paths.root / "opponents" / f"{run_key[:12]}-adversary"
     folder = stored_opponent(paths.artifacts, media, out)
     iteration = json.loads((folder / MANIFEST).read_text())["iteration"]
@@ -81,6 +103,7 @@ def print_opponent(paths: DataPaths, evaluated) -> None:
         f"(untrained {number('style_score_untrained')}, standing still "
         f"{number('style_score_still')})"
     )
+    print(f"  {classifier_line(classifier)}")
     print(f"  motion as BVH: ringside export-motion --run {run_key[:12]}")
     print(f"  all of it: ringside evaluate --run {run_key[:12]}   or   ringside dashboard")
 
