@@ -42,6 +42,7 @@ from flows.cli.servers import (
     spar_server_command,
     worker_command,
 )
+from flows.cli.synthetic import synthetic_adversary_command
 from flows.cli.training import (
     curves_command,
     evaluate_command,
@@ -68,6 +69,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace, DataPaths], int]] = {
     "pick": pick_command,
     "metrics": metrics_command,
     "datasets": datasets_command,
+    "synthetic-adversary": synthetic_adversary_command,
     "demo": demo_command,
     "train": train_command,
     "curves": curves_command,

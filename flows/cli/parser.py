@@ -230,6 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     datasets.add_argument("--json", action="store_true")
 
+    synthetic_parser(commands)
+
     assets = commands.add_parser("assets", help="third-party weights and sample videos")
     assets_commands = assets.add_subparsers(dest="assets_command", required=True, metavar="ACTION")
     pull = assets_commands.add_parser("pull", help="fetch them from the package index (idempotent)")
@@ -347,3 +349,53 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--json", action="store_true")
     return parser
+
+
+def synthetic_parser(commands) -> None:
+    """`ringside synthetic-adversary`: its options, the settings of `SyntheticConfig` among
+    them."""
+    import dataclasses
+
+    from tasks.dataset.synthetic import SyntheticConfig
+
+    synthetic = commands.add_parser(
+        "synthetic-adversary",
+        help="DeepMimic's walk, the walker's turns and the punch on the sample's two bodies, as a "
+        "dataset to train on (judging training apart from the lift's noise)",
+        description="Retargets DeepMimic's walk and punch and the walker's straight walk and four "
+        "turns onto two bodies (by default those the lift measured for the bundled sample's "
+        "fighters: run `ringside process` on the sample first, or give --video or --bones), "
+        "plays each clip once per round as an exchange (the opponent performs it reversed, "
+        "placed facing the adversary), cuts 1-second windows, holds 30 %% of them out as the "
+        "validation split, and records it as a regular dataset: its key is what `ringside "
+        "train --dataset` takes. Cached: run again, it does no work (docs/dataset.md).",
+    )
+    synthetic.add_argument(
+        "--name",
+        default="synthetic adversary",
+        metavar="NAME",
+        help="the dataset's adversary (default: 'synthetic adversary')",
+    )
+    bodies = synthetic.add_mutually_exclusive_group()
+    bodies.add_argument(
+        "--video",
+        metavar="ID",
+        help="the two bodies of this lifted video (a prefix will do; default: the bundled sample)",
+    )
+    bodies.add_argument(
+        "--bones",
+        type=Path,
+        metavar="FILE",
+        help='the two bodies from JSON: {"adversary": {"thigh": 0.43, ...}, "opponent": {...}} '
+        "(a bone left out takes its default)",
+    )
+    for f in dataclasses.fields(SyntheticConfig):
+        synthetic.add_argument(
+            "--" + f.name.replace("_", "-"),
+            type=type(f.default),
+            metavar="VALUE",
+            help=f"{f.metadata['help']} (default {f.default})".replace("%", "%%"),
+        )
+    synthetic.add_argument("--rerun", action="store_true", help="compute again, cached or not")
+    synthetic.add_argument("--json", action="store_true")
+    config_flags(synthetic)

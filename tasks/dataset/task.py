@@ -1,16 +1,20 @@
-"""The dataset stage's plans: one video's demonstrations, the extra clips, and the assembly of
-an adversary's dataset from them."""
+"""The dataset stage's plans: one video's demonstrations, the extra clips, the assembly of an
+adversary's dataset from them, and the synthetic adversary (`tasks.dataset.synthetic`)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
+from models.humanoid.boxer import BoneLengths
+from models.humanoid.motion import RATE
 from storage.db import connect
 from storage.files import sha256_file
 from storage.paths import DataPaths
+from tasks.dataset import synthetic
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.stage import (
     STAGE,
@@ -94,3 +98,61 @@ def assemble_task(
         key, new = record_dataset(con, adversary, config, members)
         unusable = dataset_verdicts(con)[key]
     return key, members, new, unusable
+
+
+def synthetic_motion_plan(
+    paths: DataPaths, config: synthetic.SyntheticConfig, bones: Mapping[str, BoneLengths]
+) -> StagePlan:
+    """The synthetic adversary's motion (`synthetic.synthetic_motion`) on ``bones`` (adversary,
+    opponent), as a lift output of its pseudo video."""
+    files = synthetic.clip_files(paths.assets)
+    spec = synthetic.motion_spec(config, {n: sha256_file(p) for n, p in files.items()}, bones)
+
+    def compute():
+        clips = synthetic.retargeted_clips(files, bones)
+        frames = {name: len(q) for name, q in clips[next(iter(clips))].items()}
+        exchanges = synthetic.performance(frames, config)
+        motion = synthetic.synthetic_motion(clips, bones, exchanges, config.distance_m)
+        return synthetic.motion_output(motion, exchanges)
+
+    return StagePlan(spec, "synthetic adversary", compute)
+
+
+def synthetic_dataset_plan(
+    paths: DataPaths,
+    config: DatasetConfig,
+    settings: synthetic.SyntheticConfig,
+    video_id: str,
+    lift_key: str,
+) -> StagePlan:
+    """The dataset stage's output of the synthetic motion ``lift_key`` of pseudo video
+    ``video_id``: `build_dataset` on its exchanges as shots, then split by its windows."""
+    files = synthetic.clip_files(paths.assets)
+    effective = synthetic.dataset_config(config, settings)
+    spec = dataset_spec(effective, video_id, lift_key)
+
+    def compute():
+        exchanges = synthetic.performance(synthetic.clip_frames(files), settings)
+        with connect(paths.db, read_only=True) as con:
+            fighters = load_motion(con, video_id, lift_key)
+        if not fighters:
+            raise BadInput(STAGE, f"synthetic motion {lift_key} of {video_id} is empty")
+        output = build_dataset(
+            fighters, shots=synthetic.shots_of(exchanges), fps=RATE, config=effective
+        )
+        return synthetic.split_by_windows(output, exchanges)
+
+    return StagePlan(spec, "synthetic adversary", compute)
+
+
+@task(name="dataset-assemble", cache_policy=NO_CACHE)
+def assemble_synthetic_task(
+    paths: DataPaths, name: str, config: DatasetConfig, member: tuple[str, str]
+) -> tuple[str, bool, str | None]:
+    """Record the dataset ``name`` of the synthetic adversary's one dataset output ``member``
+    (video_id, key). Returns its key, whether it is new and why it cannot be trained on (None
+    when it can)."""
+    with connect(paths.db) as con:
+        key, new = record_dataset(con, name, config, [member])
+        unusable = dataset_verdicts(con)[key]
+    return key, new, unusable
