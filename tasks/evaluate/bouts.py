@@ -2,11 +2,14 @@
 
 MAAIP §5.3 evaluates over 32 randomly initialised episodes of 1200 frames; `simulate` runs such
 a batch in one `ArenaEnv` (the training environment, its physics, observations, damage and fall
-rule), one arena per episode. Every episode starts from a frame of the interaction clips drawn
-with the seed (reference state initialisation, as in training) and runs `frames` policy steps
-unless a fall (or a blown-up simulation) ends it; an ended arena is left out of everything
-after. The actions are each policy's mean (no exploration noise), so a seed gives the same
-bouts every time.
+rule), one arena per episode. Every episode starts with both fighters standing still in their
+guard (the reference's stance, `standing_like`) where they stand and face in a frame of the
+interaction clips drawn with the seed, and runs `frames` policy steps unless a fall (or a
+blown-up simulation) ends it; an ended arena is left out of everything after. Training also
+starts from mid-motion frames with their velocities (reference state initialisation); an
+evaluation from those counted a frame the physics cannot hold (a lifted foot in the air, a
+lean) as the policy's fall, even for a fighter standing still in its guard. The actions are each
+policy's mean (no exploration noise), so a seed gives the same bouts every time.
 
 Shape letters: E episodes, T = frames, 2 agents, Q the arena's qpos size (both fighters).
 """
@@ -146,7 +149,8 @@ def simulate(
 
     Args:
         actors: agent 0's and agent 1's policies (e.g. `torch_actor`, an opponent's `act`).
-        reference: interaction frames to start from (`Demonstrations.reference`).
+        reference: interaction frames whose placement the fighters start from, standing in
+            their guard (`Demonstrations.reference`).
         bones: both fighters' bones, as trained.
         env_config: the run's environment (rates, fall rule, stepping); its batch size and
             episode length are replaced by ``episodes`` and ``frames``.
@@ -161,7 +165,12 @@ def simulate(
     rng = np.random.default_rng(seed)
     starts = rng.integers(reference.num_frames, size=episodes)
     targets = rng.uniform(-math.pi, math.pi, (episodes, 2)) if heading is not None else None
-    config = replace(env_config, num_envs=episodes, episode_s=frames / env_config.policy_hz)
+    config = replace(
+        env_config,
+        num_envs=episodes,
+        episode_s=frames / env_config.policy_hz,
+        standing_share=1.0,
+    )
     stride = max(1, frames // _RECORDED_STEPS)
     with ArenaEnv(config, np.random.default_rng(seed), bones) as env:
         nq = env.model.nq
