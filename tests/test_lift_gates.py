@@ -22,7 +22,8 @@ from tasks.lift.gates import (
 )
 from tasks.lift.metrics import HIPS
 from tasks.lift.resample import resample
-from tasks.lift.stage import FighterTrack, _motion_columns, lift_video
+from tasks.lift.series import cleanup_series, motion_columns
+from tasks.lift.stage import FighterTrack, lift_video
 from tasks.lift.synthetic import evaluate_lift, make_case
 
 GATES = GateConfig()
@@ -145,5 +146,5 @@ def test_a_fighter_whose_every_frame_was_dropped_leaves_no_rows():
         rate=30.0,
         bones=BoneLengths(),
     )
-    columns = _motion_columns({"opponent": none})
+    columns = motion_columns({"opponent": none}, cleanup_series({"opponent": none}))
     assert columns["joints"].shape == (0, 99) and len(columns["step"]) == 0

@@ -62,7 +62,7 @@ from storage.keys import code_version, digest
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.store import ClipRow
 from tasks.errors import BadInput
-from tasks.lift.store import BoneRow, load_bones, newest_lift
+from tasks.lift.store import bone_rows, load_bones, newest_lift
 from tasks.roles import ROLES
 from tasks.runner import StageOutput, StageSpec
 
@@ -376,33 +376,17 @@ def shots_of(exchanges: Sequence[Exchange]) -> list[tuple[int, int, int]]:
 # The motion
 
 
-def _yaw_quat(angle: float) -> np.ndarray:
-    return np.array([math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2)])
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (4,) ``a`` and (T, 4) ``b``, w-x-y-z."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b.T
-    return np.stack(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ],
-        axis=1,
-    )
-
-
 def moved(qpos: np.ndarray, yaw: float, shift: np.ndarray) -> np.ndarray:
     """(T, 35) ``qpos`` turned by ``yaw`` about the vertical through the world origin, then
     moved by ``shift`` (x, y) on the floor: one rigid move, the motion itself unchanged."""
+    from scipy.spatial.transform import Rotation
+
     out = np.array(qpos, dtype=np.float64, copy=True)
     c, s = math.cos(yaw), math.sin(yaw)
     xy = out[:, :2] @ np.array([[c, -s], [s, c]]).T
     out[:, :2] = xy + shift
-    out[:, 3:7] = _quat_mul(_yaw_quat(yaw), out[:, 3:7])
+    turned = Rotation.from_euler("z", yaw) * Rotation.from_quat(out[:, 3:7], scalar_first=True)
+    out[:, 3:7] = turned.as_quat(scalar_first=True)
     return out
 
 
@@ -526,28 +510,10 @@ def motion_output(
 ) -> StageOutput:
     """The synthetic lift output: ``lift_motion`` and ``lift_bones`` rows as the lift writes
     them, and metrics of the performance and of how the placement holds."""
-    from tasks.lift.series import cleanup_series
+    from tasks.lift.series import cleanup_series, motion_columns
 
     cuts = [e.start for e in exchanges[1:]]
     series = cleanup_series(motion, cuts=cuts)
-    columns: dict[str, list[np.ndarray]] = {}
-    for role, m in motion.items():
-        measured = series.fighters[role]
-        values = {
-            "role": np.array([role] * len(m.step)),
-            "step": m.step.astype(np.int64),
-            "time_s": m.step / RATE,
-            "qpos": m.qpos.astype(np.float32),
-            "qvel": m.qvel.astype(np.float32),
-            "joints": m.joints.reshape(len(m.step), -1).astype(np.float32),
-            "contact_left": m.contacts[:, 0],
-            "contact_right": m.contacts[:, 1],
-            "floor_penetration_m": measured.floor_penetration_m[m.step],
-            "slide_left_m_s": measured.contact_slide_m_s[m.step, 0],
-            "slide_right_m_s": measured.contact_slide_m_s[m.step, 1],
-        }
-        for name, value in values.items():
-            columns.setdefault(name, []).append(value)
     a, b = (motion[role] for role in ROLES)
     distance, off_a, off_b = facing(a.qpos, b.qpos)
     off = np.degrees(np.abs(np.concatenate([off_a, off_b])))
@@ -569,12 +535,8 @@ def motion_output(
     }
     return StageOutput(
         rows={
-            "lift_motion": {name: np.concatenate(v) for name, v in columns.items()},
-            "lift_bones": [
-                BoneRow(role, bone, float(length))
-                for role, m in motion.items()
-                for bone, length in dataclasses.asdict(m.bones).items()
-            ],
+            "lift_motion": motion_columns(motion, series),
+            "lift_bones": bone_rows({role: m.bones for role, m in motion.items()}),
         },
         metrics=metrics,
     )

@@ -14,6 +14,7 @@ resampling changes.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import mujoco
@@ -69,3 +70,32 @@ def cleanup_series(
         a, b = (m.on_grid(m.qpos, steps) for m in fighters.values())
         distance = fighter_distance(a, b)  # NaN where either is missing
     return LiftSeries(time_s=np.arange(steps) / rate, fighters=series, fighter_distance_m=distance)
+
+
+def motion_columns(
+    fighters: Mapping[str, FighterMotion], series: LiftSeries
+) -> dict[str, np.ndarray]:
+    """The ``lift_motion`` columns of each fighter's motion, with its per-step floor
+    penetration and contact slide from ``series`` (`cleanup_series` of the same motion)."""
+    parts: dict[str, list[np.ndarray]] = {}
+    for role, m in fighters.items():
+        measured = series.fighters[role]
+        values = {
+            "role": np.array([role] * len(m.step)),
+            "step": m.step.astype(np.int64),
+            "time_s": m.step / RATE,
+            "qpos": m.qpos.astype(np.float32),
+            "qvel": m.qvel.astype(np.float32),
+            # Not reshape(T, -1): a fighter with no believed frame has T = 0.
+            "joints": m.joints.reshape(len(m.step), math.prod(m.joints.shape[1:])).astype(
+                np.float32
+            ),
+            "contact_left": m.contacts[:, 0],
+            "contact_right": m.contacts[:, 1],
+            "floor_penetration_m": measured.floor_penetration_m[m.step],
+            "slide_left_m_s": measured.contact_slide_m_s[m.step, 0],
+            "slide_right_m_s": measured.contact_slide_m_s[m.step, 1],
+        }
+        for name, value in values.items():
+            parts.setdefault(name, []).append(value)
+    return {name: np.concatenate(values) for name, values in parts.items()}

@@ -51,8 +51,8 @@ from tasks.lift.gates import notes as gate_notes
 from tasks.lift.lifting import Lifted3D, lift_fighter
 from tasks.lift.metrics import HIPS, bone_length_std_mm
 from tasks.lift.resample import resample
-from tasks.lift.series import cleanup_series
-from tasks.lift.store import BoneRow, CameraRow, MediaRow
+from tasks.lift.series import cleanup_series, motion_columns
+from tasks.lift.store import CameraRow, MediaRow, bone_rows
 from tasks.media import render_lift
 from tasks.roles import ROLES
 from tasks.runner import StageOutput, StageSpec
@@ -519,6 +519,7 @@ def lift_output(lift: Lift) -> StageOutput:
         render_lift(lift.motion, path)
         video = path.read_bytes()
     name = artifact_name(video, ".mp4")
+    series = cleanup_series(lift.motion, cuts=lift.cut_steps)
     rows = {
         "lift_cameras": [
             CameraRow(
@@ -532,12 +533,8 @@ def lift_output(lift: Lift) -> StageOutput:
             )
             for shot, source, camera in lift.cameras
         ],
-        "lift_motion": _motion_columns(lift.motion, lift.cut_steps),
-        "lift_bones": [
-            BoneRow(role, name, float(value))
-            for role, lengths in lift.bones.items()
-            for name, value in dataclasses.asdict(lengths).items()
-        ],
+        "lift_motion": motion_columns(lift.motion, series),
+        "lift_bones": bone_rows(lift.bones),
         "lift_media": [MediaRow("video", name)],
     }
     return StageOutput(rows, lift.metrics, lift.notes, files={name: video})
@@ -547,36 +544,6 @@ def _pitch_deg(camera: Camera) -> float:
     """How far the camera looks down from the horizon, degrees."""
     forward_world = camera.R[2]  # the camera's z axis in world coordinates
     return float(math.degrees(math.asin(-np.clip(forward_world[2], -1, 1))))
-
-
-def _motion_columns(
-    motion: Mapping[str, FighterMotion], cut_steps: Sequence[int] = ()
-) -> dict[str, np.ndarray]:
-    """The ``lift_motion`` columns of each fighter's motion; ``cut_steps`` are the first step
-    of each shot after the first."""
-    series = cleanup_series(motion, cuts=cut_steps)
-    parts: dict[str, list[np.ndarray]] = {}
-    for role, m in motion.items():
-        measured = series.fighters[role]
-        values = {
-            "role": np.array([role] * len(m.step)),
-            "step": m.step.astype(np.int64),
-            "time_s": m.step / RATE,
-            "qpos": m.qpos.astype(np.float32),
-            "qvel": m.qvel.astype(np.float32),
-            # Not reshape(T, -1): a fighter with no believed frame has T = 0.
-            "joints": m.joints.reshape(len(m.step), math.prod(m.joints.shape[1:])).astype(
-                np.float32
-            ),
-            "contact_left": m.contacts[:, 0],
-            "contact_right": m.contacts[:, 1],
-            "floor_penetration_m": measured.floor_penetration_m[m.step],
-            "slide_left_m_s": measured.contact_slide_m_s[m.step, 0],
-            "slide_right_m_s": measured.contact_slide_m_s[m.step, 1],
-        }
-        for name, value in values.items():
-            parts.setdefault(name, []).append(value)
-    return {name: np.concatenate(values) for name, values in parts.items()}
 
 
 # Names the cleanup reports -> the stage's metric names (max over shots for maxima).

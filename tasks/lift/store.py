@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import duckdb
@@ -48,7 +50,16 @@ class MediaRow:
     artifact: str
 
 
-def _bone_rows(
+def bone_rows(bones: Mapping[str, BoneLengths]) -> list[BoneRow]:
+    """The ``lift_bones`` rows of each fighter's bone lengths."""
+    return [
+        BoneRow(role, name, float(value))
+        for role, lengths in bones.items()
+        for name, value in dataclasses.asdict(lengths).items()
+    ]
+
+
+def _stored_bones(
     con: duckdb.DuckDBPyConnection, video_id: str, lift_key: str
 ) -> dict[str, dict[str, float]]:
     bones: dict[str, dict[str, float]] = {}
@@ -64,7 +75,7 @@ def load_bones(
     con: duckdb.DuckDBPyConnection, video_id: str, lift_key: str
 ) -> dict[str, BoneLengths]:
     """Each fighter's bone lengths from lift output ``lift_key``, by role."""
-    rows = _bone_rows(con, video_id, lift_key)
+    rows = _stored_bones(con, video_id, lift_key)
     return {role: BoneLengths(**lengths) for role, lengths in rows.items()}
 
 
@@ -74,7 +85,7 @@ def load_motion(
     """Each fighter's lifted motion and bone lengths from lift output ``lift_key``; a fighter
     with no ``lift_motion`` rows is left out."""
     fighters = {}
-    for role, lengths in _bone_rows(con, video_id, lift_key).items():
+    for role, lengths in _stored_bones(con, video_id, lift_key).items():
         columns = con.execute(
             "SELECT step, qpos, qvel, joints, contact_left, contact_right FROM lift_motion "
             "WHERE key = ? AND video_id = ? AND role = ? ORDER BY step",
