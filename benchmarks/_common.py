@@ -29,7 +29,13 @@ def sample_fighters(
     config = PoseConfig(pose_model=str(pose_model) if pose_model else "")
     spans = plan_spans([(0, 0, 0, FRAMES)], config.overlap_frames)
     chunks = [process_chunk(video, s, FPS, config, model_files(config, assets)) for s in spans]
-    out = assemble(
+    out = assemble_sample(video, spans, chunks, config)
+    return fighter_tracks(out.rows["pose_keypoints"], FRAMES)
+
+
+def assemble_sample(video: Path, spans: list, chunks: list, config: PoseConfig) -> StageOutput:
+    """The pose stage's output of a sample video from its tracked chunks (no colour, no pick)."""
+    return assemble(
         video,
         spans,
         chunks,
@@ -41,7 +47,6 @@ def sample_fighters(
         pick=None,
         config=config,
     )
-    return fighter_tracks(out.rows["pose_keypoints"], FRAMES)
 
 
 def lift_sample(

@@ -17,11 +17,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tasks.pose.stage as stage  # noqa: E402
-from benchmarks._common import FPS, FRAMES, SIZE, Timer  # noqa: E402
+from benchmarks._common import FPS, FRAMES, SIZE, Timer, assemble_sample  # noqa: E402
 from storage.assets import HEAVY_LANDMARKER, SAMPLE_VIDEO, pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.pose.config import PoseConfig  # noqa: E402
-from tasks.pose.stage import assemble, model_files, plan_spans, process_chunk  # noqa: E402
+from tasks.pose.stage import model_files, plan_spans, process_chunk  # noqa: E402
 
 
 def run_once(video: Path, config: PoseConfig, models) -> tuple[float, float, dict[str, float]]:
@@ -58,18 +58,7 @@ def run_once(video: Path, config: PoseConfig, models) -> tuple[float, float, dic
 
         stage.render_overlay = timed_render
         start = time.perf_counter()
-        assemble(
-            video,
-            spans,
-            chunks,
-            frames=FRAMES,
-            fps=FPS,
-            size=SIZE,
-            shots={0: FRAMES},
-            colour=None,
-            pick=None,
-            config=config,
-        )
+        assemble_sample(video, spans, chunks, config)
         assemble_s = time.perf_counter() - start
         stage.render_overlay = render
         timer.spent["merge+fighters+refine"] = assemble_s - overlay_s
