@@ -296,22 +296,27 @@ def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
         "untrained": rng.normal(size=(3, 120)),
         "still": np.zeros((20, 120)),
     }
-    head = ("key", "run")
-    rows, metrics = _two_sample(head, heldout, simulated, fps=FPS, seed=0)
-    by_policy = {row[2]: row for row in rows}
+    rows, metrics = _two_sample(heldout, simulated, fps=FPS, seed=0)
+    by_policy = {row.policy: row for row in rows}
     assert list(by_policy) == [*TWO_SAMPLE_POLICIES, "replay"]
-    _, _, _, value, low, high, real, fake, reason = by_policy["adversary"]
-    assert (real, fake, reason) == (5, 20, None) and low <= value <= high
-    assert metrics["two_sample_auc"] == value and metrics["two_sample_auc_low"] == low
-    assert by_policy["untrained"][3:] == (None, None, None, 5, 3, by_policy["untrained"][-1])
-    assert "the bouts give 3 windows" in by_policy["untrained"][-1]
+    adversary = by_policy["adversary"]
+    assert (adversary.real_windows, adversary.simulated_windows, adversary.reason) == (5, 20, None)
+    assert adversary.auc_low <= adversary.auc <= adversary.auc_high
+    assert metrics["two_sample_auc"] == adversary.auc
+    assert metrics["two_sample_auc_low"] == adversary.auc_low
+    untrained = by_policy["untrained"]
+    assert (untrained.auc, untrained.auc_low, untrained.auc_high) == (None, None, None)
+    assert (untrained.real_windows, untrained.simulated_windows) == (5, 3)
+    assert "the bouts give 3 windows" in untrained.reason
     assert "two_sample_auc_untrained" not in metrics
-    assert metrics["two_sample_auc_still"] == by_policy["still"][3]
-    assert by_policy["replay"][3:] == (None, None, None, 5, 0, NO_REPLAY)
+    assert metrics["two_sample_auc_still"] == by_policy["still"].auc
+    replay = by_policy["replay"]
+    assert (replay.auc, replay.real_windows, replay.simulated_windows) == (None, 5, 0)
+    assert replay.reason == NO_REPLAY
 
-    rows, metrics = _two_sample(head, (), simulated, fps=FPS, seed=0)
-    assert metrics == {} and all(row[3] is None for row in rows)
-    assert rows[0][-1].startswith("no held-out footage")
+    rows, metrics = _two_sample((), simulated, fps=FPS, seed=0)
+    assert metrics == {} and all(row.auc is None for row in rows)
+    assert rows[0].reason.startswith("no held-out footage")
     short = (HeldOutClip("video", walk, np.tile(walk[0], (len(walk), 1)), BONES),)
-    rows, _ = _two_sample(head, short, simulated, fps=FPS, seed=0)
-    assert rows[0][-1] == "the held-out footage gives 1 window of 1 s; the test needs 5"
+    rows, _ = _two_sample(short, simulated, fps=FPS, seed=0)
+    assert rows[0].reason == "the held-out footage gives 1 window of 1 s; the test needs 5"
