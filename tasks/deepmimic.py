@@ -43,6 +43,8 @@ from types import MappingProxyType
 
 import mujoco
 import numpy as np
+from scipy import sparse
+from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation, Slerp
 
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths, boxer_mjcf
@@ -335,13 +337,191 @@ def _geodesic_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(between.magnitude())
 
 
+# Fitting a 3-DoF joint's run of frames outside its limits (`_fit_run`); the figures are
+# from the punch's right shoulder, the one joint they decide (see `retarget`).
+# The body's z axis (along the bone for the limbs, the spine for torso and head, the sole's
+# normal for the feet) weighs this much more than its x and y axes: a limb's direction,
+# which places the joint below it, is kept before its twist about itself. With equal
+# weights the nearest rotation turns the punch's raised upper arm up to 24 deg off its
+# direction to save twist, and the wrist lands 12-18 cm off rather than 2-4 (frames 29-44).
+_BONE_WEIGHT = 10.0
+# No hinge steps more in a frame than this, or than its body is asked to turn in that frame
+# if more; each radian beyond weighs _OVERSTEP_WEIGHT times a radian of rotation error.
+# Steps within the limit cost nothing.
+_STEP_LIMIT_DEG = 30.0
+_OVERSTEP_WEIGHT = 10.0
+
+
+def _hat(v: np.ndarray) -> np.ndarray:
+    """(..., 3) vectors -> (..., 3, 3) cross-product matrices."""
+    x, y, z = np.moveaxis(v, -1, 0)
+    zero = np.zeros_like(x)
+    return np.stack(
+        [np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)],
+        -2,
+    )
+
+
+def _yxz_with_axes(angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R = Ry(a) Rx(b) Rz(c) and the axes u_k with dR/d(angle k) = hat(u_k) R.
+
+    Args:
+        angles: (n, 3) hinge angles (a, b, c).
+
+    Returns:
+        (n, 3, 3) rotations and (n, 3, 3) axes, one row per angle: y, Ry(a) x, R z.
+    """
+    rotation = euler_yxz_to_matrix(angles)
+    a = angles[:, 0]
+    axes = np.zeros((len(angles), 3, 3))
+    axes[:, 0, 1] = 1.0
+    axes[:, 1, 0], axes[:, 1, 2] = np.cos(a), -np.sin(a)
+    axes[:, 2] = rotation[:, :, 2]
+    return rotation, axes
+
+
+_AXIS_WEIGHTS = np.sqrt(0.5) * np.array([1.0, 1.0, _BONE_WEIGHT])  # on R's columns
+
+
+def _misfit(rotation: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) residual of a rotation against the wanted one, its body axes weighted by
+    `_AXIS_WEIGHTS`; with equal weights its squared norm is |R - W|_F^2 / 2 = 2 - 2 cos(theta),
+    theta^2 to 4th order."""
+    return (rotation - wanted) * _AXIS_WEIGHTS
+
+
+def _overstep(step: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """How far each hinge step goes past its limit, signed; 0 within it."""
+    return np.sign(step) * np.maximum(np.abs(step) - limit, 0.0)
+
+
+def _fit_run(
+    local: np.ndarray,
+    start: np.ndarray,
+    before: np.ndarray | None,
+    after: np.ndarray | None,
+    limit: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+) -> np.ndarray:
+    """y-x-z angles within [lo, hi] for a run of n frames, by bounded least squares (scipy's
+    trf): each frame's `_misfit` to its wanted rotation, and how far each hinge step (from
+    `before` and to `after`, the fixed frames either side, where not None) goes past its
+    limit, by `_OVERSTEP_WEIGHT`.
+
+    Args:
+        local: (n, 3, 3) wanted local rotations.
+        start: (n, 3) first guess within [lo, hi].
+        limit: (m,) each step's limit in radians, m = n - 1 + the fixed frames given.
+
+    Returns:
+        (n, 3) angles in radians.
+    """
+    n = len(local)
+    first = -1 if before is not None else 0
+    last = n if after is not None else n - 1
+    m = last - first  # steps (first, first + 1) ... (last - 1, last)
+    # steps = D @ angles + fixed, row k for step k's three hinges
+    rows, cols, signs = [], [], []
+    for k in range(m):
+        for frame, sign in ((first + k + 1, 1.0), (first + k, -1.0)):
+            if 0 <= frame < n:
+                rows.append(3 * k + np.arange(3))
+                cols.append(3 * frame + np.arange(3))
+                signs.append(np.full(3, sign))
+    steps_of = sparse.csr_array(
+        (np.concatenate(signs), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * m, 3 * n)
+    )
+    fixed = np.zeros((m, 3))
+    if before is not None:
+        fixed[0] -= before
+    if after is not None:
+        fixed[-1] += after
+    fixed = fixed.ravel()
+    row_limit = np.repeat(limit, 3)
+    rot_rows = np.arange(9 * n).reshape(n, 9, 1).repeat(3, 2).ravel()
+    rot_cols = np.arange(3 * n).reshape(n, 1, 3).repeat(9, 1).ravel()
+
+    def residual(v: np.ndarray) -> np.ndarray:
+        misfit = _misfit(euler_yxz_to_matrix(v.reshape(n, 3)), local)
+        over = _overstep(steps_of @ v + fixed, row_limit)
+        return np.concatenate([misfit.ravel(), _OVERSTEP_WEIGHT * over])
+
+    def jacobian(v: np.ndarray) -> sparse.csr_array:
+        rotation, axes = _yxz_with_axes(v.reshape(n, 3))
+        d = _misfit(_hat(axes) @ rotation[:, None], 0.0)  # (n, 3 angles, 3, 3)
+        rot = sparse.csr_array(
+            (d.reshape(n, 3, 9).transpose(0, 2, 1).ravel(), (rot_rows, rot_cols)),
+            shape=(9 * n, 3 * n),
+        )
+        past = np.abs(steps_of @ v + fixed) > row_limit
+        over = sparse.diags_array(_OVERSTEP_WEIGHT * past.astype(float)) @ steps_of
+        return sparse.vstack([rot, over], format="csr")
+
+    fit = least_squares(
+        residual,
+        np.clip(start, lo, hi).ravel(),
+        jac=jacobian,
+        bounds=(np.tile(lo, n), np.tile(hi, n)),
+        # LSMR rather than the exact solver's dense SVD, which a busy machine's threaded
+        # BLAS slows many-fold (same answers; 40 ms against 0.3-2 s on the punch). dogbox
+        # stops early with the arm past the gimbal lock (tests/test_deepmimic.py).
+        method="trf",
+        tr_solver="lsmr",
+    )
+    return fit.x.reshape(n, 3)
+
+
+def _nearest_branches(local: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The first guess for `_fit_run`: per frame whichever of the two Euler solutions of the
+    wanted rotation, (a, b, c) or (a + pi, pi - b, c + pi), clipped round the circle to
+    [lo, hi], has the smaller `_misfit`."""
+    a, b, c = np.moveaxis(matrix_to_euler_yxz(local), -1, 0)
+    branches = np.stack([np.stack([a, b, c], -1), np.stack([a + np.pi, np.pi - b, c + np.pi], -1)])
+    options = _clip_circular(wrap_angle(branches), lo, hi)  # (2, n, 3)
+    misfit = np.sum(_misfit(euler_yxz_to_matrix(options), local) ** 2, axis=(-2, -1))
+    return options[np.argmin(misfit, axis=0), np.arange(len(local))]
+
+
+def _euler_within_limits(local: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """A 3-DoF joint's y-x-z hinge angles within [lo, hi] for (T, 3, 3) wanted local
+    rotations, continuous over time.
+
+    Frames whose exact angles (`matrix_to_euler_yxz`) lie inside the limits keep them. Each
+    run of frames outside is fitted as a whole (`_fit_run`) between the exact frames either
+    side. Frame by frame the nearest rotation within limits is not continuous: where the
+    wanted rotation passes beside the gimbal lock (x near -90 deg), a small turn of the body
+    moves the Euler angles by up to 180 deg (the punch's right shoulder jumped 148-240 deg in
+    a frame), and which solution's clipped angles are nearer flips from frame to frame.
+
+    Returns:
+        (T, 3) angles in radians.
+    """
+    exact = matrix_to_euler_yxz(local)
+    outside = ~np.all((exact >= lo) & (exact <= hi), axis=-1)
+    angles = exact.copy()
+    if not outside.any():
+        return angles
+    turn = Rotation.from_matrix(np.swapaxes(local[:-1], -1, -2) @ local[1:]).magnitude()
+    step_limit = np.maximum(turn, math.radians(_STEP_LIMIT_DEG))  # (T - 1,) step t -> t + 1
+    edges = np.diff(np.concatenate([[0], outside.astype(int), [0]]))
+    for first, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        before = exact[first - 1] if first > 0 else None
+        after = exact[stop] if stop < len(exact) else None
+        limit = step_limit[max(first - 1, 0) : min(stop, len(exact) - 1)]
+        start = _nearest_branches(local[first:stop], lo, hi)
+        angles[first:stop] = _fit_run(local[first:stop], start, before, after, limit, lo, hi)
+    return angles
+
+
 def _limited_qpos(root_pos: np.ndarray, body_rot: np.ndarray) -> np.ndarray:
     """`qpos_from_body_rotations` with every hinge inside `JOINT_RANGES_DEG`.
 
     Joints are fitted from the root outwards, each to its body's wanted world rotation as
     seen from its parent's achieved one, so a shoulder held inside its limits passes its
-    error on to the elbow, which takes up what it can. A knee or elbow takes the twist
-    about its hinge axis (the nearest rotation it can make).
+    error on to the elbow, which takes up what it can. A 3-DoF joint's angles come from
+    `_euler_within_limits` (continuous over time); a knee or elbow takes the twist about its
+    hinge axis (the nearest rotation it can make), clipped round the circle.
     """
     qpos = qpos_from_body_rotations(root_pos, body_rot)  # root pose, and the unlimited angles
     achieved = body_rot.copy()
@@ -350,10 +530,7 @@ def _limited_qpos(root_pos: np.ndarray, body_rot: np.ndarray) -> np.ndarray:
         parent = achieved[:, PARENTS[joint.body_index]]
         local = np.swapaxes(parent, -1, -2) @ body_rot[:, joint.body_index]
         if joint.dofs == 3:
-            # Clipping each Euler angle round the circle: a projected Gauss-Newton refinement
-            # towards the nearest in-limit rotation was tried and moved no body by more
-            # than 0.3 deg on these clips, so the simple rule stays.
-            angles = _clip_circular(matrix_to_euler_yxz(local), lo, hi)
+            angles = _euler_within_limits(local, lo, hi)
             rotation = euler_yxz_to_matrix(angles)
         else:
             quat = matrix_to_quat(local)
@@ -382,6 +559,7 @@ class Retargeted:
         rotation_error_deg: body name -> the largest angle (over frames) between the
             clip's world rotation of the body and the humanoid's within its limits (only
             bodies off by more than 0.1 deg).
+        rotation_error_mean_deg: the same bodies -> that angle's mean over frames.
     """
 
     qpos: np.ndarray
@@ -389,6 +567,34 @@ class Retargeted:
     scale: float
     clipped: Mapping[str, float]
     rotation_error_deg: Mapping[str, float]
+    rotation_error_mean_deg: Mapping[str, float]
+
+
+def _wanted_pose(clip: DeepMimicClip, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """The clip at `fps` in our z-up axes, before joint limits and scaling.
+
+    Returns:
+        (T, 3) root path in the clip's metres and (T, 15, 3, 3) world rotations of our
+        bodies (BODY_NAMES order).
+    """
+    fields = _resample(clip, fps)
+    c = Y_UP_TO_Z_UP
+    # Each DeepMimic joint's local rotation, expressed in our axes (C L C^T). The same
+    # rest pose on both sides means the conjugated rotations are our bodies' rotations.
+    local: dict[str, np.ndarray] = {}
+    for name in _DM_BODIES:
+        if name in clip.joint_angles:
+            rotation = axis_angle_matrix((0.0, 0.0, 1.0), fields[name])
+        else:
+            rotation = quat_to_matrix(fields[name])
+        local[name] = c @ rotation @ c.T
+    world: dict[str, np.ndarray] = {}
+    body_rot = np.empty((len(fields["root"]), NUM_BODIES, 3, 3))
+    for name, (parent, bodies) in _DM_BODIES.items():  # parents come first
+        world[name] = local[name] if parent is None else world[parent] @ local[name]
+        for body in bodies:
+            body_rot[:, BODY_NAMES.index(body)] = world[name]
+    return fields["root_pos"] @ c.T, body_rot
 
 
 def retarget_report(
@@ -405,28 +611,9 @@ def retarget_report(
         raise TypeError(f"bones must be a BoneLengths, got {type(bones).__name__}")
     if not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"fps must be a positive frame rate, got {fps!r}")
-    fields = _resample(clip, fps)
-    count = len(fields["root"])
-    c = Y_UP_TO_Z_UP
-
-    # Each DeepMimic joint's local rotation, expressed in our axes (C L C^T). The same
-    # rest pose on both sides means the conjugated rotations are our bodies' rotations.
-    local: dict[str, np.ndarray] = {}
-    for name in _DM_BODIES:
-        if name in clip.joint_angles:
-            rotation = axis_angle_matrix((0.0, 0.0, 1.0), fields[name])
-        else:
-            rotation = quat_to_matrix(fields[name])
-        local[name] = c @ rotation @ c.T
-    world: dict[str, np.ndarray] = {}
-    body_rot = np.empty((count, NUM_BODIES, 3, 3))
-    for name, (parent, bodies) in _DM_BODIES.items():  # parents come first
-        world[name] = local[name] if parent is None else world[parent] @ local[name]
-        for body in bodies:
-            body_rot[:, BODY_NAMES.index(body)] = world[name]
-
+    path, body_rot = _wanted_pose(clip, fps)
     scale = (bones.thigh + bones.shin) / DEEPMIMIC_LEG
-    root_pos = fields["root_pos"] @ c.T * scale
+    root_pos = path * scale
     exact = qpos_from_body_rotations(root_pos, body_rot)[:, 7:]
     limits = np.radians(np.array([JOINT_RANGES_DEG[h] for h in HINGE_NAMES]))
     outside = (exact < limits[:, 0] - 1e-9) | (exact > limits[:, 1] + 1e-9)
@@ -434,8 +621,10 @@ def retarget_report(
         h: float(outside[:, k].mean()) for k, h in enumerate(HINGE_NAMES) if outside[:, k].any()
     }
     qpos = _limited_qpos(root_pos, body_rot)
-    error = _geodesic_deg(body_rotations(qpos), body_rot).max(axis=0)
-    rotation_error = {b: float(e) for b, e in zip(BODY_NAMES, error, strict=True) if e > 0.1}
+    error = _geodesic_deg(body_rotations(qpos), body_rot)  # (T, bodies)
+    worst, mean = error.max(axis=0), error.mean(axis=0)
+    off = [k for k, e in enumerate(worst) if e > 0.1]
+    rotation_error = {BODY_NAMES[k]: float(worst[k]) for k in off}
 
     # Put the lowest foot point of the whole clip on the floor: one shift, so the root's
     # vertical motion (a crouch, a jump) is kept.
@@ -448,6 +637,7 @@ def retarget_report(
         scale=float(scale),
         clipped=MappingProxyType(clipped),
         rotation_error_deg=MappingProxyType(rotation_error),
+        rotation_error_mean_deg=MappingProxyType({BODY_NAMES[k]: float(mean[k]) for k in off}),
     )
 
 
@@ -473,11 +663,15 @@ def retarget(
     60) and 8 % (ankle_y, 5 deg); kick 28 % right_ankle_y, 15 % right_hip_z, 6 % left_hip_y
     and a few % neck_x, left_ankle_x, left_hip_z, no body more than 11 deg off; punch 37 %
     right_shoulder_y and _z and 25 % neck_z. The punch's right arm is the one large change:
-    raised sideways behind the shoulder line, its upper-arm twist exceeds 90 deg by up to 50,
-    and with the elbow bent the glove lands up to 18 cm from where the unlimited pose puts
-    it (13 of 65 frames over 5 cm). Limits are enforced joint by joint from the root out
-    (`_limited_qpos`), each hinge angle moved to its nearest limit round the circle, so a
-    capped shoulder's error is taken up by the elbow where it can be.
+    raised sideways behind the shoulder line (frames 25-49), its upper-arm twist exceeds 90
+    deg by up to 76 (the upper arm 13 deg off on average over the clip, 48 at most), and the
+    arm passes 6 deg from the shoulder's gimbal lock on the way in and out, where following
+    it would swing the shoulder's y hinge by 148 deg in a frame on the way in and 214 on the
+    way out. Spread over 5 and 6 frames (no hinge steps more than 41 deg a frame), the swings
+    leave the wrist up to 22 cm from where the unlimited pose puts it (frames 25-27; 8 of 65
+    frames over 5 cm, 2-4 cm in frames 29-44). Limits are enforced joint by joint from the
+    root out (`_limited_qpos`; 3-DoF joints by `_euler_within_limits`, continuous over
+    time), so a capped shoulder's error is taken up by the elbow where it can be.
 
     Args:
         clip: from `load_deepmimic`.
