@@ -20,6 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.deepmimic import CLIPS
+from tasks.errors import BadInput  # noqa: E402
 from tasks.lift.config import LiftStageConfig  # noqa: E402
 from tasks.lift.synthetic import evaluate_lift, make_case  # noqa: E402
 
@@ -29,7 +30,7 @@ SEEDS = (0, 1, 2)
 def main() -> None:
     assets = data_paths().assets
     pull(assets, dev=True, log=lambda _line: None)
-    rows = []
+    rows, refusals = [], []
     print(
         f"{'clip':6s} {'seed':>4s} {'frames':>6s}  {'in MPJPE':>8s} {'in PA':>6s}  "
         f"{'out MPJPE':>9s} {'out PA':>6s}  {'skate before':>12s} {'after':>6s} {'s':>5s}"
@@ -39,7 +40,17 @@ def main() -> None:
             case = make_case(clip, seed, assets)
             start = time.perf_counter()
             with tempfile.TemporaryDirectory() as tmp:
-                m = evaluate_lift(case, LiftStageConfig(), Path(tmp))
+                try:
+                    m = evaluate_lift(case, LiftStageConfig(), Path(tmp))
+                except BadInput as refused:
+                    # The stage refused the case: said, and left out of the means.
+                    height = float((-case.R.T @ case.t)[2])
+                    print(
+                        f"{clip:6s} {seed:4d} {len(case.points):6d}  refused: {refused} "
+                        f"(true camera height {height:.2f} m)"
+                    )
+                    refusals.append(f"{clip} {seed}")
+                    continue
             seconds = time.perf_counter() - start
             rows.append(m)
             print(
@@ -48,6 +59,7 @@ def main() -> None:
                 f"{m['output_pa_mpjpe_mm']:6.1f}  {m['foot_skating_cm_per_frame_before']:12.3f} "
                 f"{m['foot_skating_cm_per_frame']:6.3f} {seconds:5.2f}"
             )
+    print(f"lifted {len(rows)} of {len(rows) + len(refusals)} cases; refused: {refusals or 'none'}")
     mean = {k: float(np.mean([r[k] for r in rows])) for k in rows[0]}
     print(
         f"mean input: MPJPE {mean['input_mpjpe_mm']:.1f} mm, PA-MPJPE "

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from models.humanoid.boxer import BoneLengths
+from tasks.errors import BadInput
 from tasks.lift.camera import write_calibration
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.gates import (
@@ -148,3 +149,14 @@ def test_a_fighter_whose_every_frame_was_dropped_leaves_no_rows():
     )
     columns = motion_columns({"opponent": none}, cleanup_series({"opponent": none}))
     assert columns["joints"].shape == (0, 99) and len(columns["step"]) == 0
+
+
+def test_when_the_gates_leave_every_shot_out_the_error_says_why(assets, tmp_path):
+    """A fighter seen all clip long whose every shot a gate leaves out: the error names the
+    gate and the shot, not "no fighter is seen" (which sent a reader looking for the person)."""
+    case = make_case("walk", 0, assets)  # its camera is 1.48 m high
+    low = dataclasses.replace(LiftStageConfig(), gates=GateConfig(max_camera_height_m=0.5))
+    with pytest.raises(BadInput) as refused:
+        evaluate_lift(case, low, tmp_path)
+    assert str(refused.value).startswith("lift: no shot could be lifted: shot 0 left out: ")
+    assert "lift.gates.max_camera_height_m is 0.5" in str(refused.value)

@@ -422,7 +422,8 @@ def lift_video(
     ``progress(frames)`` is told each shot's frames once the shot is done.
     Raises :class:`BadInput` when no shot is lifted: when a fighter was seen long enough but
     the fighters are smaller than people are lifted (`MIN_PERSON_PX`), saying so with their
-    median height; else that no fighter is seen long enough in any shot.
+    median height; when the gates left every shot out, with their reasons; else that no
+    fighter is seen long enough in any shot.
     """
     advance = progress or (lambda frames: None)
     frames = next(iter(fighters.values())).keypoints.shape[0]
@@ -452,6 +453,8 @@ def lift_video(
                 f"on the bundled sample, people under about {MIN_PERSON_PX} px were not "
                 f"lifted{left_out}",
             )
+        if notes:  # seen, but every shot was left out by a gate: say which and why
+            raise BadInput(STAGE, f"no shot could be lifted: {'; '.join(notes)}")
         raise BadInput(
             STAGE,
             f"no fighter is seen in {config.min_frames} frames of any shot "
