@@ -221,10 +221,11 @@ def _rotation_step(root_rot: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
 
 # Our own Levenberg-Marquardt rather than scipy.optimize.least_squares, measured on the lift's
 # synthetic DeepMimic cases with the same start, residual and Jacobian (benchmarks/ik_solvers.py,
-# 528 frames): 'trf' with the hinge ranges as bounds, frame by frame, ends 0.1 mm closer (6.76
-# against 6.85 mm mean site error) at 7.6x the CPU time (20.3 against 2.7 ms a frame); 'lm' takes
-# no bounds and leaves 45 % of frames with a hinge out of its range; 'trf' as one problem over
-# all frames shares one trust region, so it needs many more steps than a frame-wise solve.
+# 528 frames, 2026-11-27): 'trf' with the hinge ranges as bounds, frame by frame, ends 0.07 mm
+# closer (6.70 against 6.77 mm mean site error) at 7.3x the CPU time (11.8 against 1.6 ms a
+# frame); 'lm' takes no bounds and leaves 44 % of frames with a hinge out of its range; 'trf'
+# as one problem over all frames shares one trust region, so it needs many more steps than a
+# frame-wise solve.
 def solve_ik(
     skeleton: Skeleton,
     qpos: np.ndarray,
