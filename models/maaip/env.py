@@ -82,6 +82,7 @@ from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import (
     NQ,
     NUM_ACTUATED,
+    NV,
     ROOT_POS,
     ROOT_QUAT,
     action_to_joint_targets,
@@ -123,6 +124,8 @@ class StepResult:
         damage: (N, 2) newtons each agent received this step (module docstring).
         unstable: (N,) the simulation blew up (a position or velocity not finite or beyond
             MuJoCo's mjMAXVAL): terminal, the observation and damage are zeros; reset it.
+        body: (N, 2) both agents' body states after the step, which the observations are
+            computed from (not finite where unstable).
     """
 
     observation: np.ndarray
@@ -132,6 +135,7 @@ class StepResult:
     fell: np.ndarray
     damage: np.ndarray
     unstable: np.ndarray
+    body: BodyState
 
     @property
     def done(self) -> np.ndarray:
@@ -525,6 +529,30 @@ class ArenaEnv:
         self.elapsed[ids] = 0
         return self.observe(ids)
 
+    def set_states(
+        self, env_ids: Sequence[int] | np.ndarray, qpos: np.ndarray, qvel: np.ndarray
+    ) -> np.ndarray:
+        """Start the given environments with both agents exactly at ``qpos`` (n, 2, 35) moving
+        at ``qvel`` (n, 2, 34), as given: no centring, no grounding, no standing starts (a
+        tracking episode's start, `models.maaip.tracking`). Returns their observations
+        (n, 2, 274)."""
+        ids = _check_ids(env_ids, self.num_envs)
+        q = np.asarray(qpos, dtype=np.float64)
+        v = np.asarray(qvel, dtype=np.float64)
+        if q.shape != (len(ids), NUM_AGENTS, NQ) or not np.isfinite(q).all():
+            raise ValueError(f"qpos must be finite with shape ({len(ids)}, 2, {NQ}), got {q.shape}")
+        if v.shape != (len(ids), NUM_AGENTS, NV) or not np.isfinite(v).all():
+            raise ValueError(f"qvel must be finite with shape ({len(ids)}, 2, {NV}), got {v.shape}")
+        for k, i in enumerate(ids):
+            data = self.datas[i]
+            mujoco.mj_resetData(self.model, data)
+            for a, agent in enumerate(self.index.agents):
+                data.qpos[agent.qpos] = q[k, a]
+                data.qvel[agent.qvel] = v[k, a]
+            _refresh(self.model, data)
+        self.elapsed[ids] = 0
+        return self.observe(ids)
+
     def place(
         self, env_id: int, agent: int, qpos: np.ndarray, *, ground: bool = True
     ) -> np.ndarray:
@@ -609,7 +637,8 @@ class ArenaEnv:
         damage, floor = self._advance(ctrl, contacts=True, paths=paths)
         unstable = ~self._stable
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
-            obs = _observations(self._states(self._frames))
+            states = self._states(self._frames)
+            obs = _observations(states)
             fell = (floor | (self._head_z < self.config.fall_height_m)) & self._stable[:, None]
         if unstable.any():
             # Zeros, so that no NaN reaches the networks; the episode ends here.
@@ -626,6 +655,7 @@ class ArenaEnv:
             fell=fell,
             damage=damage,
             unstable=unstable,
+            body=states,
         )
 
     def step_physics(self, ctrl: np.ndarray | None = None) -> None:

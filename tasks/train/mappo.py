@@ -11,6 +11,12 @@ MAAIP Algorithm 1 (§4.5), one iteration:
 4. GAE(lambda) advantages and TD(lambda) returns per agent; PPO epochs over minibatches of
    both agents' samples for the policy and the centralised value.
 
+With `TrainConfig.objective` 'track' the same loop trains a tracker instead
+(`models.maaip.tracking`): the arena's actions are reference frames plus the policy's
+corrections, the reward is DeepMimic's, computed as the steps are collected, and there are no
+discriminators (steps 2-3 are skipped); GAE, PPO, the normalisers and the checkpoints are the
+same.
+
 Everything that decides what comes next is in :class:`Trainer` and saved by
 :meth:`Trainer.checkpoint`: networks, optimisers, normalisers, replay buffers, random
 generators, the environments' physics states and the iteration, so a run restored from a
@@ -20,6 +26,7 @@ checkpoint continues exactly as the uninterrupted run would (tested).
 from __future__ import annotations
 
 import io
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -29,7 +36,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, SELF_DIM, block_slices
+from models.humanoid.observations import SELF_BLOCKS, SELF_DIM, block_slices
 from models.maaip.config import TrainConfig
 from models.maaip.demonstrations import Demonstrations
 from models.maaip.env import ArenaEnv
@@ -44,7 +51,8 @@ from models.maaip.losses import (
     reward_weights,
     style_reward_from_config,
 )
-from models.maaip.networks import ReplayBuffer, make_networks
+from models.maaip.networks import Networks, ReplayBuffer, make_networks
+from models.maaip.tracking import REWARD_TERMS, Tracker, TrackingData, tracking_networks
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
@@ -68,13 +76,14 @@ def training_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def _signature(config: TrainConfig, demos: Demonstrations) -> dict:
-    """What a checkpoint must agree on to be resumed: the humanoids and the network sizes."""
+def _signature(config: TrainConfig, key: str, bones: tuple, observation_dim: int) -> dict:
+    """What a checkpoint must agree on to be resumed: the data, the humanoids and the network
+    sizes (a tracker's observation, 451, tells its checkpoints from MAAIP's, 274)."""
     return {
         "format": CHECKPOINT_FORMAT,
-        "dataset_key": demos.dataset_key,
-        "bones": [asdict(b) for b in demos.bones],
-        "observation_dim": OBSERVATION_DIM,
+        "dataset_key": key,
+        "bones": [asdict(b) for b in bones],
+        "observation_dim": observation_dim,
         "hidden": list(config.network.hidden_sizes),
         "task_dim": config.reward.task_observation_dim,
     }
@@ -95,26 +104,58 @@ class Rollout:
     unstable: Tensor  # (T, N) the simulation blew up (terminal, not a fall)
     task: Tensor | None = None  # (T, N, 2, 2) heading targets the actions were chosen for
     next_task: Tensor | None = None  # the same targets seen from the next state
+    # Tracking only: the reward (T, N, 2) and its terms (T, N, 2, 4), body and root errors in
+    # metres (T, N, 2, 2), and which agents' own episodes ended terminally (T, N, 2): the other
+    # agent of an environment that ended times out.
+    reward: Tensor | None = None
+    reward_terms: Tensor | None = None
+    errors: Tensor | None = None
+    terminal: Tensor | None = None
 
 
 class Trainer:
-    """One MAAIP training run on one dataset; `iterate` runs Algorithm 1 once."""
+    """One training run on one dataset; `iterate` runs Algorithm 1 once (or, with objective
+    'track', its collection and PPO steps on the tracking reward).
 
-    def __init__(self, config: TrainConfig, demos: Demonstrations):
+    ``data`` is the dataset's Demonstrations for 'maaip', the clips to track (TrackingData)
+    for 'track'.
+    """
+
+    def __init__(self, config: TrainConfig, data: Demonstrations | TrackingData):
         torch.manual_seed(config.seed)
-        self.config, self.demos = config, demos
+        track = config.objective == "track"
+        if track != isinstance(data, TrackingData):
+            want = "TrackingData" if track else "Demonstrations"
+            raise ValueError(
+                f"train.objective {config.objective!r} trains on {want}, got {type(data).__name__}"
+            )
+        self.config = config
         self.device = training_device(config.device)
         # One CPU generator draws every random number (then moved), so a seed means the same
         # run on either device up to floating point.
         self.generator = torch.Generator().manual_seed(config.seed)
-        self.nets = make_networks(config, generator=self.generator, stance=demos.reference.stance)
-        for net in (self.nets.policy, self.nets.value, self.nets.motion, *self.nets.interaction):
-            net.to(self.device)
         ppo, disc = config.ppo, config.discriminator
+        self.tracker: Tracker | None = None
+        if isinstance(data, TrackingData):
+            self.demos = None
+            policy, value = tracking_networks(config, generator=self.generator)
+            # A tracker has no priors: no discriminators, replay buffers or demonstrations.
+            self.nets = Networks(policy, value, motion=None, interaction=())  # type: ignore[arg-type]
+            self.tracker = Tracker(data, config.track, config.env)
+            self.discriminators: tuple = ()
+            key, bones = data.key, data.bones
+        else:
+            self.demos = data
+            self.nets = make_networks(
+                config, generator=self.generator, stance=data.reference.stance
+            )
+            self.discriminators = (self.nets.motion, *self.nets.interaction)
+            key, bones = data.dataset_key, data.bones
+        for net in (self.nets.policy, self.nets.value, *self.discriminators):
+            net.to(self.device)
         self.optimiser = torch.optim.Adam(
             [*self.nets.policy.parameters(), *self.nets.value.parameters()], lr=ppo.learning_rate
         )
-        self.discriminators = (self.nets.motion, *self.nets.interaction)
         self.d_optimisers = [
             torch.optim.Adam(d.parameters(), lr=disc.learning_rate) for d in self.discriminators
         ]
@@ -122,10 +163,10 @@ class Trainer:
             ReplayBuffer(disc.replay_size, d.input_dim, device=self.device)
             for d in self.discriminators
         ]
-        self.real = [
-            torch.from_numpy(x).to(self.device) for x in (demos.motion, *demos.interaction)
-        ]
-        self.env = ArenaEnv(config.env, np.random.default_rng(config.seed), demos.bones)
+        demos = self.demos
+        real = () if demos is None else (demos.motion, *demos.interaction)
+        self.real = [torch.from_numpy(x).to(self.device) for x in real]
+        self.env = ArenaEnv(config.env, np.random.default_rng(config.seed), bones)
         # The heading task (§5.4): each agent's target direction on the floor, a world yaw drawn
         # anew at every episode start.
         self.heading = config.reward.control_task == "heading"
@@ -134,14 +175,18 @@ class Trainer:
         self.obs = self._reset(np.arange(self.env.num_envs))
         self.finished_steps = np.zeros(0, dtype=int)
         self.iteration = 0
-        self.signature = _signature(config, demos)
+        self.signature = _signature(config, key, bones, self.nets.policy.obs_dim)
 
     def close(self) -> None:
         self.env.close()
 
     def _reset(self, ids: np.ndarray) -> np.ndarray:
+        if self.tracker is not None:
+            # Reference state initialisation from the task's generator (checkpointed).
+            return self.tracker.reset(self.env, ids, self.task_rng)
         if self.heading:
             self.targets[ids] = self.task_rng.uniform(-np.pi, np.pi, (len(ids), 2))
+        assert self.demos is not None
         return self.env.reset(ids, self.demos.reference)
 
     def task_observation(self) -> Tensor | None:
@@ -173,7 +218,16 @@ class Trainer:
                 task=None if task is None else task.reshape(2 * n, -1),
                 generator=self.generator,
             )
-            result = self.env.step(actions.reshape(n, 2, -1).double().cpu().numpy())
+            chosen = actions.reshape(n, 2, -1).double().cpu().numpy()
+            if self.tracker is None:
+                result = self.env.step(chosen)
+            else:
+                result = self.tracker.step(self.env, chosen)
+                parts["reward"].append(self._tensor(result.reward))
+                parts["reward_terms"].append(self._tensor(result.terms))
+                errors = np.stack([result.body_error, result.root_error], -1)
+                parts["errors"].append(self._tensor(errors))
+                parts["terminal"].append(self._tensor(result.terminal))
             parts["obs"].append(obs)
             parts["next_obs"].append(self._tensor(result.observation))
             parts["actions"].append(actions.reshape(n, 2, -1))
@@ -306,6 +360,8 @@ class Trainer:
             )
         dones = (r.terminated | r.truncated)[..., None].expand(horizon, n, 2)
         timeouts = r.truncated[..., None].expand(horizon, n, 2)
+        if r.terminal is not None:
+            timeouts = dones & ~r.terminal  # the other agent's ending is a time-out for it
         advantages, returns = gae(
             reward.reshape(horizon, -1),
             values.reshape(horizon, -1),
@@ -373,14 +429,21 @@ class Trainer:
         torch.set_num_threads(1)
         rollout = timed("collect_s", self.collect)
         torch.set_num_threads(self.env.config.threads)
-        inputs = self.discriminator_inputs(rollout)
-        terms = timed("rewards_s", self.rewards, rollout, inputs)
-        d_stats = timed("discriminators_s", self.update_discriminators, inputs)
+        if self.tracker is None:
+            inputs = self.discriminator_inputs(rollout)
+            terms = timed("rewards_s", self.rewards, rollout, inputs)
+            d_stats = timed("discriminators_s", self.update_discriminators, inputs)
+            w_m, w_i, w_c = reward_weights(self.config.reward, self.iteration)
+            objective = {"w_motion": w_m, "w_interaction": w_i, "w_control": w_c}
+        else:
+            assert rollout.reward is not None and rollout.reward_terms is not None
+            terms = {k: rollout.reward_terms[..., i] for i, k in enumerate(REWARD_TERMS)}
+            terms["total"] = rollout.reward
+            d_stats, objective = {}, self._tracking_metrics(rollout)
         p_stats = timed("ppo_s", self.update_policy, rollout, terms["total"])
         steps = rollout.terminated.numel()  # environment steps (both agents move in each)
         seconds = sum(timings.values())
         sim_minutes = steps / self.env.config.policy_hz / 60
-        w_m, w_i, w_c = reward_weights(self.config.reward, self.iteration)
         hz = self.env.config.policy_hz
         # Episodes that ended in this iteration, by their whole length; an iteration in which
         # none ended has no such mean and leaves the metric out (the running episodes' mean
@@ -399,12 +462,24 @@ class Trainer:
             "episodes_ended": float((rollout.terminated | rollout.truncated).sum()),
             "episode_age_s": float(self.env.elapsed.mean()) / hz,
             "damage_received_n": float(rollout.damage.mean()),
-            "w_motion": w_m,
-            "w_interaction": w_i,
-            "w_control": w_c,
+            **objective,
         }
         self.iteration += 1
         return metrics
+
+    def _tracking_metrics(self, r: Rollout) -> dict[str, float]:
+        """A tracking rollout's mean body and root errors (cm, over its stable steps) and its
+        drift terminations (an agent's episode ended terminally without a fall) per minute."""
+        assert r.errors is not None and r.terminal is not None
+        errors = r.errors.reshape(-1, 2)
+        errors = errors[torch.isfinite(errors).all(-1)]
+        drifts = r.terminal & ~r.fell & ~r.unstable[..., None]
+        minutes = r.terminated.numel() / self.env.config.policy_hz / 60
+        return {
+            "body_error_cm": 100 * float(errors[:, 0].mean()) if len(errors) else math.nan,
+            "root_error_cm": 100 * float(errors[:, 1].mean()) if len(errors) else math.nan,
+            "drifts_per_min": float(drifts.sum()) / minutes,
+        }
 
     # ------------------------------------------------------------------ checkpoints
 
@@ -438,6 +513,7 @@ class Trainer:
             "warmstart": warm,
             "elapsed": env.elapsed.copy(),
             "obs": self.obs.copy(),
+            "tracker": None if self.tracker is None else self.tracker.state(),
         }
         out = io.BytesIO()
         torch.save(state, out)
@@ -495,3 +571,5 @@ class Trainer:
             mujoco.mj_forward(env.model, data)
         env.elapsed[:] = state["elapsed"]
         self.obs = state["obs"]
+        if self.tracker is not None:
+            self.tracker.load_state(state["tracker"])
