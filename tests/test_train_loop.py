@@ -165,3 +165,28 @@ def test_the_heading_task_rewards_moving_along_the_target(demos):
         assert 0 <= metrics["reward_control"] <= 1 and metrics["w_control"] > 0
     finally:
         trainer.close()
+
+
+def test_discriminators_are_judged_on_held_out_demonstrations_and_fresh_samples(demos):
+    """Beside the training accuracies (on the minibatch each discriminator just trained on):
+    each one's accuracy and mean D on this iteration's fresh policy samples, and, where the
+    dataset holds them out, on held-out demonstrations. Judging draws no random number, so the
+    run is the same with or without held-out data."""
+    # Held out: the punch's second half (a stand-in for a validation split).
+    held = tuple(x[len(x) // 2 :] for x in (demos.motion, *demos.interaction))
+    judged_run = Trainer(TINY, dataclasses.replace(demos, held_out=held))
+    plain_run = Trainer(TINY, demos)
+    try:
+        judged, plain = judged_run.iterate(), plain_run.iterate()
+        after = _parameters(judged_run), _parameters(plain_run)
+    finally:
+        judged_run.close()
+        plain_run.close()
+    for name in ("motion", "interaction0", "interaction1"):
+        for metric in ("fresh_accuracy_fake", "held_out_accuracy_real"):
+            assert 0 <= judged[f"{name}_{metric}"] <= 1, (name, metric)
+        for metric in ("fresh_d", "held_out_d"):
+            assert 0 < judged[f"{name}_{metric}"] < 1, (name, metric)
+        assert f"{name}_held_out_d" not in plain and f"{name}_fresh_d" in plain
+        assert judged[f"{name}_fresh_d"] == plain[f"{name}_fresh_d"]
+    assert torch.equal(*after)

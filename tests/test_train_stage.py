@@ -49,6 +49,13 @@ def dataset_key(sample_dataset) -> str:
     return sample_dataset
 
 
+def test_an_objective_the_stage_does_not_train_is_refused_in_one_line(capsys, sample_run):
+    argv = ["--data", str(sample_run), "train", "--dataset", "x", "--train-objective", "track"]
+    code, out, err = run_cli(capsys, *argv)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "is not trained by the train stage yet" in lines[0]
+
+
 def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
     # A seed of its own, so that no other test's tiny run is this one (the first call must train).
     base = [

@@ -17,10 +17,11 @@ from storage.paths import DataPaths
 def train_command(args, paths: DataPaths) -> int:
     from flows.config import load_config
     from flows.stage import run_stage_flow
-    from tasks.train.task import resolve_dataset
+    from tasks.train.task import check_objective, resolve_dataset
 
     config = load_config(args.config, overrides(args))
-    resolve_dataset(paths.db, args.dataset)  # fail fast, before Prefect starts
+    check_objective(config.train)  # fail fast, before Prefect starts
+    resolve_dataset(paths.db, args.dataset)
     with flow_server(paths):
         summary = run_stage_flow(
             "train", paths, args.dataset, config=config.as_dict(), force=args.rerun

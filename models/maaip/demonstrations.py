@@ -144,6 +144,9 @@ class Demonstrations:
         interaction: per agent, (M_i, 497) transitions [o_t, o^self_t+1] (agent i's side of M^I).
         reference: interaction frames of both fighters to start episodes from.
         bones: the adversary's and the opponent's bone lengths (agents 0 and 1).
+        held_out: held-out transitions to judge the discriminators on, never learned from
+            (the dataset's validation split): D^M's, then each D^I's, like ``motion`` and
+            ``interaction``; empty where the split has none.
     """
 
     dataset_key: str
@@ -151,6 +154,7 @@ class Demonstrations:
     interaction: tuple[np.ndarray, np.ndarray]
     reference: ReferenceMotions
     bones: tuple[BoneLengths, BoneLengths]
+    held_out: tuple[np.ndarray, ...] = ()
 
 
 def demonstrations_from_reference(

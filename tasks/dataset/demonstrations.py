@@ -32,4 +32,5 @@ def load_demonstrations(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Dem
             stance=np.stack([guard_pose(data.bones[0], q0), guard_pose(data.bones[1], q1)]),
         ),
         bones=data.bones,
+        held_out=data.held_out,
     )

@@ -370,8 +370,10 @@ def load_transitions(
     return Transitions(obs, next_self)
 
 
-def _pairs(con: duckdb.DuckDBPyConnection, dataset_key: str, kind: str, agent) -> np.ndarray:
-    found = load_transitions(con, dataset_key, kind=kind, agent=agent)
+def _pairs(
+    con: duckdb.DuckDBPyConnection, dataset_key: str, kind: str, agent, split: str = "train"
+) -> np.ndarray:
+    found = load_transitions(con, dataset_key, kind=kind, agent=agent, split=split)
     return np.concatenate([found.obs, found.next_self], axis=1)
 
 
@@ -417,13 +419,16 @@ def training_bones(
 class TrainingData:
     """What a training run reads from a dataset (its train split): the discriminators'
     transitions, the frames episodes start from (qpos and qvel of adversary and opponent at the
-    same steps) and the two humanoids (`training_bones`)."""
+    same steps) and the two humanoids (`training_bones`); and the validation split's
+    transitions (motion, then each agent's interaction; any may be empty), which training
+    never learns from and judges its discriminators on."""
 
     motion: np.ndarray
     interaction: tuple[np.ndarray, np.ndarray]
     qpos: tuple[np.ndarray, np.ndarray]
     qvel: tuple[np.ndarray, np.ndarray]
     bones: tuple[BoneLengths, BoneLengths]
+    held_out: tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def training_data(con: duckdb.DuckDBPyConnection, dataset_key: str) -> TrainingData:
@@ -456,4 +461,8 @@ def training_data(con: duckdb.DuckDBPyConnection, dataset_key: str) -> TrainingD
     # The verdict found interaction clips in the train split, so these exist.
     assert bones is not None and min(len(x) for x in interaction) > 0, dataset_key
     q0, v0, q1, v1 = (np.concatenate([f[i] for f in frames]) for i in range(4))
-    return TrainingData(motion, interaction, (q0, q1), (v0, v1), bones)
+    held_out = (
+        _pairs(con, dataset_key, "single", None, "validation"),
+        *(_pairs(con, dataset_key, "interaction", a, "validation") for a in (0, 1)),
+    )
+    return TrainingData(motion, interaction, (q0, q1), (v0, v1), bones, held_out)

@@ -55,6 +55,7 @@ from models.maaip.networks import Networks, ReplayBuffer, make_networks
 from models.maaip.tracking import REWARD_TERMS, Tracker, TrackingData, tracking_networks
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+HELD_OUT_ROWS = 4096
 _LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
 _ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 3)
 CHECKPOINT_FORMAT = 2  # 2: the policy's offset (its guard) is part of its state
@@ -166,6 +167,10 @@ class Trainer:
         demos = self.demos
         real = () if demos is None else (demos.motion, *demos.interaction)
         self.real = [torch.from_numpy(x).to(self.device) for x in real]
+        # Held-out demonstrations (the validation split), to judge each discriminator on what it
+        # never learned from; the first HELD_OUT_ROWS of each, so the check costs little.
+        held = () if demos is None else demos.held_out
+        self.held_out = [torch.from_numpy(x[:HELD_OUT_ROWS]).to(self.device) for x in held]
         self.env = ArenaEnv(config.env, np.random.default_rng(config.seed), bones)
         # The heading task (§5.4): each agent's target direction on the floor, a world yaw drawn
         # anew at every episode start.
@@ -314,14 +319,16 @@ class Trainer:
         disc = self.config.discriminator
         stats: dict[str, float] = {}
         names = ("motion", "interaction0", "interaction1")
-        for name, d, opt, buffer, real, fake in zip(
-            names,
-            self.discriminators,
-            self.d_optimisers,
-            self.buffers,
-            self.real,
-            fakes,
-            strict=True,
+        for index, (name, d, opt, buffer, real, fake) in enumerate(
+            zip(
+                names,
+                self.discriminators,
+                self.d_optimisers,
+                self.buffers,
+                self.real,
+                fakes,
+                strict=True,
+            )
         ):
             buffer.add(fake)
             pick = torch.randint(len(real), (len(fake),), generator=self.generator)
@@ -342,7 +349,28 @@ class Trainer:
             stats[f"{name}_accuracy_real"] = s.accuracy_real
             stats[f"{name}_accuracy_fake"] = s.accuracy_fake
             stats[f"{name}_gradient_penalty"] = s.gradient_penalty
+            stats.update(self._judged(name, d, fake, index))
         return stats
+
+    def _judged(self, name: str, d, fresh: Tensor, index: int) -> dict[str, float]:
+        """Discriminator ``d`` after its update, on what it did not train on: this iteration's
+        fresh policy samples (the updates drew theirs from the replay) and the held-out
+        demonstrations, where there are any. Accuracy as in training (logit < 0 for the
+        policy's, > 0 for the demonstrations'), and the mean D = sigmoid(logit), the
+        probability it gives of "real". No random number is drawn: a run's course is the same
+        with or without these."""
+        with torch.no_grad():
+            logits = d(fresh)
+            out = {
+                f"{name}_fresh_accuracy_fake": (logits < 0).float().mean().item(),
+                f"{name}_fresh_d": torch.sigmoid(logits).mean().item(),
+            }
+            held = self.held_out[index] if index < len(self.held_out) else None
+            if held is not None and len(held):
+                logits = d(held)
+                out[f"{name}_held_out_accuracy_real"] = (logits > 0).float().mean().item()
+                out[f"{name}_held_out_d"] = torch.sigmoid(logits).mean().item()
+        return out
 
     # ------------------------------------------------------------------ PPO
 
