@@ -102,7 +102,7 @@ POLICIES = {
 # The simulated fighters the two-sample test compares with the adversary's held-out footage,
 # and the one it cannot make yet.
 TWO_SAMPLE_POLICIES = ("adversary", "untrained", "still")
-NO_REPLAY = "no tracker replays the held-out clips in the simulator yet"
+NO_REPLAY = "the tracker (train.objective track) is not yet run on the held-out clips by evaluation"
 
 
 @dataclass(frozen=True, eq=False)
