@@ -284,39 +284,38 @@ def tracking_input(sim: BodyState, ref: BodyState, ref_observation: np.ndarray) 
 
 @dataclass(frozen=True, eq=False)
 class _Frames:
-    """One agent's clips end to end (F frames), and where each clip starts."""
+    """One agent's clips end to end (F frames, one `ReferenceClip`), and where each starts."""
 
-    qpos: np.ndarray
-    qvel: np.ndarray
-    states: BodyState
-    observation: np.ndarray
-    com: np.ndarray
-    actions: np.ndarray
+    clip: ReferenceClip
     start: np.ndarray  # (C,)
     last: np.ndarray  # (C,) flat index of each clip's last frame
     startable: np.ndarray  # flat indices of every frame but the clips' last
-    body_mass: np.ndarray
-    body_com: np.ndarray
 
 
 def _frames(clips: Sequence[ReferenceClip]) -> _Frames:
     lengths = np.array([c.num_frames for c in clips])
     start = np.concatenate([[0], np.cumsum(lengths)[:-1]])
     last = start + lengths - 1
-    cat = lambda name: np.concatenate([getattr(c.states, name) for c in clips])  # noqa: E731
-    return _Frames(
-        qpos=np.concatenate([c.qpos for c in clips]),
-        qvel=np.concatenate([c.qvel for c in clips]),
-        states=BodyState(cat("pos"), cat("rot"), cat("lin_vel"), cat("ang_vel")),
-        observation=np.concatenate([c.observation for c in clips]),
-        com=np.concatenate([c.com for c in clips]),
-        actions=np.concatenate([c.actions for c in clips]),
-        start=start,
-        last=last,
-        startable=np.setdiff1d(np.arange(lengths.sum()), last),
+    # The per-frame fields joined; the body's masses are one humanoid's, the first clip's.
+    joined = {
+        f.name: np.concatenate([getattr(c, f.name) for c in clips])
+        for f in dataclasses.fields(ReferenceClip)
+        if f.name not in ("name", "states", "body_mass", "body_com")
+    }
+    states = BodyState(
+        *(
+            np.concatenate([getattr(c.states, f.name) for c in clips])
+            for f in dataclasses.fields(BodyState)
+        )
+    )
+    clip = ReferenceClip(
+        name="+".join(c.name for c in clips),
+        states=states,
         body_mass=clips[0].body_mass,
         body_com=clips[0].body_com,
+        **joined,
     )
+    return _Frames(clip, start, last, np.setdiff1d(np.arange(lengths.sum()), last))
 
 
 @dataclass(frozen=True, eq=False)
@@ -391,7 +390,7 @@ class Tracker:
 
     def reference(self, flat: np.ndarray, ids: np.ndarray | slice = slice(None)) -> BodyState:
         """(n, 2) the reference frames ``flat`` (n, 2) of environments ``ids``, where placed."""
-        parts = [f.states[flat[:, a]] for a, f in enumerate(self.frames)]
+        parts = [f.clip.states[flat[:, a]] for a, f in enumerate(self.frames)]
         shift = self.offset[ids][:, :, None, :]
         pos = np.stack([p.pos for p in parts], axis=1) + shift
         rot, lin, ang = (
@@ -410,7 +409,7 @@ class Tracker:
     def observation(self, sim: BodyState, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(n, 2, 451) o^self of ``sim`` (n, 2) and the next reference frame (`tracking_input`)."""
         nxt = self._next(ids)
-        ref_obs = np.stack([f.observation[nxt[:, a]] for a, f in enumerate(self.frames)], 1)
+        ref_obs = np.stack([f.clip.observation[nxt[:, a]] for a, f in enumerate(self.frames)], 1)
         given = tracking_input(sim, self.reference(nxt, ids), ref_obs)
         return np.concatenate([self_observation(sim), given], -1)
 
@@ -434,10 +433,10 @@ class Tracker:
             else:
                 flat = f.start[np.asarray(clips)[:, a]]
             self.flat[ids, a] = flat
-            self.offset[ids, a] = self.slots[a] - f.qpos[flat, :3] * [1, 1, 0]
-            qpos[:, a] = f.qpos[flat]
+            self.offset[ids, a] = self.slots[a] - f.clip.qpos[flat, :3] * [1, 1, 0]
+            qpos[:, a] = f.clip.qpos[flat]
             qpos[:, a, :3] += self.offset[ids, a]
-            qvel[:, a] = f.qvel[flat]
+            qvel[:, a] = f.clip.qvel[flat]
         env.set_states(ids, qpos, qvel)
         return self.observation(env.body_states(ids), ids)
 
@@ -445,7 +444,7 @@ class Tracker:
         """(N, 2, 28) the arena's actions: each agent's next reference frame (the PD targets
         that hold it) plus its ``corrections`` (N, 2, 28) (DReCon)."""
         nxt = self._next()
-        held = np.stack([f.actions[nxt[:, a]] for a, f in enumerate(self.frames)], 1)
+        held = np.stack([f.clip.actions[nxt[:, a]] for a, f in enumerate(self.frames)], 1)
         return held + corrections
 
     def step(self, env: ArenaEnv, corrections: np.ndarray) -> TrackStep:
@@ -461,10 +460,13 @@ class Tracker:
         sim = result.body
         ref = self.reference(self.flat)
         sim_com = np.stack(
-            [centre_of_mass(sim[:, a], f.body_mass, f.body_com) for a, f in enumerate(self.frames)],
+            [
+                centre_of_mass(sim[:, a], f.clip.body_mass, f.clip.body_com)
+                for a, f in enumerate(self.frames)
+            ],
             1,
         )
-        ref_com = np.stack([f.com[self.flat[:, a]] for a, f in enumerate(self.frames)], 1)
+        ref_com = np.stack([f.clip.com[self.flat[:, a]] for a, f in enumerate(self.frames)], 1)
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
             terms = deepmimic_reward(sim, ref, sim_com, ref_com + self.offset, config=self.config)
             body, root = body_error(sim, ref), root_error(sim, ref)
