@@ -7,7 +7,7 @@ import json
 import math
 import os
 import socket
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
@@ -306,20 +306,31 @@ def chained_states(
     subject of ``chain[0]`` (in the order given) its newest output, and after each finished
     one, the same for the rest of the chain on that output's key (``video_id`` is the subject,
     as in ``stage_runs``)."""
-    if not chain:
-        return []
-    rows = []
-    for row in _states(con, [(subject, chain[0]) for subject in subjects]):
-        rows.append(row)
-        if row["state"] in ("done", "cached"):
-            rows += chained_states(con, [row["key"]], chain[1:])
-    return rows
+    state = _state_reader(con)
+
+    def walk(subjects: Sequence[str], chain: Sequence[str]) -> list[dict[str, Any]]:
+        rows = []
+        for subject in subjects if chain else ():
+            row = state(subject, chain[0])
+            rows.append(row)
+            if row["state"] in ("done", "cached"):
+                rows += walk([row["key"]], chain[1:])
+        return rows
+
+    return walk(subjects, chain)
 
 
 def _states(
     con: duckdb.DuckDBPyConnection, wanted: Sequence[tuple[str, str]]
 ) -> list[dict[str, Any]]:
     """One `STATE_FIELDS` row per (video_id, stage) in ``wanted``."""
+    state = _state_reader(con)
+    return [state(video_id, stage) for video_id, stage in wanted]
+
+
+def _state_reader(con: duckdb.DuckDBPyConnection) -> Callable[[str, str], dict[str, Any]]:
+    """A function of (video_id, stage) giving its `STATE_FIELDS` row, from the newest runs and
+    the outputs' seconds read once."""
     runs = {(r["video_id"], r["stage"]): r for r in latest_runs(con)}
     seconds = {
         (stage, video_id, key): value
@@ -327,23 +338,21 @@ def _states(
             "SELECT stage, video_id, key, seconds FROM stage_outputs"
         ).fetchall()
     }
-    rows = []
-    for video_id, stage in wanted:
+
+    def state(video_id: str, stage: str) -> dict[str, Any]:
         run = runs.get((video_id, stage))
         if run is None:
             missing = {"video_id": video_id, "stage": stage, "state": "missing"}
-            rows.append({**dict.fromkeys(STATE_FIELDS), **missing})
-            continue
+            return {**dict.fromkeys(STATE_FIELDS), **missing}
         finished = run["state"] in ("done", "cached")
         took = seconds.get((stage, video_id, run["key"])) if finished else None
-        rows.append(
-            {
-                **{name: run[name] for name in ("video_id", "stage", "key", "state", "error")},
-                "ran_at": run["created_at"],
-                "seconds": took,
-            }
-        )
-    return rows
+        return {
+            **{name: run[name] for name in ("video_id", "stage", "key", "state", "error")},
+            "ran_at": run["created_at"],
+            "seconds": took,
+        }
+
+    return state
 
 
 def latest_metrics(con: duckdb.DuckDBPyConnection, stage: str | None = None) -> list[dict]:
