@@ -491,6 +491,8 @@ def synthetic_motion(
     """
     parts: dict[str, list[np.ndarray]] = {role: [] for role in ROLES}
     steps = []
+    # A clip's every play is the same pair of motions, so one placement serves them all.
+    placed: dict[str, np.ndarray] = {}
     for exchange in exchanges:
         adversary = clips[ROLES[0]][exchange.clip]
         opponent = clips[ROLES[1]][exchange.clip][::-1]
@@ -500,7 +502,9 @@ def synthetic_motion(
                 f"{exchange.end - exchange.start}"
             )
         parts[ROLES[0]].append(adversary)
-        parts[ROLES[1]].append(place_opponent(adversary, opponent, distance_m))
+        if exchange.clip not in placed:
+            placed[exchange.clip] = place_opponent(adversary, opponent, distance_m)
+        parts[ROLES[1]].append(placed[exchange.clip])
         steps.append(np.arange(exchange.start, exchange.end))
     return {role: _fighter(parts[role], steps, bones[role]) for role in ROLES}
 
