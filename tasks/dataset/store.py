@@ -377,11 +377,11 @@ def _pairs(
     return np.concatenate([found.obs, found.next_self], axis=1)
 
 
-def _interaction_clips(
-    con: duckdb.DuckDBPyConnection, members: tuple[tuple[str, str], ...]
+def interaction_clips(
+    con: duckdb.DuckDBPyConnection, members: tuple[tuple[str, str], ...], split: str = "train"
 ) -> Iterator[tuple[str, str, list[tuple[int, int]]]]:
     """(video_id, lift key, [(start_step, end_step)]) of each member, in member order, that has
-    interaction clips in its train split (extra single-actor clips come from no lift and have
+    interaction clips in its ``split`` (extra single-actor clips come from no lift and have
     none)."""
     for video_id, key in members:
         lift_key = upstream_lift_key(con, video_id, key)
@@ -389,8 +389,8 @@ def _interaction_clips(
             continue
         clips = con.execute(
             "SELECT start_step, end_step FROM dataset_clips WHERE key = ? AND video_id = ? "
-            "AND kind = 'interaction' AND split = 'train' ORDER BY clip",
-            [key, video_id],
+            "AND kind = 'interaction' AND split = ? ORDER BY clip",
+            [key, video_id, split],
         ).fetchall()
         if clips:
             yield video_id, lift_key, clips
@@ -403,9 +403,7 @@ def training_bones(
     fighters of the member video with the most interaction steps to learn from (the first of
     equals); None without interaction clips."""
     best, most = None, 0
-    for video_id, lift_key, clips in _interaction_clips(
-        con, dataset_info(con, dataset_key).members
-    ):
+    for video_id, lift_key, clips in interaction_clips(con, dataset_info(con, dataset_key).members):
         steps = sum(end - start for start, end in clips)
         if steps > most:
             best, most = (video_id, lift_key), steps
@@ -446,7 +444,7 @@ def training_data(con: duckdb.DuckDBPyConnection, dataset_key: str) -> TrainingD
     motion = _pairs(con, dataset_key, "single", None)
     interaction = tuple(_pairs(con, dataset_key, "interaction", a) for a in (0, 1))
     frames: list[tuple[np.ndarray, ...]] = []
-    for video_id, lift_key, clips in _interaction_clips(con, info.members):
+    for video_id, lift_key, clips in interaction_clips(con, info.members):
         fighters = load_motion(con, video_id, lift_key)
         steps = np.concatenate([np.arange(a, b) for a, b in clips])
         # Episodes start from lifted steps only: the few a clip bridged

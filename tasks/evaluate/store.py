@@ -14,7 +14,7 @@ import numpy as np
 from models.humanoid.boxer import BoneLengths
 from storage.records import newest_output, output_metrics
 from tasks.dataset.statistics import FighterStatistics
-from tasks.dataset.store import dataset_info, member_statistics, upstream_lift_key
+from tasks.dataset.store import dataset_info, interaction_clips, member_statistics
 from tasks.errors import BadInput
 from tasks.lift.store import load_motion
 from tasks.roles import ROLES
@@ -181,15 +181,8 @@ def heldout_footage(
         raise ValueError(f"role must be one of {ROLES}, got {role!r}")
     other = ROLES[1 - ROLES.index(role)]
     found = []
-    for video_id, key in dataset_info(con, dataset_key).members:
-        clips = con.execute(
-            "SELECT start_step, end_step FROM dataset_clips WHERE key = ? AND video_id = ? "
-            "AND kind = 'interaction' AND split = 'validation' ORDER BY clip",
-            [key, video_id],
-        ).fetchall()
-        lift_key = upstream_lift_key(con, video_id, key)
-        if not clips or lift_key is None:
-            continue
+    members = dataset_info(con, dataset_key).members
+    for video_id, lift_key, clips in interaction_clips(con, members, "validation"):
         fighters = load_motion(con, video_id, lift_key)
         if role not in fighters or other not in fighters:
             continue
