@@ -14,13 +14,14 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
 
 from models.humanoid.boxer import BoneLengths, single_scene_mjcf
 from models.humanoid.fitting import fit_humanoid
-from models.humanoid.kinematics import NQ, NV
+from models.humanoid.kinematics import NQ
 from models.humanoid.motion import RATE, FighterMotion, fighter_distance
 from storage.artifacts import artifact_name
 from storage.files import scratch_dir
@@ -463,7 +464,7 @@ def lift_video(
 
     parts = {r: [one.fighters[r] for one in lifted if r in one.fighters] for r in fighters}
     grids = {role: _on_grid(mine, frames) for role, mine in parts.items()}
-    qpos = {role: grid[0] for role, grid in grids.items()}
+    qpos = {role: grid.qpos for role, grid in grids.items()}
     # Each fighter's bones are those of its longest lifted span.
     bones = {
         r: max(mine, key=lambda p: len(p.cleaned.qpos)).bones for r, mine in parts.items() if mine
@@ -472,14 +473,14 @@ def lift_video(
     metrics.update({f"frames_rejected_{reason}": float(n) for reason, n in rejected.items()})
     metrics["frames_rejected"] = float(sum(rejected.values()))
     notes += gate_notes(rejected, fighter_frames, config.gates)
-    notes += stature_notes(config.statures(), {r: grids[r][2] for r in bones})
+    notes += stature_notes(config.statures(), {r: grids[r].joints for r in bones})
     # Each shot has its own camera and world: nothing on the grid is taken across a cut.
     cuts = sorted(start for _, start, _ in shots if start > 0)
     motion = {
         role: resample(
             qpos[role],
-            grids[role][2],
-            grids[role][3],
+            grids[role].joints,
+            grids[role].contacts,
             fps=fps,
             rate=RATE,
             bones=bones[role],
@@ -497,21 +498,28 @@ def lift_video(
     )
 
 
-def _on_grid(
-    parts: Sequence[FighterShot], frames: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A fighter's shots on the video's frames: qpos (F, NQ), qvel (F, NV), joints (F, 33, 3)
-    and foot contacts (F, 2); NaN (no contact) where it is not lifted or a gate dropped it."""
-    qpos, qvel = np.full((frames, NQ), np.nan), np.full((frames, NV), np.nan)
-    joints, contacts = np.full((frames, 33, 3), np.nan), np.zeros((frames, 2), bool)
+class _Grid(NamedTuple):
+    """A fighter's shots on the video's frames: qpos (F, NQ), joints (F, 33, 3) and foot
+    contacts (F, 2); NaN (no contact) where it is not lifted or a gate dropped it. The lift
+    stores positions only: `resample` takes the velocities anew on its grid."""
+
+    qpos: np.ndarray
+    joints: np.ndarray
+    contacts: np.ndarray
+
+
+def _on_grid(parts: Sequence[FighterShot], frames: int) -> _Grid:
+    grid = _Grid(
+        np.full((frames, NQ), np.nan), np.full((frames, 33, 3), np.nan), np.zeros((frames, 2), bool)
+    )
     for part in parts:
         a, b = part.start, part.start + len(part.cleaned.qpos)
-        qpos[a:b], qvel[a:b] = part.cleaned.qpos, part.cleaned.qvel
-        joints[a:b], contacts[a:b] = part.cleaned.points, part.cleaned.contacts
-        for array in (qpos, qvel, joints):
+        grid.qpos[a:b], grid.joints[a:b] = part.cleaned.qpos, part.cleaned.points
+        grid.contacts[a:b] = part.cleaned.contacts
+        for array in (grid.qpos, grid.joints):
             array[a:b][part.dropped] = np.nan
-        contacts[a:b][part.dropped] = False
-    return qpos, qvel, joints, contacts
+        grid.contacts[a:b][part.dropped] = False
+    return grid
 
 
 def lift_output(lift: Lift) -> StageOutput:
