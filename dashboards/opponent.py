@@ -132,10 +132,16 @@ def dataset_page() -> None:
     about = {d["dataset_key"]: d for d in sets}
     key = choose("Dataset", [d["dataset_key"] for d in sets], "dataset", format_func=labels.get)
     chosen = about[key]
-    found = read(lambda con: (queries.dataset_statistics(con, key), queries.videos(con)))
+    found = read(
+        lambda con: (
+            queries.dataset_statistics(con, key),
+            queries.videos(con),
+            queries.dataset_tracking(con, key),
+        )
+    )
     if found is None:
         return
-    stats, videos = found
+    stats, videos, (tracker, tracked) = found
     if chosen["unusable"] is not None:
         st.error(f"Unusable for training: {chosen['unusable']}")
     st.caption(
@@ -182,7 +188,26 @@ def dataset_page() -> None:
     per_video = mine.pivot(index="name", columns="video_id", values="value")
     per_video = per_video.rename(columns=video_labels(videos))
     st.table(numbers_table(per_video.reindex([n for n in SCALARS if n in per_video.index])))
+    tracking_section(tracker, tracked)
     finish_page()
+
+
+def tracking_section(tracker: str, tracked: list[dict]) -> None:
+    """Each clip's tracking error: how well a physics body follows that footage."""
+    st.subheader("Can a physics body follow each clip?")
+    if not tracked:
+        st.info(
+            "No tracker has been trained on this dataset: `ringside train --dataset KEY "
+            "--train-objective track` trains one and tracks every clip."
+        )
+        return
+    st.caption(
+        f"Tracker run {tracker[:12]} followed each clip from its first frame (agent 0 the "
+        "adversary, 1 the opponent): a clip it could not finish, or followed with a large body "
+        "error, is footage the physics cannot reproduce. Held-out clips (validation) first, "
+        "then by body error, worst first."
+    )
+    st.table(numbers_table(pd.DataFrame(tracked).set_index(["split", "agent", "clip"])))
 
 
 def training_page() -> None:

@@ -137,6 +137,12 @@ def dataset_statistics(con: duckdb.DuckDBPyConnection, dataset_key: str) -> Data
     return DatasetStatistics(per_video, combined)
 
 
+def dataset_tracking(con: duckdb.DuckDBPyConnection, dataset_key: str) -> tuple[str, list[dict]]:
+    """Each clip's tracking error by the dataset's newest tracker run
+    (`tasks.train.store.dataset_tracking`)."""
+    return train_store.dataset_tracking(con, dataset_key)
+
+
 def training_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
     """Every training run, the newest checkpoint first (`tasks.train.store.training_runs`)."""
     return train_store.training_runs(con)

@@ -24,10 +24,10 @@ from conftest import (
 from storage.artifacts import artifact_path, read_bytes
 from storage.db import connect
 from storage.paths import data_paths
+from tasks.dataset.store import footage_clips
 from tasks.evaluate.metrics import RATES, SHARES, STYLE_DISTRIBUTIONS
 from tasks.evaluate.opponent import load_opponent
-from tasks.evaluate.stage import NO_REPLAY, POLICIES, TWO_SAMPLE_POLICIES
-from tasks.evaluate.store import heldout_footage
+from tasks.evaluate.stage import NO_TRACKER, POLICIES, TWO_SAMPLE_POLICIES
 
 TINY_TRAIN = [*TINY_TRAIN_FLAGS, "--train-iterations", "2"]
 REQUIRED = ("onnx_max_abs_diff", "style_score", "style_score_untrained", "falls_per_min")
@@ -105,7 +105,8 @@ def test_evaluate_fills_every_table_caches_and_reruns_identically(capsys, sample
     # The two-sample test: the held-out footage against each simulated fighter, or NULL and why.
     two_sample = {r["policy"]: r for r in tables["classifier"]}
     assert list(two_sample) == sorted([*TWO_SAMPLE_POLICIES, "replay"])
-    assert two_sample["replay"]["auc"] is None and two_sample["replay"]["reason"] == NO_REPLAY
+    # No tracker was trained on the sample's dataset, so nothing replays its footage.
+    assert two_sample["replay"]["auc"] is None and two_sample["replay"]["simulated_windows"] == 0
     heldout = query(
         sample_run,
         "SELECT sum(end_step - start_step) FROM dataset_clips WHERE kind = 'interaction' "
@@ -121,10 +122,12 @@ def test_evaluate_fills_every_table_caches_and_reruns_identically(capsys, sample
     if not heldout:  # the demo's footage is too short to hold any out
         assert all(two_sample[p]["auc"] is None for p in TWO_SAMPLE_POLICIES)
         assert two_sample["adversary"]["reason"].startswith("no held-out footage")
+        assert two_sample["replay"]["reason"].startswith("no held-out footage")
         assert "two_sample_auc" not in metrics
         assert any(n.startswith("two-sample test: not measured") for n in summary["notes"])
     else:
         assert ("two_sample_auc" in metrics) == (two_sample["adversary"]["auc"] is not None)
+        assert two_sample["replay"]["reason"] == NO_TRACKER
 
     # The opponent folder comes back from the artifact store and loads with onnxruntime.
     paths = data_paths(sample_run)
@@ -218,7 +221,7 @@ def test_the_held_out_footage_is_the_validation_interaction_clips(
     sample_run, sample_dataset, tmp_path
 ):
     """The demo holds no footage out (its validation split is shorter than a clip); in a copy
-    whose interaction clips are marked held out, `heldout_footage` gives their lifted steps,
+    whose interaction clips are marked held out, `footage_clips` gives their lifted steps,
     both fighters' qpos at the same steps."""
     data = copy_data(sample_run, tmp_path / "data")
     clips = query(
@@ -231,9 +234,9 @@ def test_the_held_out_footage_is_the_validation_interaction_clips(
         [sample_dataset],
     )
     with connect(data / "ringside.duckdb") as con:
-        assert heldout_footage(con, sample_dataset) == []
+        assert footage_clips(con, sample_dataset, split="validation") == []
         con.execute("UPDATE dataset_clips SET split = 'validation' WHERE kind = 'interaction'")
-        found = heldout_footage(con, sample_dataset)
+        found = footage_clips(con, sample_dataset, split="validation")
     assert [(c.video_id, len(c.qpos)) for c in found] == [(v, b - a) for v, _, a, b in clips]
     for clip, (video_id, lift_key, start, end) in zip(found, clips, strict=True):
         for role, qpos in (("adversary", clip.qpos), ("opponent", clip.other_qpos)):

@@ -70,8 +70,7 @@ def _connect(data: Path):
 
 
 def test_the_command_makes_a_dataset_key_that_training_and_evaluation_read(made):
-    from tasks.dataset.store import training_data
-    from tasks.evaluate.store import heldout_footage
+    from tasks.dataset.store import footage_clips, training_data
 
     data, summary = made
     assert [s["stage"] for s in summary] == ["lift", "dataset", "dataset-assemble"]
@@ -82,7 +81,7 @@ def test_the_command_makes_a_dataset_key_that_training_and_evaluation_read(made)
     ]
     with _connect(data) as con:
         found = training_data(con, key)
-        held = heldout_footage(con, key)
+        held = footage_clips(con, key, split="validation")
     # Training's two humanoids are the sample's fighters, as its lift measured them.
     sample = _sample_bones(data)
     assert found.bones == tuple(sample[role] for role in ROLES)
@@ -296,3 +295,49 @@ def test_the_bodies_may_come_from_a_file(tmp_path):
         path.write_text(json.dumps(bad))
         with pytest.raises(BadInput, match=needle):
             synthetic.read_bones_file(path)
+
+
+def test_the_evaluation_replays_the_held_out_clips_with_the_datasets_tracker(made, tmp_path):
+    """Evaluation's 'replay' row: the dataset's newest tracker run replaying the held-out clips,
+    judged by the same classifier test; a new tracker run makes the evaluation a new one."""
+    from conftest import TINY_EVALUATE_FLAGS, TINY_TRAIN_FLAGS, copy_data
+
+    from flows.cli import main
+    from storage.paths import data_paths
+    from tasks.evaluate.stage import NO_TRACKER, _replay, load_inputs
+
+    data = copy_data(made[0], tmp_path / "data")
+    key = made[1][-1]["key"]
+
+    def cli(*argv: str) -> dict:
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+            assert main(["--data", str(data), *argv, "--json"]) == 0
+        said = json.loads(out.getvalue())
+        return said["summary"] if argv[0] == "evaluate" else said[0]
+
+    tiny = [*TINY_TRAIN_FLAGS, "--train-iterations", "2"]
+    run = cli("train", "--dataset", key, *tiny)["key"]
+    before = cli("evaluate", "--run", run, *TINY_EVALUATE_FLAGS)
+    sql = "SELECT real_windows, simulated_windows, reason FROM evaluate_classifier WHERE key = ?"
+    held_out, simulated, reason = query(data, sql + " AND policy = 'replay'", [before["key"]])[0]
+    assert held_out >= 5 and (simulated, reason) == (0, NO_TRACKER)
+
+    tracker = cli("train", "--dataset", key, *tiny, "--train-objective", "track")["key"]
+    after = cli("evaluate", "--run", run, *TINY_EVALUATE_FLAGS)
+    assert after["state"] == "done" and after["key"] != before["key"]
+    paths = data_paths(data)
+    inputs = load_inputs(paths.db, paths.artifacts, run, (), tracker)
+    windows = _replay(inputs.tracker, inputs.heldout)
+    auc, real, simulated, reason = query(
+        data,
+        "SELECT auc, real_windows, simulated_windows, reason FROM evaluate_classifier "
+        "WHERE key = ? AND policy = 'replay'",
+        [after["key"]],
+    )[0]
+    # The untrained tracker falls out of most clips early: what it tracked, windowed.
+    assert (real, simulated) == (held_out, len(windows)) and simulated > 0
+    if simulated >= 5:
+        assert reason is None and 0.0 <= auc <= 1.0
+    else:
+        assert auc is None and reason.startswith(f"the replay gives {simulated} window")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import TINY_TRAIN_FLAGS, copy_data, query, run_cli
+from conftest import TINY_TRAIN_FLAGS, copy_data, query, render_page, run_cli
 
 from dashboards import queries
 from models.maaip.config import (
@@ -24,14 +24,17 @@ from models.maaip.config import (
 from storage.artifacts import artifact_path, read_bytes
 from storage.db import connect
 from storage.paths import data_paths
+from storage.records import output_metrics
 from tasks.config import build
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.demonstrations import load_demonstrations
-from tasks.dataset.store import dataset_info, record_dataset
+from tasks.dataset.store import dataset_info, footage_clips, record_dataset
 from tasks.evaluate.opponent import load_opponent
+from tasks.roles import ROLES
 from tasks.train.mappo import Trainer
 from tasks.train.run import train
-from tasks.train.store import warm_start_source
+from tasks.train.store import _fits, warm_start_source
+from tasks.train.tracking import SPLITS
 
 TINY = TrainConfig(
     iterations=4,
@@ -49,11 +52,77 @@ def dataset_key(sample_dataset) -> str:
     return sample_dataset
 
 
-def test_an_objective_the_stage_does_not_train_is_refused_in_one_line(capsys, sample_run):
-    argv = ["--data", str(sample_run), "train", "--dataset", "x", "--train-objective", "track"]
+def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_shows_them(
+    tmp_path, capsys, monkeypatch, sample_run, dataset_key
+):
+    from streamlit.testing.v1 import AppTest
+
+    # A copy: the tracker must not become the newest run of the shared sample's dataset.
+    data = copy_data(sample_run, tmp_path / "data")
+    argv = [
+        *["--data", str(data), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS],
+        *["--train-objective", "track", "--train-iterations", "2", "--json"],
+    ]
     code, out, err = run_cli(capsys, *argv)
-    lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1 and "is not trained by the train stage yet" in lines[0]
+    assert code == 0, err
+    (summary,) = json.loads(out)
+    key = summary["key"]
+    with connect(data_paths(data).db, read_only=True) as con:
+        clips = {
+            split: {role: footage_clips(con, dataset_key, role, split) for role in ROLES}
+            for split in SPLITS
+        }
+        tracker, rows = queries.dataset_tracking(con, dataset_key)
+        metrics = output_metrics(con, "train", dataset_key, key)
+    assert tracker == key
+    # Every clip of two frames or more, each fighter's by its own agent, once per split.
+    expected = {
+        (split, agent, c.name): len(c.qpos)
+        for split, by_role in clips.items()
+        for agent, role in enumerate(ROLES)
+        for c in by_role[role]
+        if len(c.qpos) >= 2
+    }
+    assert expected and {(r["split"], r["agent"], r["clip"]) for r in rows} == set(expected)
+    for r in rows:
+        frames = expected[r["split"], r["agent"], r["clip"]]
+        # Tracked from the first frame: at most the clip's steps, all of them if finished.
+        assert 1 <= r["frames"] <= frames - 1
+        assert not r["finished"] or r["frames"] == frames - 1
+        assert 0 <= r["body_error_cm"] < 100 and 0 <= r["root_error_cm"] < 100
+    train_rows = [r for r in rows if r["split"] == "train"]
+    assert metrics["track_finished_pct"] == pytest.approx(
+        100 * sum(r["finished"] for r in train_rows) / len(train_rows)
+    )
+    assert metrics["track_body_error_cm"] == pytest.approx(
+        sum(r["body_error_cm"] for r in train_rows) / len(train_rows)
+    )
+    held_out = any(r["split"] == "validation" for r in rows)
+    assert ("track_body_error_cm_held_out" in metrics) == held_out
+    assert "body_error_cm" in metrics and "episode_length_s" in metrics
+
+    code, out, _ = run_cli(capsys, *argv)
+    assert code == 0 and json.loads(out)[0]["state"] == "cached"
+    # A tracker follows clips and fights no one: evaluating or exporting it is refused.
+    for command in ("evaluate", "export"):
+        code, _, err = run_cli(capsys, "--data", str(data), command, "--run", key[:12])
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and "is a 'track' run" in lines[0], err
+    # Nor does a MAAIP run start from a tracker's networks (other observations).
+    (stored,) = query(
+        data, "SELECT config FROM stage_outputs WHERE stage = 'train' AND key = ?", [key]
+    )
+    assert not _fits(stored[0], TINY)
+    assert _fits(stored[0], dataclasses.replace(TINY, objective="track"))
+
+    monkeypatch.setenv("RINGSIDE_DATA", str(data))
+    app = AppTest.from_function(render_page, args=("dataset",), default_timeout=60)
+    app.query_params["dataset"] = dataset_key
+    app.run()
+    assert not app.exception, app.exception
+    assert "Can a physics body follow each clip?" in [h.value for h in app.subheader]
+    (shown,) = [t for t in app.table if "body_error_cm" in t.value.columns]
+    assert len(shown.value) == len(rows)
 
 
 def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):
@@ -159,6 +228,28 @@ def test_a_killed_run_resumes_where_it_stopped(sample_run, dataset_key):
     resumed = curves("killed")
     assert [r[0] for r in resumed if r[1] == "reward_total"] == [0, 1, 2, 3]
     assert resumed == curves("whole")
+
+
+def test_a_killed_tracker_run_resumes_to_the_run_it_would_have_been(sample_run, dataset_key):
+    paths = data_paths(sample_run)
+    common = {"db": paths.db, "artifacts": paths.artifacts, "dataset_key": dataset_key}
+    config = dataclasses.replace(TINY, objective="track")
+    whole = train(**common, key="track-whole", config=config)
+    with pytest.raises(KeyboardInterrupt):
+        train(**common, key="track-killed", config=config, stop=lambda iteration: iteration == 3)
+    resumed = train(**common, key="track-killed", config=config)
+    assert resumed.rows["train_tracking"] == whole.rows["train_tracking"]
+    rows = query(
+        sample_run,
+        "SELECT key, iteration, name, value FROM train_iterations WHERE key LIKE 'track-%' "
+        "ORDER BY ALL",
+    )
+    curves = {
+        key: [r[1:] for r in rows if r[0] == key and r[2] not in TIMING]
+        for key in ("track-whole", "track-killed")
+    }
+    assert curves["track-killed"] == curves["track-whole"]
+    assert {r[2] for r in rows} >= {"body_error_cm", "reward_pose"}
 
 
 def test_a_run_with_a_time_budget_ends_at_the_first_checkpoint_after_it(sample_run, dataset_key):

@@ -16,9 +16,9 @@ from models.humanoid.kinematics import NQ, axis_angle_matrix, matrix_to_quat, qu
 from models.humanoid.stance import guard_pose
 from models.maaip.arena import arena_index, arena_mjcf
 from tasks import deepmimic
+from tasks.dataset.store import FootageClip
 from tasks.evaluate.bouts import Bouts
-from tasks.evaluate.stage import NO_REPLAY, TWO_SAMPLE_POLICIES, _two_sample
-from tasks.evaluate.store import HeldOutClip
+from tasks.evaluate.stage import NO_TRACKER, TWO_SAMPLE_POLICIES, _two_sample
 from tasks.evaluate.two_sample import (
     FEATURES,
     FOLDS,
@@ -287,7 +287,7 @@ def test_bouts_and_footage_of_one_motion_give_the_same_windows(clips):
 def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
     walk = clips["walk"]
     heldout = tuple(
-        HeldOutClip("video", q, np.tile(q[0], (len(q), 1)), BONES)
+        FootageClip("video", q, np.tile(q[0], (len(q), 1)), BONES)
         for q in (np.concatenate([walk] * 4),)  # one clip, 156 frames: 5 windows
     )
     rng = np.random.default_rng(0)
@@ -295,6 +295,7 @@ def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
         "adversary": rng.normal(size=(20, 120)),
         "untrained": rng.normal(size=(3, 120)),
         "still": np.zeros((20, 120)),
+        "replay": NO_TRACKER,
     }
     rows, metrics = _two_sample(heldout, simulated, fps=FPS, seed=0)
     by_policy = {row.policy: row for row in rows}
@@ -312,11 +313,28 @@ def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
     assert metrics["two_sample_auc_still"] == by_policy["still"].auc
     replay = by_policy["replay"]
     assert (replay.auc, replay.real_windows, replay.simulated_windows) == (None, 5, 0)
-    assert replay.reason == NO_REPLAY
+    assert replay.reason == NO_TRACKER
+    assert "two_sample_gap_closed" not in metrics  # nothing replayed: the gap has no end
+
+    # A replay measured: the share of the gap between still and replay the adversary closes.
+    real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], FPS)
+    close = np.concatenate([real] * 4) * rng.normal(1.0, 0.01, size=(20, real.shape[1]))
+    replayed = {**simulated, "replay": close}
+    rows, metrics = _two_sample(heldout, replayed, fps=FPS, seed=0)
+    replay = {row.policy: row for row in rows}["replay"]
+    assert replay.reason is None and replay.simulated_windows == 20
+    assert metrics["two_sample_auc_replay"] == replay.auc
+    assert replay.auc < metrics["two_sample_auc_still"]
+    assert metrics["two_sample_gap_closed"] == pytest.approx(
+        gap_closed(metrics["two_sample_auc"], metrics["two_sample_auc_still"], replay.auc)
+    )
+    few = {**simulated, "replay": np.zeros((4, 120))}
+    rows, _ = _two_sample(heldout, few, fps=FPS, seed=0)
+    assert rows[-1].reason == "the replay gives 4 windows of 1 s; the test needs 5"
 
     rows, metrics = _two_sample((), simulated, fps=FPS, seed=0)
     assert metrics == {} and all(row.auc is None for row in rows)
     assert rows[0].reason.startswith("no held-out footage")
-    short = (HeldOutClip("video", walk, np.tile(walk[0], (len(walk), 1)), BONES),)
+    short = (FootageClip("video", walk, np.tile(walk[0], (len(walk), 1)), BONES),)
     rows, _ = _two_sample(short, simulated, fps=FPS, seed=0)
     assert rows[0].reason == "the held-out footage gives 1 window of 1 s; the test needs 5"

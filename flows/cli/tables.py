@@ -45,12 +45,18 @@ def print_summary(summaries: list, paths: DataPaths, as_json: bool) -> None:
 
 
 # The two-sample test's fighters, as the lines below name them.
-CLASSIFIED = {"adversary": "trained", "untrained": "untrained", "still": "standing still"}
+CLASSIFIED = {
+    "adversary": "trained",
+    "untrained": "untrained",
+    "still": "standing still",
+    "replay": "tracker replaying the footage",
+}
 
 
-def classifier_line(rows: list[dict]) -> str:
+def classifier_line(rows: list[dict], gap_closed: float | None = None) -> str:
     """The held-out two-sample test in one line: each fighter's AUC and its 95 % interval, or
-    why it was not measured."""
+    why it was not measured, and the share of the still-to-replay gap the adversary closes
+    (the evaluation's ``two_sample_gap_closed``) when measured."""
     found = {r["policy"]: r for r in rows}
     measured = [p for p in CLASSIFIED if p in found and found[p]["auc"] is not None]
     head = "moves like its footage? held-out classifier AUC, 0.5 = indistinguishable, 1 = always"
@@ -62,7 +68,14 @@ def classifier_line(rows: list[dict]) -> str:
         f"{found[p]['auc_high']:.2f}]"
         for p in measured
     ]
-    return f"{head} told apart: {', '.join(parts)}"
+    line = f"{head} told apart: {', '.join(parts)}"
+    if "replay" not in measured and "replay" in found and found["replay"]["reason"]:
+        line += f"; no replay ({found['replay']['reason']})"
+    if gap_closed is not None:
+        line += (
+            f"; the trained adversary closes {100 * gap_closed:.0f} % of the still-to-replay gap"
+        )
+    return line
 
 
 def print_opponent(paths: DataPaths, evaluated) -> None:
@@ -103,7 +116,7 @@ def print_opponent(paths: DataPaths, evaluated) -> None:
         f"(untrained {number('style_score_untrained')}, standing still "
         f"{number('style_score_still')})"
     )
-    print(f"  {classifier_line(classifier)}")
+    print(f"  {classifier_line(classifier, metrics.get('two_sample_gap_closed'))}")
     print(f"  motion as BVH: ringside export-motion --run {run_key[:12]}")
     print(f"  all of it: ringside evaluate --run {run_key[:12]}   or   ringside dashboard")
 

@@ -17,10 +17,9 @@ from storage.paths import DataPaths
 def train_command(args, paths: DataPaths) -> int:
     from flows.config import load_config
     from flows.stage import run_stage_flow
-    from tasks.train.task import check_objective, resolve_dataset
+    from tasks.train.task import resolve_dataset
 
     config = load_config(args.config, overrides(args))
-    check_objective(config.train)  # fail fast, before Prefect starts
     resolve_dataset(paths.db, args.dataset)
     with flow_server(paths):
         summary = run_stage_flow(
@@ -141,7 +140,7 @@ def evaluate_command(args, paths: DataPaths) -> int:
     names = {p: "style_score" + ("" if p == "adversary" else f"_{p}") for p in policies}
     scores = ", ".join(f"{p} {number(metrics.get(names[p]))}" for p in policies)
     print(f"style_score (lower is closer): {scores}")
-    print(f"\n{classifier_line(tables['classifier'])}")
+    print(f"\n{classifier_line(tables['classifier'], metrics.get('two_sample_gap_closed'))}")
     print("\nboxing (MSc thesis §6.1)")
     boxing = pivot(tables["boxing"], "metric", "policy", lambda r: number(r["value"]))
     print_table([{p: "" for p in policies} | r for r in boxing], ["metric", *policies])

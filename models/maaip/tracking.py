@@ -420,10 +420,13 @@ class Tracker:
         rng: np.random.Generator,
         *,
         clips: np.ndarray | None = None,
+        in_place: bool = False,
     ) -> np.ndarray:
         """Start environments ``ids`` (n,): each agent at a frame drawn uniformly from every
         frame but the last of every one of its clips (or at the first frame of ``clips`` (n, 2)),
-        with the clip's velocities, placed at its slot. Returns their observations (n, 2, 451)."""
+        with the clip's velocities, placed at its slot (or where the clip is, ``in_place``: two
+        fighters of one piece of footage, as they stood). Returns their observations
+        (n, 2, 451)."""
         ids = np.asarray(ids, dtype=int)
         qpos = np.empty((len(ids), NUM_AGENTS, NQ))
         qvel = np.empty((len(ids), NUM_AGENTS, NV))
@@ -433,7 +436,10 @@ class Tracker:
             else:
                 flat = f.start[np.asarray(clips)[:, a]]
             self.flat[ids, a] = flat
-            self.offset[ids, a] = self.slots[a] - f.clip.qpos[flat, :3] * [1, 1, 0]
+            if in_place:
+                self.offset[ids, a] = 0.0
+            else:
+                self.offset[ids, a] = self.slots[a] - f.clip.qpos[flat, :3] * [1, 1, 0]
             qpos[:, a] = f.clip.qpos[flat]
             qpos[:, a, :3] += self.offset[ids, a]
             qvel[:, a] = f.clip.qvel[flat]
@@ -550,18 +556,31 @@ class Gate:
     rows: tuple[GateRow, ...]
 
 
-def track_gate(
-    policy: Policy,
-    data: TrackingData,
-    config: TrainConfig,
-    *,
-    agents: Sequence[int] = (0, 1),
-) -> Gate:
-    """Track every clip of ``agents`` from its first frame to its end, acting on ``policy``'s
+@dataclass(frozen=True, eq=False)
+class Played:
+    """`play_clips`' outcome.
+
+    Attributes:
+        rows: one per agent and clip, agent by agent.
+        qpos: (S, n, nq) the arena's qpos after each step, environment k playing each agent's
+            clip k; an agent's run is its first ``frames`` steps (`GateRow.frames`).
+        model: the arena's model (the humanoids' prefixes `models.maaip.arena.DEFAULT_PREFIXES`).
+    """
+
+    rows: tuple[GateRow, ...]
+    qpos: np.ndarray
+    model: mujoco.MjModel
+
+
+def play_clips(
+    policy: Policy, data: TrackingData, config: TrainConfig, *, in_place: bool = False
+) -> Played:
+    """Track every clip of both agents from its first frame to its end, acting on ``policy``'s
     mean, in an arena of its own (the trainer's environments and random state are untouched).
 
-    Environment k has each agent on its clip k (the last clip again where an agent has fewer);
-    a run ends at the clip's last frame (finished) or at its agent's fall or drift.
+    Environment k has each agent on its clip k (the last clip again where an agent has fewer),
+    at its slot or, ``in_place``, where the clip is; a run ends at the clip's last frame
+    (finished) or at its agent's fall or drift.
     """
     counts = [len(c) for c in data.clips]
     n = max(counts)
@@ -569,13 +588,16 @@ def track_gate(
     env_config = dataclasses.replace(config.env, num_envs=n, episode_s=3600.0)
     device = next(policy.parameters()).device
     rows: list[GateRow] = []
+    played: list[np.ndarray] = []
     with ArenaEnv(env_config, np.random.default_rng(0), data.bones) as env:
         tracker = Tracker(data, config.track, env_config)
         clips = np.stack([np.minimum(np.arange(n), c - 1) for c in counts], 1)
         last = np.array(
             [[data.clips[a][k].num_frames - 1 for a, k in enumerate(row)] for row in clips]
         )
-        obs = tracker.reset(env, np.arange(n), np.random.default_rng(0), clips=clips)
+        obs = tracker.reset(
+            env, np.arange(n), np.random.default_rng(0), clips=clips, in_place=in_place
+        )
         agent_ids = torch.arange(NUM_AGENTS, device=device).repeat(n)
         alive = np.ones((n, NUM_AGENTS), dtype=bool)
         finished = np.zeros((n, NUM_AGENTS), dtype=bool)
@@ -585,6 +607,7 @@ def track_gate(
             x = torch.as_tensor(obs, dtype=torch.float32, device=device).reshape(2 * n, -1)
             mean, _ = policy.act(x, agent_ids, deterministic=True)
             step = tracker.step(env, mean.reshape(n, NUM_AGENTS, -1).double().cpu().numpy())
+            played.append(np.stack([d.qpos.copy() for d in env.datas]))
             steps += alive
             body += np.where(alive, np.nan_to_num(step.body_error, nan=1.0), 0.0)
             root += np.where(alive, np.nan_to_num(step.root_error, nan=1.0), 0.0)
@@ -594,7 +617,8 @@ def track_gate(
             finished |= alive & at_end & ~failed
             alive &= ~(at_end | failed)
             obs = step.observation
-    for a in agents:
+        model = env.model
+    for a in range(NUM_AGENTS):
         for k in range(counts[a]):
             rows.append(
                 GateRow(
@@ -606,9 +630,26 @@ def track_gate(
                     root_error_cm=float(100 * root[k, a] / steps[k, a]),
                 )
             )
+    return Played(tuple(rows), np.stack(played), model)
+
+
+def gate_of(rows: Sequence[GateRow]) -> Gate:
+    """The gate's figures over ``rows``."""
     return Gate(
         finished_pct=100 * float(np.mean([r.finished for r in rows])),
         body_error_cm=float(np.mean([r.body_error_cm for r in rows])),
         root_error_cm=float(np.mean([r.root_error_cm for r in rows])),
         rows=tuple(rows),
     )
+
+
+def track_gate(
+    policy: Policy,
+    data: TrackingData,
+    config: TrainConfig,
+    *,
+    agents: Sequence[int] = (0, 1),
+) -> Gate:
+    """`play_clips` at the agents' slots, judged over the runs of ``agents``."""
+    played = play_clips(policy, data, config)
+    return gate_of([r for r in played.rows if r.agent in agents])

@@ -396,6 +396,57 @@ def interaction_clips(
             yield video_id, lift_key, clips
 
 
+@dataclass(frozen=True, eq=False)
+class FootageClip:
+    """An unbroken run of an interaction clip's steps lifted for both fighters: the fighter's
+    qpos (T, 35), the other fighter's at the same steps, the fighter's bones, its video and the
+    run's first step."""
+
+    video_id: str
+    qpos: np.ndarray
+    other_qpos: np.ndarray
+    bones: BoneLengths
+    start_step: int = 0
+
+    @property
+    def name(self) -> str:
+        return f"{self.video_id[:12]}@{self.start_step}"
+
+
+def footage_clips(
+    con: duckdb.DuckDBPyConnection, dataset_key: str, role: str = "adversary", split: str = "train"
+) -> list[FootageClip]:
+    """The ``role``'s footage in dataset ``dataset_key``'s ``split``: its members' interaction
+    clips there ('validation' is the last `dataset.validation_fraction` of each video, which
+    training never reads), cut where a step was not lifted for both fighters (a step the
+    dataset bridged is not footage); empty when there is none."""
+    if role not in ROLES:
+        raise ValueError(f"role must be one of {ROLES}, got {role!r}")
+    other = ROLES[1 - ROLES.index(role)]
+    found = []
+    members = dataset_info(con, dataset_key).members
+    for video_id, lift_key, clips in interaction_clips(con, members, split):
+        fighters = load_motion(con, video_id, lift_key)
+        if role not in fighters or other not in fighters:
+            continue
+        mine, theirs = fighters[role], fighters[other]
+        lifted = np.intersect1d(mine.step, theirs.step)
+        for start, end in clips:
+            steps = lifted[(lifted >= start) & (lifted < end)]
+            for run in np.split(steps, np.flatnonzero(np.diff(steps) != 1) + 1):
+                if len(run):
+                    found.append(
+                        FootageClip(
+                            video_id,
+                            mine.qpos[mine.rows(run)],
+                            theirs.qpos[theirs.rows(run)],
+                            mine.bones,
+                            int(run[0]),
+                        )
+                    )
+    return found
+
+
 def training_bones(
     con: duckdb.DuckDBPyConnection, dataset_key: str
 ) -> tuple[BoneLengths, BoneLengths] | None:

@@ -27,6 +27,7 @@ from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_
 from models.maaip.arena import arena_mjcf
 from models.maaip.config import EnvConfig, TrainConfig
 from models.maaip.networks import Policy, action_stds
+from models.maaip.tracking import TRACK_OBSERVATION_DIM
 from storage.artifacts import read_bytes
 from storage.db import connect
 from storage.records import output_metrics
@@ -78,12 +79,14 @@ def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
 
 
 def load_trained(artifacts: Path, info: RunInfo, metrics: dict[str, float]) -> TrainedPolicy:
-    """The policy of run ``info`` from its artifact, in eval mode."""
+    """The policy of run ``info`` from its artifact, in eval mode (a tracker's sees the
+    tracker's observation, `models.maaip.tracking`)."""
     config = build(TrainConfig, info.config, section="train")
     state = torch.load(io.BytesIO(read_bytes(artifacts, info.artifact)), weights_only=False)
     policy = Policy(
         hidden=config.network.hidden_sizes,
         action_std=action_stds(config),
+        obs_dim=TRACK_OBSERVATION_DIM if config.objective == "track" else OBSERVATION_DIM,
         task_dim=config.reward.task_observation_dim,
         observation_clip=config.network.observation_clip,
     )

@@ -22,9 +22,11 @@ same tables:
 5. The held-out two-sample classifier test (`tasks.evaluate.two_sample`), the headline "moves
    like the footage" figure: the AUC, with its bootstrap interval, of a fresh classifier telling
    1-second windows of the adversary's held-out footage (the dataset's validation interaction
-   clips, `heldout_footage`) from the trained adversary's, the untrained policy's and the still
-   guard's bout windows. Where it cannot be made (no held-out footage, too few windows; the
-   tracker replaying the held-out clips does not exist yet) its row holds NULL and the reason.
+   clips, `footage_clips`) from the trained adversary's, the untrained policy's and the still
+   guard's bout windows, and from the dataset's newest tracker run replaying the held-out clips
+   ('replay', `dataset_tracker`: the best a physics body has done), with the share of the gap
+   between the still guard and the replay that the adversary closes. Where a test cannot be made
+   (no held-out footage, too few windows, no tracker run) its row holds NULL and the reason.
 6. The adversary's opponent folder (`export_opponent`: ONNX policy, MJCF, manifest) with
    onnxruntime's parity against torch on observations recorded in the bouts, and the first
    `evaluate.video_seconds` of the trained episodes, played one after another, rendered to MP4
@@ -47,6 +49,7 @@ from models.maaip.arena import arena_mjcf
 from models.maaip.config import TrainConfig
 from models.maaip.demonstrations import ReferenceMotions
 from models.maaip.networks import Policy, make_networks
+from models.maaip.tracking import play_clips, tracking_data
 from storage.artifacts import artifact_name
 from storage.db import connect
 from storage.files import scratch_dir
@@ -55,7 +58,7 @@ from tasks.config import build
 from tasks.dataset.config import DatasetConfig, PunchConfig
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.statistics import FighterStatistics
-from tasks.dataset.store import dataset_info
+from tasks.dataset.store import FootageClip, dataset_info, footage_clips
 from tasks.evaluate.bouts import Actor, Bouts, HeadingTask, simulate, still_actor, torch_actor
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.export import (
@@ -74,18 +77,20 @@ from tasks.evaluate.store import (
     ClassifierRow,
     DamageRow,
     HeadingRow,
-    HeldOutClip,
     StyleDistanceRow,
-    heldout_footage,
     real_statistics,
     resolve_run,
+    tracker_run,
 )
 from tasks.evaluate.two_sample import (
     FOLDS,
+    WINDOW_FEATURES,
     WINDOW_S,
     bout_windows,
     classifier_test,
     footage_windows,
+    gap_closed,
+    replay_windows,
 )
 from tasks.media import render_bout
 from tasks.runner import StageOutput
@@ -100,9 +105,12 @@ POLICIES = {
     "still": ("still", 0),
 }
 # The simulated fighters the two-sample test compares with the adversary's held-out footage,
-# and the one it cannot make yet.
+# besides the tracker replaying it ('replay').
 TWO_SAMPLE_POLICIES = ("adversary", "untrained", "still")
-NO_REPLAY = "the tracker (train.objective track) is not yet run on the held-out clips by evaluation"
+NO_TRACKER = (
+    "no finished tracker run on the dataset to replay its held-out clips "
+    "(`ringside train --dataset KEY --train-objective track` makes one)"
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,7 +123,8 @@ class EvaluateInputs:
         real: the adversary's statistics over the dataset's footage.
         punch: the dataset's punch labelling settings.
         compared: other finished runs on the dataset (damage_min/max, heading).
-        heldout: the adversary's held-out footage (`heldout_footage`).
+        heldout: the adversary's held-out footage (`footage_clips`).
+        tracker: the dataset's newest tracker run (`dataset_tracker`), which replays it.
     """
 
     run: TrainedPolicy
@@ -123,23 +132,30 @@ class EvaluateInputs:
     real: FighterStatistics
     punch: PunchConfig
     compared: tuple[TrainedPolicy, ...] = ()
-    heldout: tuple[HeldOutClip, ...] = ()
+    heldout: tuple[FootageClip, ...] = ()
+    tracker: TrainedPolicy | None = None
 
 
 def load_inputs(
-    db: Path, artifacts: Path, run_key: str, compared: tuple[str, ...] = ()
+    db: Path,
+    artifacts: Path,
+    run_key: str,
+    compared: tuple[str, ...] = (),
+    tracker_key: str | None = None,
 ) -> EvaluateInputs:
-    """Read run ``run_key``, the runs ``compared`` with it and its dataset."""
+    """Read run ``run_key``, the runs ``compared`` with it, its dataset and tracker run
+    ``tracker_key`` (`dataset_tracker`), if any."""
     with connect(db, read_only=True) as con:
         info = resolve_run(con, run_key)
         others = [resolve_run(con, key) for key in compared]
+        tracker = None if tracker_key is None else tracker_run(con, tracker_key)
         metrics = {
             i.run_key: output_metrics(con, "train", i.dataset_key, i.run_key)
-            for i in (info, *others)
+            for i in (info, *others, *([tracker] if tracker else []))
         }
         demos = load_demonstrations(con, info.dataset_key)
         real = real_statistics(con, info.dataset_key)
-        heldout = tuple(heldout_footage(con, info.dataset_key))
+        heldout = tuple(footage_clips(con, info.dataset_key, split="validation"))
         dataset = build(
             DatasetConfig, dataset_info(con, info.dataset_key).config, section="dataset"
         )
@@ -150,6 +166,9 @@ def load_inputs(
         punch=dataset.punch,
         compared=tuple(load_trained(artifacts, i, metrics[i.run_key]) for i in others),
         heldout=heldout,
+        tracker=None
+        if tracker is None
+        else load_trained(artifacts, tracker, metrics[tracker.run_key]),
     )
 
 
@@ -246,19 +265,34 @@ def _windows(count: int) -> str:
     return f"{count} window" + ("" if count == 1 else "s")
 
 
+def _replay(tracker: TrainedPolicy, heldout: tuple[FootageClip, ...]) -> np.ndarray:
+    """(W, D) windows of the adversary in ``tracker``'s replay of the held-out clips: agent 0
+    tracking the adversary's clip, agent 1 the opponent's, both where the footage has them, from
+    each clip's first frame (`play_clips`)."""
+    hz = float(tracker.config.env.policy_hz)
+    runs = [c for c in heldout if len(c.qpos) >= 2]  # a clip of one frame has nothing to track
+    if not runs:
+        return np.zeros((0, len(WINDOW_FEATURES)))
+    clips = ({c.name: c.qpos for c in runs}, {c.name: c.other_qpos for c in runs})
+    data = tracking_data(clips, tracker.bones, fps=hz, key="held-out")
+    played = play_clips(tracker.policy, data, tracker.config, in_place=True)
+    return replay_windows(played, hz)
+
+
 def _two_sample(
-    heldout: tuple[HeldOutClip, ...],
-    simulated: dict[str, np.ndarray],
+    heldout: tuple[FootageClip, ...],
+    simulated: dict[str, np.ndarray | str],
     *,
     fps: float,
     seed: int,
 ) -> tuple[list[ClassifierRow], dict[str, float]]:
-    """The two-sample test's rows (one per policy of ``simulated``, its windows, then 'replay')
-    and metrics: the held-out footage's windows against each policy's, or NULL and why."""
+    """The two-sample test's rows (one per policy of ``simulated``: its windows, or why it has
+    none) and metrics: the held-out footage's windows against each policy's, or NULL and why;
+    and the share of the gap between the still guard and the replay the adversary closes."""
     real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], fps)
     rows, metrics = [], {}
     for policy, windows in simulated.items():
-        counts = (len(real), len(windows))
+        counts = (len(real), 0 if isinstance(windows, str) else len(windows))
         if not heldout:
             reason = (
                 "no held-out footage: the dataset's validation split (the last "
@@ -270,10 +304,11 @@ def _two_sample(
                 f"the held-out footage gives {_windows(len(real))} of {WINDOW_S:g} s; the test "
                 f"needs {FOLDS}"
             )
+        elif isinstance(windows, str):
+            reason = windows
         elif len(windows) < FOLDS:
-            reason = (
-                f"the bouts give {_windows(len(windows))} of {WINDOW_S:g} s; the test needs {FOLDS}"
-            )
+            made = "the replay gives" if policy == "replay" else "the bouts give"
+            reason = f"{made} {_windows(len(windows))} of {WINDOW_S:g} s; the test needs {FOLDS}"
         else:
             result = classifier_test(real, windows, seed=seed)
             rows.append(ClassifierRow(policy, result.auc, result.low, result.high, *counts, None))
@@ -284,7 +319,13 @@ def _two_sample(
                 metrics["two_sample_auc_high"] = result.high
             continue
         rows.append(ClassifierRow(policy, None, None, None, *counts, reason))
-    rows.append(ClassifierRow("replay", None, None, None, len(real), 0, NO_REPLAY))
+    closed = gap_closed(
+        metrics.get("two_sample_auc"),
+        metrics.get("two_sample_auc_still"),
+        metrics.get("two_sample_auc_replay"),
+    )
+    if closed is not None:
+        metrics["two_sample_gap_closed"] = closed
     return rows, metrics
 
 
@@ -323,14 +364,14 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
         if policy == "adversary":
             adversary_boxing = measured
 
+    simulated: dict[str, np.ndarray | str] = {
+        p: bout_windows(model, bouts[POLICIES[p][0]], POLICIES[p][1]) for p in TWO_SAMPLE_POLICIES
+    }
+    simulated["replay"] = (
+        NO_TRACKER if inputs.tracker is None else _replay(inputs.tracker, inputs.heldout)
+    )
     two_sample, two_sample_metrics = _two_sample(
-        inputs.heldout,
-        {
-            p: bout_windows(model, bouts[POLICIES[p][0]], POLICIES[p][1])
-            for p in TWO_SAMPLE_POLICIES
-        },
-        fps=bouts["trained"].policy_hz,
-        seed=config.seed,
+        inputs.heldout, simulated, fps=bouts["trained"].policy_hz, seed=config.seed
     )
     notes = []
     if "two_sample_auc" not in two_sample_metrics:

@@ -9,15 +9,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import duckdb
-import numpy as np
 
-from models.humanoid.boxer import BoneLengths
 from storage.records import newest_output, output_metrics
 from tasks.dataset.statistics import FighterStatistics
-from tasks.dataset.store import dataset_info, interaction_clips, member_statistics
+from tasks.dataset.store import member_statistics
 from tasks.errors import BadInput
-from tasks.lift.store import load_motion
-from tasks.roles import ROLES
 
 STAGE = "evaluate"
 # The tables the stage fills, in the order they are shown.
@@ -116,6 +112,10 @@ class RunInfo:
     def control_task(self) -> str:
         return self.config.get("reward", {}).get("control_task", "none")
 
+    @property
+    def objective(self) -> str:
+        return self.config.get("objective", "maaip")
+
 
 def _finished(con: duckdb.DuckDBPyConnection, where: str, params: list) -> list[RunInfo]:
     rows = con.execute(
@@ -133,7 +133,27 @@ def resolve_run(con: duckdb.DuckDBPyConnection, run: str) -> RunInfo:
     if len(found) != 1:
         problem = "matches no finished training run" if not found else "matches several runs"
         raise BadInput(f"--run {run}", f"{problem}; see `ringside metrics --stage train`")
+    if found[0].objective != "maaip":
+        raise BadInput(
+            f"--run {run}",
+            f"is a {found[0].objective!r} run (train.objective), which follows clips and "
+            "fights no one; evaluate or export a MAAIP run (its clips: "
+            "`ringside metrics --stage train`)",
+        )
     return found[0]
+
+
+def tracker_run(con: duckdb.DuckDBPyConnection, run_key: str) -> RunInfo:
+    """The finished tracker run ``run_key``."""
+    (found,) = _finished(con, "p.key = ?", [run_key])
+    return found
+
+
+def dataset_tracker(con: duckdb.DuckDBPyConnection, dataset_key: str) -> RunInfo | None:
+    """The newest finished tracker run (train.objective 'track') on dataset ``dataset_key``,
+    which replays its held-out clips for the two-sample test; None if there is none."""
+    found = [r for r in _finished(con, "p.video_id = ?", [dataset_key]) if r.objective == "track"]
+    return found[-1] if found else None
 
 
 def compared_runs(con: duckdb.DuckDBPyConnection, run: RunInfo) -> list[RunInfo]:
@@ -142,7 +162,7 @@ def compared_runs(con: duckdb.DuckDBPyConnection, run: RunInfo) -> list[RunInfo]
     return [
         other
         for other in _finished(con, "p.video_id = ? AND p.key != ?", [run.dataset_key, run.run_key])
-        if other.control_task in (*DAMAGE_TASKS, "heading")
+        if other.objective == "maaip" and other.control_task in (*DAMAGE_TASKS, "heading")
     ]
 
 
@@ -157,50 +177,6 @@ def real_statistics(
             f"holds no statistics of the {role}: nothing to compare the simulated style with",
         )
     return combined[role]
-
-
-@dataclass(frozen=True, eq=False)
-class HeldOutClip:
-    """An unbroken run of a held-out (validation) interaction clip's lifted steps: the fighter's
-    qpos (T, 35), the other fighter's at the same steps, the fighter's bones and its video."""
-
-    video_id: str
-    qpos: np.ndarray
-    other_qpos: np.ndarray
-    bones: BoneLengths
-
-
-def heldout_footage(
-    con: duckdb.DuckDBPyConnection, dataset_key: str, role: str = "adversary"
-) -> list[HeldOutClip]:
-    """The ``role``'s held-out footage in dataset ``dataset_key``: its members' interaction
-    clips in the validation split (the last `dataset.validation_fraction` of each video, which
-    training never reads), cut where a step was not lifted for both fighters (a step the
-    dataset bridged is not footage); empty when there is none."""
-    if role not in ROLES:
-        raise ValueError(f"role must be one of {ROLES}, got {role!r}")
-    other = ROLES[1 - ROLES.index(role)]
-    found = []
-    members = dataset_info(con, dataset_key).members
-    for video_id, lift_key, clips in interaction_clips(con, members, "validation"):
-        fighters = load_motion(con, video_id, lift_key)
-        if role not in fighters or other not in fighters:
-            continue
-        mine, theirs = fighters[role], fighters[other]
-        lifted = np.intersect1d(mine.step, theirs.step)
-        for start, end in clips:
-            steps = lifted[(lifted >= start) & (lifted < end)]
-            for run in np.split(steps, np.flatnonzero(np.diff(steps) != 1) + 1):
-                if len(run):
-                    found.append(
-                        HeldOutClip(
-                            video_id,
-                            mine.qpos[mine.rows(run)],
-                            theirs.qpos[theirs.rows(run)],
-                            mine.bones,
-                        )
-                    )
-    return found
 
 
 def evaluation_tables(

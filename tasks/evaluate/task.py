@@ -15,7 +15,13 @@ from tasks.dataset.store import dataset_info
 from tasks.errors import BadInput
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.stage import STAGE, evaluate, load_inputs
-from tasks.evaluate.store import RunInfo, compared_runs, evaluation_tables, resolve_run
+from tasks.evaluate.store import (
+    RunInfo,
+    compared_runs,
+    dataset_tracker,
+    evaluation_tables,
+    resolve_run,
+)
 from tasks.registry import NoInputs
 from tasks.runner import StagePlan, StageSpec
 
@@ -26,13 +32,17 @@ def evaluate_code() -> str:
     )
 
 
-def evaluate_spec(config: EvaluateConfig, run_key: str, compared: Sequence[str] = ()) -> StageSpec:
+def evaluate_spec(
+    config: EvaluateConfig, run_key: str, compared: Sequence[str] = (), tracker: str | None = None
+) -> StageSpec:
     """The evaluation of ``run_key``; its upstream names the other runs its tables compare it
     with, when there are any (a new damage or heading run on the dataset changes the tables,
-    so the key)."""
+    so the key), and the tracker run that replays the held-out footage, when there is one."""
     upstream: dict = {"train": run_key}
     if compared:
         upstream["compared"] = sorted(compared)
+    if tracker is not None:
+        upstream["tracker"] = tracker
     return StageSpec(STAGE, run_key, config, evaluate_code(), upstream)
 
 
@@ -55,12 +65,14 @@ def evaluate_plan(
     with connect(paths.db, read_only=True) as con:
         compared = tuple(other.run_key for other in compared_runs(con, info))
         adversary = dataset_info(con, info.dataset_key).adversary
-    spec = evaluate_spec(config, info.run_key, compared)
+        tracker = dataset_tracker(con, info.dataset_key)
+    tracker_key = None if tracker is None else tracker.run_key
+    spec = evaluate_spec(config, info.run_key, compared, tracker_key)
     return StagePlan(
         spec,
         adversary,
         compute=lambda: evaluate(
-            load_inputs(paths.db, paths.artifacts, info.run_key, compared),
+            load_inputs(paths.db, paths.artifacts, info.run_key, compared, tracker_key),
             config,
         ),
         after=lambda: publish_tables(paths, spec.key, info.run_key),

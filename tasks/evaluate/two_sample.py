@@ -82,6 +82,7 @@ from models.humanoid.kinematics import (
     to_heading_frame,
 )
 from models.maaip.arena import DEFAULT_PREFIXES
+from models.maaip.tracking import Played
 from tasks.evaluate.bouts import Bouts
 
 WINDOW_S = 1.0  # a window's length, and the stride between windows (no overlap)
@@ -250,6 +251,25 @@ def bout_windows(model: mujoco.MjModel, bouts: Bouts, agent: int) -> np.ndarray:
                 qpos[:, index.qpos][:, ROOT_POS],
                 prefix=DEFAULT_PREFIXES[agent],
                 fps=bouts.policy_hz,
+            )
+        )
+    return np.concatenate(parts)
+
+
+def replay_windows(played: Played, fps: float) -> np.ndarray:
+    """(W, D) window vectors of agent 0 in `play_clips`'s runs, each run up to the step its
+    tracking ended (a fall or a drift ends it early)."""
+    index = humanoid_index(played.model, prefix=DEFAULT_PREFIXES[1])
+    parts = [np.zeros((0, len(WINDOW_FEATURES)))]
+    for k, row in enumerate(r for r in played.rows if r.agent == 0):
+        qpos = played.qpos[: row.frames, k]
+        parts.append(
+            window_features(
+                played.model,
+                qpos,
+                qpos[:, index.qpos][:, ROOT_POS],
+                prefix=DEFAULT_PREFIXES[0],
+                fps=fps,
             )
         )
     return np.concatenate(parts)

@@ -36,6 +36,7 @@ from tasks.train.store import (
     newest_checkpoint,
     record_checkpoint,
 )
+from tasks.train.tracking import clip_tracking, footage_tracking
 
 STAGE = "train"
 
@@ -48,6 +49,8 @@ SUMMARY = (
     "reward_total",
     "damage_received_n",
     "env_steps_per_s",
+    "body_error_cm",
+    "root_error_cm",
 )
 SUMMARY_WINDOW = 10
 
@@ -87,14 +90,23 @@ def train(
 ) -> StageOutput:
     """Train (or go on training) run ``key`` on dataset ``dataset_key``; its stage output.
 
+    A tracker (objective 'track') trains on the dataset's footage clips and, once trained,
+    tracks every clip of both splits: its ``train_tracking`` rows and ``track_*`` metrics
+    (`tasks.train.tracking`).
+
     A run with no checkpoint of its own starts from ``warm``'s networks when given
     (`tasks.train.store.warm_start_source`). ``stop(iteration)`` may end the run early, as a
     kill would (raising KeyboardInterrupt, nothing saved beyond the last checkpoint); tests use
     it.
     """
     with connect(db, read_only=True) as con:
-        demos = load_demonstrations(con, dataset_key)
-    trainer = Trainer(config, demos)
+        tracking = (
+            footage_tracking(con, dataset_key, fps=config.env.policy_hz)
+            if config.objective == "track"
+            else None
+        )
+        data = load_demonstrations(con, dataset_key) if tracking is None else tracking["train"]
+    trainer = Trainer(config, data)
     notes = []
     try:
         with connect(db, read_only=True) as con:
@@ -140,6 +152,10 @@ def train(
         if pending or final is None:
             final = _save(db, artifacts, key, dataset_key, trainer, pending)
         total = trainer.iteration
+        rows: dict = {}
+        judged: dict[str, float] = {}
+        if tracking is not None:
+            rows["train_tracking"], judged = clip_tracking(trainer.nets.policy, tracking, config)
     finally:
         trainer.close()
     with connect(db, read_only=True) as con:
@@ -148,7 +164,7 @@ def train(
     summary["iterations"] = float(total)
     summary["train_minutes_this_session"] = (time.perf_counter() - start) / 60
     return StageOutput(
-        rows={"train_policies": [PolicyRow(total, final)]},
-        metrics=summary,
+        rows={"train_policies": [PolicyRow(total, final)], **rows},
+        metrics={**summary, **judged},
         notes=tuple(notes),
     )

@@ -36,13 +36,15 @@ class WarmStart:
 
 
 def _fits(stored: str, config: TrainConfig) -> bool:
-    """Whether a run made with settings ``stored`` (JSON) has networks of ``config``'s shapes."""
+    """Whether a run made with settings ``stored`` (JSON) has networks of ``config``'s shapes
+    (a tracker's and MAAIP's policies see different observations)."""
     try:
         theirs = build(TrainConfig, json.loads(stored), section="train")
     except (ValueError, TypeError):  # settings of an older version that no longer exist
         return False
     return (
-        theirs.network.hidden_sizes == config.network.hidden_sizes
+        theirs.objective == config.objective
+        and theirs.network.hidden_sizes == config.network.hidden_sizes
         and theirs.reward.task_observation_dim == config.reward.task_observation_dim
     )
 
@@ -213,3 +215,26 @@ def training_runs(con: duckdb.DuckDBPyConnection) -> list[dict[str, Any]]:
         state = "finished" if finished else "running" if worker_alive(worker) else "interrupted"
         runs.append({**dict(zip(names, row, strict=True)), "state": state})
     return runs
+
+
+def dataset_tracking(con: duckdb.DuckDBPyConnection, dataset_key: str) -> tuple[str, list[dict]]:
+    """The newest finished tracker run on dataset ``dataset_key`` and its ``train_tracking``
+    rows (split, agent, clip, finished, frames, body_error_cm, root_error_cm; held-out clips
+    first, then by error, worst first): each clip's tracking error, a measure of how well a
+    physics body can follow that footage. ('', []) when there is none."""
+    found = con.execute(
+        "SELECT t.key FROM train_tracking t JOIN stage_outputs o ON o.stage = 'train' "
+        "AND o.key = t.key AND o.video_id = t.video_id WHERE t.video_id = ? "
+        "ORDER BY o.created_at DESC, t.key LIMIT 1",
+        [dataset_key],
+    ).fetchone()
+    if found is None:
+        return "", []
+    cursor = con.execute(
+        "SELECT split, agent, clip, finished, frames, body_error_cm, root_error_cm "
+        "FROM train_tracking WHERE key = ? AND video_id = ? "
+        "ORDER BY split = 'train', body_error_cm DESC, agent, clip",
+        [found[0], dataset_key],
+    )
+    names = [d[0] for d in cursor.description]
+    return found[0], [dict(zip(names, row, strict=True)) for row in cursor.fetchall()]

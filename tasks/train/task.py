@@ -1,4 +1,4 @@
-"""The train stage's plan: MAAIP on one assembled dataset."""
+"""The train stage's plan: MAAIP (or a tracker, `train.objective`) on one assembled dataset."""
 
 from __future__ import annotations
 
@@ -43,24 +43,12 @@ def resolve_dataset(db: Path, dataset_key: str) -> DatasetInfo:
             raise BadInput(f"--dataset {dataset_key}", str(error)) from None
 
 
-def check_objective(config: TrainConfig) -> None:
-    """BadInput, in one line, for an objective the stage does not train: the tracker trains on
-    clips (`models.maaip.tracking`), which the stage does not yet cut from a dataset."""
-    if config.objective != "maaip":
-        raise BadInput(
-            "train.objective",
-            f"{config.objective!r} is not trained by the train stage yet; "
-            "`python benchmarks/tracker_gate.py FOLDER` trains the tracker",
-        )
-
-
 def train_plan(
     paths: DataPaths, config: TrainConfig, dataset_key: str, inputs: NoInputs
 ) -> StagePlan:
     """Train the two fighters' policies on dataset ``dataset_key`` (a prefix of a key will
     do), resuming from the run's newest checkpoint, or starting from the networks of the
     adversary's previous run where `train.warm_start` finds one (`warm_start_source`)."""
-    check_objective(config)
     info = resolve_dataset(paths.db, dataset_key)
     with connect(paths.db) as con:
         warm = warm_start_source(con, info.dataset_key, config)

@@ -1,0 +1,93 @@
+"""The train stage's tracker (train.objective 'track', `models.maaip.tracking`): a dataset's
+footage as the clips to track, and what the trained tracker makes of each clip.
+
+Agent 0 tracks the adversary's footage, agent 1 the opponent's: every unbroken run of an
+interaction clip's steps lifted for both fighters (`footage_clips`), on the two humanoids the
+dataset trains (`training_bones`). Training reads the train split only; once trained, every clip
+of both splits is tracked from its first frame (`clip_tracking`), so the held-out clips' errors
+judge the tracker on footage it never learned from, and each clip's errors say how well a
+physics body can follow it (a clip the lift made impossible scores badly).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import duckdb
+
+from models.maaip.config import TrainConfig
+from models.maaip.networks import Policy
+from models.maaip.tracking import TrackingData, gate_of, play_clips, tracking_data
+from tasks.dataset.store import FootageClip, dataset_info, footage_clips, training_bones
+from tasks.errors import BadInput
+from tasks.roles import ROLES
+
+SPLITS = ("train", "validation")
+
+
+@dataclass(frozen=True)
+class TrackingRow:
+    """A ``train_tracking`` row: one clip of one split tracked by one agent (`GateRow`)."""
+
+    split: str
+    agent: int
+    clip: str
+    finished: bool
+    frames: int
+    body_error_cm: float
+    root_error_cm: float
+
+
+def _trackable(clips: list[FootageClip]) -> dict[str, FootageClip]:
+    # A clip of one frame has no next frame to track.
+    return {c.name: c for c in clips if len(c.qpos) >= 2}
+
+
+def footage_tracking(
+    con: duckdb.DuckDBPyConnection, dataset_key: str, *, fps: float
+) -> dict[str, TrackingData]:
+    """Each split's footage of dataset ``dataset_key`` as TrackingData (module docstring), by
+    split; a split without footage is left out.
+
+    Raises:
+        BadInput: the train split holds no interaction clip to track.
+    """
+    info = dataset_info(con, dataset_key)
+    bones = training_bones(con, info.dataset_key)
+    found = {}
+    for split in SPLITS:
+        clips = [_trackable(footage_clips(con, info.dataset_key, role, split)) for role in ROLES]
+        if bones is None or not all(clips):
+            continue
+        qpos = tuple({name: c.qpos for name, c in agent.items()} for agent in clips)
+        found[split] = tracking_data(
+            qpos,  # type: ignore[arg-type]
+            bones,
+            fps=fps,
+            key=f"{info.dataset_key}:{split}",
+        )
+    if "train" not in found:
+        raise BadInput(
+            f"dataset {info.dataset_key}",
+            "its train split holds no interaction clip lifted for both fighters: nothing to track",
+        )
+    return found
+
+
+def clip_tracking(
+    policy: Policy, data: dict[str, TrackingData], config: TrainConfig
+) -> tuple[list[TrackingRow], dict[str, float]]:
+    """Every clip of every split of ``data`` tracked from its first frame on ``policy``'s mean
+    (`play_clips`): the rows, and the metrics: each split's share of clips finished (%) and mean
+    body and root errors (cm), the validation split's named '..._held_out'."""
+    rows, metrics = [], {}
+    for split, clips in data.items():
+        played = play_clips(policy, clips, config)
+        rows += [TrackingRow(split, **dataclasses.asdict(r)) for r in played.rows]
+        gate = gate_of(played.rows)
+        suffix = "" if split == "train" else "_held_out"
+        metrics[f"track_finished_pct{suffix}"] = gate.finished_pct
+        metrics[f"track_body_error_cm{suffix}"] = gate.body_error_cm
+        metrics[f"track_root_error_cm{suffix}"] = gate.root_error_cm
+    return rows, metrics
