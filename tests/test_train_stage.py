@@ -115,6 +115,27 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
     assert not _fits(stored[0], TINY)
     assert _fits(stored[0], dataclasses.replace(TINY, objective="track"))
 
+    # MAAIP from the tracker: its policy distilled into the run's before the first iteration.
+    distilled = [
+        *["--data", str(data), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS],
+        *["--train-iterations", "2", "--train-distill-rounds", "2", "--train-distill-steps", "5"],
+        *["--train-distill-from-tracker", "true", "--json"],
+    ]
+    code, out, err = run_cli(capsys, *distilled)
+    assert code == 0, err
+    (maaip,) = json.loads(out)
+    assert maaip["notes"] == [
+        f"started from tracker run {key[:12]} distilled into the policy (2 rounds)"
+    ]
+    with connect(data_paths(data).db, read_only=True) as con:
+        figures = output_metrics(con, "train", dataset_key, maaip["key"])
+    assert figures["distill_samples_1"] == 2 * figures["distill_samples_0"] > 0
+    assert figures["distill_loss_0"] > 0 and figures["distill_episode_s_1"] > 0
+    # Without a tracker on the dataset, the setting is refused in one line, before Prefect.
+    code, _, err = run_cli(capsys, *[str(sample_run) if a == str(data) else a for a in distilled])
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "no finished tracker run" in lines[0], err
+
     monkeypatch.setenv("RINGSIDE_DATA", str(data))
     app = AppTest.from_function(render_page, args=("dataset",), default_timeout=60)
     app.query_params["dataset"] = dataset_key

@@ -17,10 +17,13 @@ from storage.paths import DataPaths
 def train_command(args, paths: DataPaths) -> int:
     from flows.config import load_config
     from flows.stage import run_stage_flow
-    from tasks.train.task import resolve_dataset
+    from storage.db import connect
+    from tasks.train.task import distilled_tracker, resolve_dataset
 
     config = load_config(args.config, overrides(args))
-    resolve_dataset(paths.db, args.dataset)
+    info = resolve_dataset(paths.db, args.dataset)
+    with connect(paths.db, read_only=True) as con:
+        distilled_tracker(con, info.dataset_key, config.train)  # fail fast, before Prefect
     with flow_server(paths):
         summary = run_stage_flow(
             "train", paths, args.dataset, config=config.as_dict(), force=args.rerun

@@ -473,6 +473,43 @@ class TrackConfig:
 
 
 @dataclass(frozen=True)
+class DistillConfig:
+    """MAAIP from the tracker (`models.maaip.distill`): before its first iteration a MAAIP run
+    fits its policy to the actions of the dataset's newest tracker run on the footage (DART's
+    noisy teacher, then DAgger's own rollouts), and fine-tunes from there."""
+
+    from_tracker: bool = setting(
+        False,
+        "Start from the dataset's newest finished tracker run (`train.objective` 'track' on the "
+        "same dataset), distilled into this run's policy; the run's key names that tracker run. "
+        "Instead of `warm_start`.",
+    )
+    rounds: int = setting(
+        4,
+        "Rounds of collection and fitting: the first acts on the tracker's actions plus noise, "
+        "the others on the distilled policy's own (DAgger); each refits on every label so far.",
+    )
+    steps: int = setting(60, "Policy steps per round in each of `env.num_envs` arenas.")
+    noise: float = setting(
+        0.05, "Std (rad) of the noise on the tracker's actions in the first round (DART)."
+    )
+    epochs: int = setting(10, "Passes over the labels at each fit.")
+    minibatch_size: int = setting(512, "Samples per gradient step of a fit.")
+    learning_rate: float = setting(1e-3, "Adam learning rate of the fits.")
+
+    def __post_init__(self) -> None:
+        for name in ("rounds", "steps", "epochs", "minibatch_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(
+                    f"train.distill.{name} must be at least 1, got {getattr(self, name)}"
+                )
+        for name in ("noise", "learning_rate"):
+            value = getattr(self, name)
+            if not (_finite(value) and value >= 0) or (name == "learning_rate" and value == 0):
+                raise ValueError(f"train.distill.{name} must be positive, got {value}")
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     """The whole training setup: seed, length, objective and the parts above."""
 
@@ -512,6 +549,7 @@ class TrainConfig:
     ppo: PPOConfig = field(default_factory=PPOConfig)
     env: EnvConfig = field(default_factory=EnvConfig)
     track: TrackConfig = field(default_factory=TrackConfig)
+    distill: DistillConfig = field(default_factory=DistillConfig)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -522,6 +560,13 @@ class TrainConfig:
             raise ValueError(
                 "train.reward.control_task must be 'none' with train.objective 'track' (the "
                 f"tracker takes no control task), got {self.reward.control_task!r}"
+            )
+        if self.distill.from_tracker and (
+            self.objective != "maaip" or self.reward.control_task == "heading"
+        ):
+            raise ValueError(
+                "train.distill.from_tracker needs train.objective 'maaip' without the heading "
+                "task (the tracker's actions are the fighters' own, with no target to head for)"
             )
         if self.device not in DEVICES:
             raise ValueError(f"train.device must be one of {list(DEVICES)}, got {self.device!r}")

@@ -420,23 +420,28 @@ class Tracker:
         rng: np.random.Generator,
         *,
         clips: np.ndarray | None = None,
-        in_place: bool = False,
+        as_filmed: bool = False,
     ) -> np.ndarray:
         """Start environments ``ids`` (n,): each agent at a frame drawn uniformly from every
         frame but the last of every one of its clips (or at the first frame of ``clips`` (n, 2)),
-        with the clip's velocities, placed at its slot (or where the clip is, ``in_place``: two
-        fighters of one piece of footage, as they stood). Returns their observations
+        with the clip's velocities, placed at its slot. ``as_filmed``: each agent's clip k is
+        one of the two fighters of one piece of footage (the same length), both agents start at
+        the same frame of it and where the footage has them. Returns their observations
         (n, 2, 451)."""
         ids = np.asarray(ids, dtype=int)
         qpos = np.empty((len(ids), NUM_AGENTS, NQ))
         qvel = np.empty((len(ids), NUM_AGENTS, NV))
+        if as_filmed and not np.array_equal(self.frames[0].last, self.frames[1].last):
+            raise ValueError("as_filmed: the agents' clips must pair up, clip k of equal length")
         for a, f in enumerate(self.frames):
-            if clips is None:
-                flat = f.startable[rng.integers(len(f.startable), size=len(ids))]
-            else:
+            if clips is not None:
                 flat = f.start[np.asarray(clips)[:, a]]
+            elif as_filmed and a == 1:
+                flat = self.flat[ids, 0]  # agent 0's frame: the same step of the same footage
+            else:
+                flat = f.startable[rng.integers(len(f.startable), size=len(ids))]
             self.flat[ids, a] = flat
-            if in_place:
+            if as_filmed:
                 self.offset[ids, a] = 0.0
             else:
                 self.offset[ids, a] = self.slots[a] - f.clip.qpos[flat, :3] * [1, 1, 0]
@@ -573,14 +578,14 @@ class Played:
 
 
 def play_clips(
-    policy: Policy, data: TrackingData, config: TrainConfig, *, in_place: bool = False
+    policy: Policy, data: TrackingData, config: TrainConfig, *, as_filmed: bool = False
 ) -> Played:
     """Track every clip of both agents from its first frame to its end, acting on ``policy``'s
     mean, in an arena of its own (the trainer's environments and random state are untouched).
 
     Environment k has each agent on its clip k (the last clip again where an agent has fewer),
-    at its slot or, ``in_place``, where the clip is; a run ends at the clip's last frame
-    (finished) or at its agent's fall or drift.
+    at its slot or, ``as_filmed``, where the footage has them (`Tracker.reset`); a run ends at
+    the clip's last frame (finished) or at its agent's fall or drift.
     """
     counts = [len(c) for c in data.clips]
     n = max(counts)
@@ -596,7 +601,7 @@ def play_clips(
             [[data.clips[a][k].num_frames - 1 for a, k in enumerate(row)] for row in clips]
         )
         obs = tracker.reset(
-            env, np.arange(n), np.random.default_rng(0), clips=clips, in_place=in_place
+            env, np.arange(n), np.random.default_rng(0), clips=clips, as_filmed=as_filmed
         )
         agent_ids = torch.arange(NUM_AGENTS, device=device).repeat(n)
         alive = np.ones((n, NUM_AGENTS), dtype=bool)

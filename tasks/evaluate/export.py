@@ -26,14 +26,15 @@ from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT, action_to_join
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
 from models.maaip.arena import arena_mjcf
 from models.maaip.config import EnvConfig, TrainConfig
-from models.maaip.networks import Policy, action_stds
-from models.maaip.tracking import TRACK_OBSERVATION_DIM
+from models.maaip.networks import Policy
 from storage.artifacts import read_bytes
 from storage.db import connect
 from storage.records import output_metrics
 from tasks.config import build
 from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent
-from tasks.evaluate.store import RunInfo, resolve_run
+from tasks.evaluate.store import resolve_run
+from tasks.train.mappo import checkpoint_policy
+from tasks.train.store import RunInfo
 
 ONNX_OPSET = 17
 
@@ -82,20 +83,7 @@ def load_trained(artifacts: Path, info: RunInfo, metrics: dict[str, float]) -> T
     """The policy of run ``info`` from its artifact, in eval mode (a tracker's sees the
     tracker's observation, `models.maaip.tracking`)."""
     config = build(TrainConfig, info.config, section="train")
-    state = torch.load(io.BytesIO(read_bytes(artifacts, info.artifact)), weights_only=False)
-    policy = Policy(
-        hidden=config.network.hidden_sizes,
-        action_std=action_stds(config),
-        obs_dim=TRACK_OBSERVATION_DIM if config.objective == "track" else OBSERVATION_DIM,
-        task_dim=config.reward.task_observation_dim,
-        observation_clip=config.network.observation_clip,
-    )
-    weights = dict(state["networks"]["policy"])
-    # A policy trained before it had an offset acted from the rest pose: a zero offset.
-    weights.setdefault("offset", policy.offset.clone())
-    policy.load_state_dict(weights)
-    policy.eval()
-    bones = tuple(BoneLengths(**b) for b in state["signature"]["bones"])
+    policy, bones = checkpoint_policy(read_bytes(artifacts, info.artifact), config)
     return TrainedPolicy(
         info.run_key, info.dataset_key, info.iteration, config, policy, bones, metrics
     )

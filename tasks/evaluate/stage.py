@@ -80,7 +80,6 @@ from tasks.evaluate.store import (
     StyleDistanceRow,
     real_statistics,
     resolve_run,
-    tracker_run,
 )
 from tasks.evaluate.two_sample import (
     FOLDS,
@@ -94,6 +93,7 @@ from tasks.evaluate.two_sample import (
 )
 from tasks.media import render_bout
 from tasks.runner import StageOutput
+from tasks.train.store import tracker_run
 
 __all__ = ["STAGE", "EvaluateInputs", "evaluate", "load_inputs"]
 
@@ -275,7 +275,7 @@ def _replay(tracker: TrainedPolicy, heldout: tuple[FootageClip, ...]) -> np.ndar
         return np.zeros((0, len(WINDOW_FEATURES)))
     clips = ({c.name: c.qpos for c in runs}, {c.name: c.other_qpos for c in runs})
     data = tracking_data(clips, tracker.bones, fps=hz, key="held-out")
-    played = play_clips(tracker.policy, data, tracker.config, in_place=True)
+    played = play_clips(tracker.policy, data, tracker.config, as_filmed=True)
     return replay_windows(played, hz)
 
 

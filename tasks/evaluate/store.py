@@ -4,7 +4,6 @@ statistics, and its own tables for showing. No torch here, so the flow can check
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -14,6 +13,7 @@ from storage.records import newest_output, output_metrics
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import member_statistics
 from tasks.errors import BadInput
+from tasks.train.store import RunInfo, finished_runs
 
 STAGE = "evaluate"
 # The tables the stage fills, in the order they are shown.
@@ -97,39 +97,9 @@ class ArtifactRow:
     artifact: str
 
 
-@dataclass(frozen=True)
-class RunInfo:
-    """A finished training run: its key, its dataset's, its final iteration and policy (an
-    artifact), its settings (the `train` section)."""
-
-    run_key: str
-    dataset_key: str
-    iteration: int
-    artifact: str
-    config: dict
-
-    @property
-    def control_task(self) -> str:
-        return self.config.get("reward", {}).get("control_task", "none")
-
-    @property
-    def objective(self) -> str:
-        return self.config.get("objective", "maaip")
-
-
-def _finished(con: duckdb.DuckDBPyConnection, where: str, params: list) -> list[RunInfo]:
-    rows = con.execute(
-        "SELECT p.key, p.video_id, p.iteration, p.artifact, o.config FROM train_policies p "
-        "JOIN stage_outputs o ON o.stage = 'train' AND o.key = p.key "
-        f"AND o.video_id = p.video_id WHERE {where} ORDER BY o.created_at, p.key",
-        params,
-    ).fetchall()
-    return [RunInfo(*row[:4], json.loads(row[4])) for row in rows]
-
-
 def resolve_run(con: duckdb.DuckDBPyConnection, run: str) -> RunInfo:
     """The finished training run whose key starts with ``run``; BadInput if none or several."""
-    found = _finished(con, "p.key LIKE ? || '%'", [run])
+    found = finished_runs(con, "p.key LIKE ? || '%'", [run])
     if len(found) != 1:
         problem = "matches no finished training run" if not found else "matches several runs"
         raise BadInput(f"--run {run}", f"{problem}; see `ringside metrics --stage train`")
@@ -143,25 +113,13 @@ def resolve_run(con: duckdb.DuckDBPyConnection, run: str) -> RunInfo:
     return found[0]
 
 
-def tracker_run(con: duckdb.DuckDBPyConnection, run_key: str) -> RunInfo:
-    """The finished tracker run ``run_key``."""
-    (found,) = _finished(con, "p.key = ?", [run_key])
-    return found
-
-
-def dataset_tracker(con: duckdb.DuckDBPyConnection, dataset_key: str) -> RunInfo | None:
-    """The newest finished tracker run (train.objective 'track') on dataset ``dataset_key``,
-    which replays its held-out clips for the two-sample test; None if there is none."""
-    found = [r for r in _finished(con, "p.video_id = ?", [dataset_key]) if r.objective == "track"]
-    return found[-1] if found else None
-
-
 def compared_runs(con: duckdb.DuckDBPyConnection, run: RunInfo) -> list[RunInfo]:
     """Other finished runs on ``run``'s dataset that the tables compare with it: damage
     minimising and maximising runs (Table 1) and heading runs (Table 2), oldest first."""
+    others = finished_runs(con, "p.video_id = ? AND p.key != ?", [run.dataset_key, run.run_key])
     return [
         other
-        for other in _finished(con, "p.video_id = ? AND p.key != ?", [run.dataset_key, run.run_key])
+        for other in others
         if other.objective == "maaip" and other.control_task in (*DAMAGE_TASKS, "heading")
     ]
 

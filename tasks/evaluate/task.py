@@ -16,14 +16,13 @@ from tasks.errors import BadInput
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.stage import STAGE, evaluate, load_inputs
 from tasks.evaluate.store import (
-    RunInfo,
     compared_runs,
-    dataset_tracker,
     evaluation_tables,
     resolve_run,
 )
 from tasks.registry import NoInputs
 from tasks.runner import StagePlan, StageSpec
+from tasks.train.store import RunInfo, dataset_tracker
 
 
 def evaluate_code() -> str:

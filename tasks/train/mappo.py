@@ -36,9 +36,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from models.humanoid.observations import SELF_BLOCKS, SELF_DIM, block_slices
+from models.humanoid.boxer import BoneLengths
+from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, SELF_DIM, block_slices
 from models.maaip.config import TrainConfig
 from models.maaip.demonstrations import Demonstrations
+from models.maaip.distill import distill
 from models.maaip.env import ArenaEnv
 from models.maaip.losses import (
     PPOBatch,
@@ -51,14 +53,39 @@ from models.maaip.losses import (
     reward_weights,
     style_reward_from_config,
 )
-from models.maaip.networks import Networks, ReplayBuffer, make_networks
-from models.maaip.tracking import REWARD_TERMS, Tracker, TrackingData, tracking_networks
+from models.maaip.networks import Networks, Policy, ReplayBuffer, action_stds, make_networks
+from models.maaip.tracking import (
+    REWARD_TERMS,
+    TRACK_OBSERVATION_DIM,
+    Tracker,
+    TrackingData,
+    tracking_networks,
+)
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 HELD_OUT_ROWS = 4096
 _LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
 _ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 3)
 CHECKPOINT_FORMAT = 2  # 2: the policy's offset (its guard) is part of its state
+
+
+def checkpoint_policy(blob: bytes, config: TrainConfig) -> tuple[Policy, tuple[BoneLengths, ...]]:
+    """The policy of a `Trainer.checkpoint` made with ``config`` (a tracker's sees the
+    tracker's observation), in eval mode, and the run's two humanoids."""
+    state = torch.load(io.BytesIO(blob), weights_only=False, map_location="cpu")
+    policy = Policy(
+        hidden=config.network.hidden_sizes,
+        action_std=action_stds(config),
+        obs_dim=TRACK_OBSERVATION_DIM if config.objective == "track" else OBSERVATION_DIM,
+        task_dim=config.reward.task_observation_dim,
+        observation_clip=config.network.observation_clip,
+    )
+    weights = dict(state["networks"]["policy"])
+    # A policy trained before it had an offset acted from the rest pose: a zero offset.
+    weights.setdefault("offset", policy.offset.clone())
+    policy.load_state_dict(weights)
+    policy.eval()
+    return policy, tuple(BoneLengths(**b) for b in state["signature"]["bones"])
 
 
 class CheckpointMismatch(ValueError):
@@ -564,6 +591,26 @@ class Trainer:
         self.nets.value.load_state_dict(networks["value"])
         for d, s in zip(self.discriminators, networks["discriminators"], strict=True):
             d.load_state_dict(s)
+
+    def distill_from(self, teacher: Policy, data: TrackingData) -> list[dict[str, float]]:
+        """Fit this run's policy to tracker ``teacher``'s actions on ``data``, the two
+        fighters' footage clips paired (`models.maaip.distill`), before the first iteration;
+        each round's figures."""
+        if self.iteration:
+            raise ValueError(
+                f"a run distils before its first iteration, not at iteration {self.iteration}"
+            )
+        self.nets.policy.cpu()
+        rounds = distill(
+            self.nets.policy,
+            teacher.cpu(),
+            data,
+            self.config,
+            generator=self.generator,
+            rng=np.random.default_rng([self.config.seed, 2]),
+        )
+        self.nets.policy.to(self.device)
+        return rounds
 
     def restore(self, blob: bytes) -> None:
         """Continue from a `checkpoint`; CheckpointMismatch if it belongs to another run."""

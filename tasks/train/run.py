@@ -25,12 +25,13 @@ from tqdm import tqdm
 from models.maaip.config import TrainConfig
 from storage.artifacts import artifact_path, put_bytes, read_bytes
 from storage.db import connect, transaction
+from tasks.config import build
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.runner import StageOutput
-from tasks.train.mappo import Trainer
+from tasks.train.mappo import Trainer, checkpoint_policy
 from tasks.train.store import (
     PolicyRow,
-    WarmStart,
+    RunInfo,
     drop_iterations,
     iteration_means,
     newest_checkpoint,
@@ -78,6 +79,24 @@ def _save(
     return name
 
 
+def _distil(
+    db: Path, artifacts: Path, dataset_key: str, trainer: Trainer, teacher: RunInfo
+) -> dict[str, float]:
+    """Distil tracker run ``teacher`` into ``trainer``'s policy on the dataset's train clips;
+    each round's figures as metrics ``distill_<name>_<round>``."""
+    with connect(db, read_only=True) as con:
+        clips = footage_tracking(con, dataset_key, fps=trainer.config.env.policy_hz)["train"]
+    config = build(TrainConfig, teacher.config, section="train")
+    policy, _ = checkpoint_policy(read_bytes(artifacts, teacher.artifact), config)
+    rounds = trainer.distill_from(policy, clips)
+    return {
+        f"distill_{name}_{int(r['round'])}": value
+        for r in rounds
+        for name, value in r.items()
+        if name != "round"
+    }
+
+
 def train(
     *,
     db: Path,
@@ -85,7 +104,8 @@ def train(
     dataset_key: str,
     key: str,
     config: TrainConfig,
-    warm: WarmStart | None = None,
+    warm: RunInfo | None = None,
+    teacher: RunInfo | None = None,
     stop: Callable[[int], bool] | None = None,
 ) -> StageOutput:
     """Train (or go on training) run ``key`` on dataset ``dataset_key``; its stage output.
@@ -95,7 +115,9 @@ def train(
     (`tasks.train.tracking`).
 
     A run with no checkpoint of its own starts from ``warm``'s networks when given
-    (`tasks.train.store.warm_start_source`). ``stop(iteration)`` may end the run early, as a
+    (`tasks.train.store.warm_start_source`), or from tracker run ``teacher`` distilled into its
+    policy (`Trainer.distill_from`; the rounds' figures are iteration 0's ``distill_*``
+    metrics). ``stop(iteration)`` may end the run early, as a
     kill would (raising KeyboardInterrupt, nothing saved beyond the last checkpoint); tests use
     it.
     """
@@ -118,6 +140,13 @@ def train(
                 f"started from the networks of run {warm.run_key[:12]} (iteration "
                 f"{warm.iteration}, dataset {warm.dataset_key[:12]})"
             )
+        distilled: dict[str, float] = {}
+        if found is None and teacher is not None:
+            distilled = _distil(db, artifacts, dataset_key, trainer, teacher)
+            notes.append(
+                f"started from tracker run {teacher.run_key[:12]} distilled into the policy "
+                f"({config.distill.rounds} rounds)"
+            )
         if found is not None:
             trainer.restore(read_bytes(artifacts, found[1]))
             with connect(db) as con, transaction(con):
@@ -136,7 +165,8 @@ def train(
         final = None
         while trainer.iteration < total:
             iteration = trainer.iteration
-            metrics = trainer.iterate()
+            metrics = {**trainer.iterate(), **distilled}
+            distilled = {}
             pending.append((iteration, metrics))
             bar.update(1)
             if "episode_length_s" in metrics:
@@ -160,7 +190,9 @@ def train(
         trainer.close()
     with connect(db, read_only=True) as con:
         means = iteration_means(con, key, dataset_key, since=max(0, total - SUMMARY_WINDOW))
+        first = iteration_means(con, key, dataset_key, since=0)
     summary = {name: value for name, value in means.items() if name in SUMMARY}
+    summary |= {name: value for name, value in first.items() if name.startswith("distill_")}
     summary["iterations"] = float(total)
     summary["train_minutes_this_session"] = (time.perf_counter() - start) / 60
     return StageOutput(

@@ -26,13 +26,50 @@ class PolicyRow:
 
 
 @dataclass(frozen=True)
-class WarmStart:
-    """A finished run whose networks a new run starts from."""
+class RunInfo:
+    """A finished training run: its key, its dataset's, its final iteration and policy (an
+    artifact), its settings (the `train` section)."""
 
     run_key: str
     dataset_key: str
     iteration: int
-    artifact: str  # its final checkpoint
+    artifact: str
+    config: dict
+
+    @property
+    def control_task(self) -> str:
+        return self.config.get("reward", {}).get("control_task", "none")
+
+    @property
+    def objective(self) -> str:
+        return self.config.get("objective", "maaip")
+
+
+def finished_runs(con: duckdb.DuckDBPyConnection, where: str, params: list) -> list[RunInfo]:
+    """The finished training runs matching SQL ``where`` (over ``train_policies p``), oldest
+    first."""
+    rows = con.execute(
+        "SELECT p.key, p.video_id, p.iteration, p.artifact, o.config FROM train_policies p "
+        "JOIN stage_outputs o ON o.stage = 'train' AND o.key = p.key "
+        f"AND o.video_id = p.video_id WHERE {where} ORDER BY o.created_at, p.key",
+        params,
+    ).fetchall()
+    return [RunInfo(*row[:4], json.loads(row[4])) for row in rows]
+
+
+def tracker_run(con: duckdb.DuckDBPyConnection, run_key: str) -> RunInfo:
+    """The finished tracker run ``run_key``."""
+    (found,) = finished_runs(con, "p.key = ?", [run_key])
+    return found
+
+
+def dataset_tracker(con: duckdb.DuckDBPyConnection, dataset_key: str) -> RunInfo | None:
+    """The newest finished tracker run (train.objective 'track') on dataset ``dataset_key``:
+    the one evaluation replays the held-out clips with and a MAAIP run distils
+    (`train.distill.from_tracker`); None if there is none."""
+    runs = finished_runs(con, "p.video_id = ?", [dataset_key])
+    found = [r for r in runs if r.objective == "track"]
+    return found[-1] if found else None
 
 
 def _fits(stored: str, config: TrainConfig) -> bool:
@@ -51,7 +88,7 @@ def _fits(stored: str, config: TrainConfig) -> bool:
 
 def warm_start_source(
     con: duckdb.DuckDBPyConnection, dataset_key: str, config: TrainConfig
-) -> WarmStart | None:
+) -> RunInfo | None:
     """The run a new run on dataset ``dataset_key`` starts from (`TrainConfig.warm_start`): the
     newest finished run on a dataset of the same adversary assembled before this one, whose
     humanoids (`training_bones`) and network sizes are this run's; None if there is none or
@@ -74,7 +111,7 @@ def warm_start_source(
     bones = training_bones(con, dataset_key)
     for run_key, their_dataset, iteration, artifact, stored in rows:
         if _fits(stored, config) and training_bones(con, their_dataset) == bones:
-            return WarmStart(run_key, their_dataset, iteration, artifact)
+            return RunInfo(run_key, their_dataset, iteration, artifact, json.loads(stored))
     return None
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import duckdb
+
 from models.maaip.config import TrainConfig
 from storage.db import connect
 from storage.keys import code_version
@@ -13,7 +15,7 @@ from tasks.errors import BadInput
 from tasks.registry import NoInputs
 from tasks.runner import StagePlan, StageSpec
 from tasks.train.run import STAGE, train
-from tasks.train.store import WarmStart, warm_start_source
+from tasks.train.store import RunInfo, dataset_tracker, warm_start_source
 
 
 def train_code() -> str:
@@ -22,13 +24,38 @@ def train_code() -> str:
     )
 
 
-def train_spec(config: TrainConfig, dataset_key: str, warm: WarmStart | None = None) -> StageSpec:
+def train_spec(
+    config: TrainConfig,
+    dataset_key: str,
+    warm: RunInfo | None = None,
+    teacher: RunInfo | None = None,
+) -> StageSpec:
     """The run on ``dataset_key``; its upstream names the run whose networks a warm start
-    takes, if any."""
+    takes, or the tracker run it distils, if any."""
     upstream = {"dataset": dataset_key}
     if warm is not None:
         upstream["warm_start"] = warm.run_key
+    if teacher is not None:
+        upstream["tracker"] = teacher.run_key
     return StageSpec(STAGE, dataset_key, config, train_code(), upstream)
+
+
+def distilled_tracker(
+    con: duckdb.DuckDBPyConnection, dataset_key: str, config: TrainConfig
+) -> RunInfo | None:
+    """The tracker run a MAAIP run with `train.distill.from_tracker` distils: the dataset's
+    newest (`dataset_tracker`); None when the setting is off. BadInput, in one line, when it is
+    on and the dataset has no tracker."""
+    if not config.distill.from_tracker:
+        return None
+    found = dataset_tracker(con, dataset_key)
+    if found is None:
+        raise BadInput(
+            "train.distill.from_tracker",
+            f"no finished tracker run on dataset {dataset_key[:12]}: `ringside train --dataset "
+            f"{dataset_key[:12]} --train-objective track` trains one first",
+        )
+    return found
 
 
 def resolve_dataset(db: Path, dataset_key: str) -> DatasetInfo:
@@ -51,8 +78,10 @@ def train_plan(
     adversary's previous run where `train.warm_start` finds one (`warm_start_source`)."""
     info = resolve_dataset(paths.db, dataset_key)
     with connect(paths.db) as con:
-        warm = warm_start_source(con, info.dataset_key, config)
-    spec = train_spec(config, info.dataset_key, warm)
+        teacher = distilled_tracker(con, info.dataset_key, config)
+        # A distilled run starts from the tracker, not from an earlier run's networks.
+        warm = None if teacher else warm_start_source(con, info.dataset_key, config)
+    spec = train_spec(config, info.dataset_key, warm, teacher)
     return StagePlan(
         spec,
         info.adversary,
@@ -63,5 +92,6 @@ def train_plan(
             key=spec.key,
             config=config,
             warm=warm,
+            teacher=teacher,
         ),
     )
