@@ -119,15 +119,19 @@ def test_the_distilled_policy_acts_as_the_tracker_on_states_it_never_saw(footage
     with torch.no_grad():
         before = float((untrained(obs, agents) - labels).square().mean())
 
-    taught = student()
-    rounds = distill(
-        taught,
-        teacher,
-        footage,
-        CONFIG,
-        generator=torch.Generator().manual_seed(0),
-        rng=np.random.default_rng(0),
-    )
+    def distilled():
+        taught = student()
+        rounds = distill(
+            taught,
+            teacher,
+            footage,
+            CONFIG,
+            generator=torch.Generator().manual_seed(0),
+            rng=np.random.default_rng(0),
+        )
+        return taught, rounds
+
+    taught, rounds = distilled()
     with torch.no_grad():
         after = float((taught(obs, agents) - labels).square().mean())
     # Held-out states: the fit carries over to states none of the rounds visited.
@@ -138,15 +142,7 @@ def test_the_distilled_policy_acts_as_the_tracker_on_states_it_never_saw(footage
     assert all(r["loss"] < before and r["episode_s"] > 0 for r in rounds)
 
     # A seed means one result.
-    again = student()
-    distill(
-        again,
-        teacher,
-        footage,
-        CONFIG,
-        generator=torch.Generator().manual_seed(0),
-        rng=np.random.default_rng(0),
-    )
+    again, _ = distilled()
     for mine, theirs in zip(taught.state_dict().values(), again.state_dict().values(), strict=True):
         assert torch.equal(mine, theirs)
 

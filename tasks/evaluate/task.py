@@ -27,7 +27,12 @@ from tasks.train.store import RunInfo, dataset_tracker
 
 def evaluate_code() -> str:
     return code_version(
-        "tasks.evaluate", "tasks.dataset", "tasks.media", "models.humanoid", "models.maaip"
+        "tasks.evaluate",
+        "tasks.dataset",
+        "tasks.train",  # its checkpoints' policies and its runs' SQL
+        "tasks.media",
+        "models.humanoid",
+        "models.maaip",
     )
 
 

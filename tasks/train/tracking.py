@@ -18,7 +18,7 @@ import duckdb
 
 from models.maaip.config import TrainConfig
 from models.maaip.networks import Policy
-from models.maaip.tracking import TrackingData, gate_of, play_clips, tracking_data
+from models.maaip.tracking import GateRow, TrackingData, gate_of, play_clips, tracking_data
 from tasks.dataset.store import FootageClip, dataset_info, footage_clips, training_bones
 from tasks.errors import BadInput
 from tasks.roles import ROLES
@@ -27,16 +27,10 @@ SPLITS = ("train", "validation")
 
 
 @dataclass(frozen=True)
-class TrackingRow:
-    """A ``train_tracking`` row: one clip of one split tracked by one agent (`GateRow`)."""
+class TrackingRow(GateRow):
+    """A ``train_tracking`` row: one clip of split ``split`` tracked by one agent (`GateRow`)."""
 
     split: str
-    agent: int
-    clip: str
-    finished: bool
-    frames: int
-    body_error_cm: float
-    root_error_cm: float
 
 
 def _trackable(clips: list[FootageClip]) -> dict[str, FootageClip]:
@@ -84,7 +78,7 @@ def clip_tracking(
     rows, metrics = [], {}
     for split, clips in data.items():
         played = play_clips(policy, clips, config)
-        rows += [TrackingRow(split, **dataclasses.asdict(r)) for r in played.rows]
+        rows += [TrackingRow(**dataclasses.asdict(r), split=split) for r in played.rows]
         gate = gate_of(played.rows)
         suffix = "" if split == "train" else "_held_out"
         metrics[f"track_finished_pct{suffix}"] = gate.finished_pct
