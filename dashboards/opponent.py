@@ -74,6 +74,19 @@ TILES = {
     "reward_interaction": "Interaction reward",
     "falls_per_min": "Falls per minute",
 }
+# A tracker's (train.objective 'track'): it has no discriminators.
+TRACK_TILES = {
+    "episode_length_s": "Episode length (s)",
+    "reward_total": "Tracking reward",
+    "body_error_cm": "Body error (cm)",
+    "root_error_cm": "Root error (cm)",
+}
+TRACK_CHARTS: dict[str, dict[str, str]] = {
+    "Episode length (s)": {"episode_length_s": "episode length"},
+    "Tracking reward (DeepMimic's)": {"reward_total": "total"},
+    "Falls per minute": {"falls_per_min": "falls per minute"},
+    "Tracking error (cm)": {"body_error_cm": "bodies", "root_error_cm": "root"},
+}
 
 # The Evaluation page's headline numbers.
 EVALUATION_TILES = {
@@ -246,9 +259,13 @@ def training_page() -> None:
     frame = queries.curves_frame(rows)
     last = rows[-1]
     st.subheader(f"Newest point: means over iterations {last['iterations']}")
-    for column, (name, label) in zip(st.columns(len(TILES)), TILES.items(), strict=True):
+    tracker = "body_error_cm" in last
+    tiles, charts = (TRACK_TILES, TRACK_CHARTS) if tracker else (TILES, CURVE_CHARTS)
+    if tracker:
+        st.caption("A tracker: it follows the dataset's clips; its rewards are DeepMimic's.")
+    for column, (name, label) in zip(st.columns(len(tiles)), tiles.items(), strict=True):
         column.metric(label, format_value(last.get(name)))
-    for column, (title, names) in zip(st.columns(2) * 2, CURVE_CHARTS.items(), strict=True):
+    for column, (title, names) in zip(st.columns(2) * 2, charts.items(), strict=True):
         column.altair_chart(curve_chart(frame, title, names))
     finish_page()
 

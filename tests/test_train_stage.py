@@ -14,6 +14,7 @@ import torch
 from conftest import TINY_TRAIN_FLAGS, copy_data, query, render_page, run_cli
 
 from dashboards import queries
+from dashboards.opponent import TRACK_TILES
 from models.maaip.config import (
     DiscriminatorConfig,
     EnvConfig,
@@ -144,6 +145,13 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
     assert "Can a physics body follow each clip?" in [h.value for h in app.subheader]
     (shown,) = [t for t in app.table if "body_error_cm" in t.value.columns]
     assert len(shown.value) == len(rows)
+    # The training page shows a tracker's own figures, not the discriminators' it has none of.
+    app = AppTest.from_function(render_page, args=("training",), default_timeout=60)
+    app.query_params["run"] = key
+    app.run()
+    assert not app.exception, app.exception
+    tiles = {m.label: m.value for m in app.metric}
+    assert list(tiles) == list(TRACK_TILES.values()) and "–" not in tiles.values(), tiles
 
 
 def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):

@@ -123,6 +123,8 @@ CURVES = (
     "reward_total",
     "motion_accuracy_fake",
     "interaction0_accuracy_fake",
+    "body_error_cm",  # a tracker's (train.objective 'track')
+    "root_error_cm",
 )
 
 
