@@ -35,14 +35,6 @@ CONFIG = TrainConfig(
 )
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 @pytest.fixture(scope="module")
 def footage(assets) -> TrackingData:
     """Two fighters of one 'piece of footage': DeepMimic's walk, and the same walk 1.5 m to its
