@@ -30,6 +30,7 @@ from tasks.evaluate.two_sample import (
     footage_windows,
     frame_features,
     gap_closed,
+    telltales,
     window_features,
 )
 
@@ -116,6 +117,21 @@ def test_too_few_windows_or_bad_ones_are_refused():
         classifier_test(np.where(real > 1, np.nan, real), fake, seed=0)
     with pytest.raises(ValueError, match="folds must be an integer >= 2"):
         classifier_test(real, fake, seed=0, folds=1)
+
+
+def test_telltales_name_the_features_that_differ_most_in_pooled_standard_deviations():
+    rng = np.random.default_rng(0)
+    real = rng.normal(size=(40, len(WINDOW_FEATURES)))
+    simulated = rng.normal(size=(40, len(WINDOW_FEATURES)))
+    simulated[:, 7] += 3.0  # the simulated fighter's eighth feature sits 3 deviations higher
+    simulated[:, 2] -= 1.5
+    real[:, 5] = simulated[:, 5] = 0.0  # constant on both sides: no difference, not NaN
+    said = telltales(real, simulated).split(", ")
+    assert len(said) == 3
+    assert said[0].startswith(f"{WINDOW_FEATURES[7]} -") and said[1].startswith(WINDOW_FEATURES[2])
+    d = float(said[0].rsplit(" ", 1)[1])
+    pooled = np.sqrt(0.5 * (real[:, 7].var() + simulated[:, 7].var()))
+    assert d == pytest.approx((real[:, 7].mean() - simulated[:, 7].mean()) / pooled, abs=0.005)
 
 
 def test_gap_closed_is_the_share_of_the_still_to_replay_gap():
@@ -302,11 +318,16 @@ def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
     assert list(by_policy) == [*TWO_SAMPLE_POLICIES, "replay"]
     adversary = by_policy["adversary"]
     assert (adversary.real_windows, adversary.simulated_windows, adversary.reason) == (5, 20, None)
+    assert adversary.telltales == telltales(
+        footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], FPS),
+        simulated["adversary"],
+    )
     assert adversary.auc_low <= adversary.auc <= adversary.auc_high
     assert metrics["two_sample_auc"] == adversary.auc
     assert metrics["two_sample_auc_low"] == adversary.auc_low
     untrained = by_policy["untrained"]
     assert (untrained.auc, untrained.auc_low, untrained.auc_high) == (None, None, None)
+    assert untrained.telltales is None
     assert (untrained.real_windows, untrained.simulated_windows) == (5, 3)
     assert "the bouts give 3 windows" in untrained.reason
     assert "two_sample_auc_untrained" not in metrics

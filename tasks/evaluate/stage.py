@@ -90,6 +90,7 @@ from tasks.evaluate.two_sample import (
     footage_windows,
     gap_closed,
     replay_windows,
+    telltales,
 )
 from tasks.media import render_bout
 from tasks.runner import StageOutput
@@ -311,7 +312,17 @@ def _two_sample(
             reason = f"{made} {_windows(len(windows))} of {WINDOW_S:g} s; the test needs {FOLDS}"
         else:
             result = classifier_test(real, windows, seed=seed)
-            rows.append(ClassifierRow(policy, result.auc, result.low, result.high, *counts, None))
+            rows.append(
+                ClassifierRow(
+                    policy,
+                    result.auc,
+                    result.low,
+                    result.high,
+                    *counts,
+                    None,
+                    telltales(real, windows),
+                )
+            )
             suffix = "" if policy == "adversary" else f"_{policy}"
             metrics[f"two_sample_auc{suffix}"] = result.auc
             if policy == "adversary":

@@ -87,6 +87,7 @@ class ClassifierRow:
     real_windows: int
     simulated_windows: int
     reason: str | None
+    telltales: str | None = None
 
 
 @dataclass(frozen=True)

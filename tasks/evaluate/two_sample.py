@@ -90,6 +90,7 @@ VELOCITY_CUTOFF_HZ = 6.0  # the velocities' low-pass (module docstring)
 FILTER_ORDER = 4
 FOLDS = 5
 BOOTSTRAP = 1000
+TELLTALES = 3  # the features `telltales` names
 L2 = 1.0  # the weights' penalty, l2 / 2 |w|^2, against a log-loss summed over n windows
 LEVEL = 0.95
 
@@ -420,6 +421,18 @@ def classifier_test(
     tail = 100 * (1 - LEVEL) / 2
     low, high = np.percentile(resampled, [tail, 100 - tail])
     return TwoSampleResult(float(auc(real, fake)), float(low), float(high), len(r), len(f))
+
+
+def telltales(real: np.ndarray, simulated: np.ndarray, count: int = TELLTALES) -> str:
+    """What gives ``simulated`` windows (W, D) away against ``real`` ones: the ``count``
+    features whose means differ most, in pooled standard deviations (Cohen's d, real minus
+    simulated), e.g. "left_ankle_y_mean +3.17, root_velocity_z_std -1.70". A feature constant on
+    both sides differs by nothing."""
+    pooled = np.sqrt(0.5 * (real.var(axis=0) + simulated.var(axis=0)))
+    gap = real.mean(axis=0) - simulated.mean(axis=0)
+    d = np.divide(gap, pooled, out=np.zeros_like(gap), where=pooled > 1e-12)
+    order = np.argsort(-np.abs(d), kind="stable")[:count]
+    return ", ".join(f"{WINDOW_FEATURES[i]} {d[i]:+.2f}" for i in order)
 
 
 def gap_closed(
