@@ -503,10 +503,12 @@ class DistillConfig:
                 raise ValueError(
                     f"train.distill.{name} must be at least 1, got {getattr(self, name)}"
                 )
-        for name in ("noise", "learning_rate"):
-            value = getattr(self, name)
-            if not (_finite(value) and value >= 0) or (name == "learning_rate" and value == 0):
-                raise ValueError(f"train.distill.{name} must be positive, got {value}")
+        if not (_finite(self.noise) and self.noise >= 0):
+            raise ValueError(f"train.distill.noise must be non-negative, got {self.noise}")
+        if not (_finite(self.learning_rate) and self.learning_rate > 0):
+            raise ValueError(
+                f"train.distill.learning_rate must be positive, got {self.learning_rate}"
+            )
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ from models.maaip.arena import arena_mjcf
 from models.maaip.config import TrainConfig
 from models.maaip.demonstrations import ReferenceMotions
 from models.maaip.networks import Policy, make_networks
-from models.maaip.tracking import play_clips, tracking_data
+from models.maaip.tracking import play_clips
 from storage.artifacts import artifact_name
 from storage.db import connect
 from storage.files import scratch_dir
@@ -95,6 +95,7 @@ from tasks.evaluate.two_sample import (
 from tasks.media import render_bout
 from tasks.runner import StageOutput
 from tasks.train.store import tracker_run
+from tasks.train.tracking import paired_tracking
 
 __all__ = ["STAGE", "EvaluateInputs", "evaluate", "load_inputs"]
 
@@ -271,11 +272,9 @@ def _replay(tracker: TrainedPolicy, heldout: tuple[FootageClip, ...]) -> np.ndar
     tracking the adversary's clip, agent 1 the opponent's, both where the footage has them, from
     each clip's first frame (`play_clips`)."""
     hz = float(tracker.config.env.policy_hz)
-    runs = [c for c in heldout if len(c.qpos) >= 2]  # a clip of one frame has nothing to track
-    if not runs:
+    data = paired_tracking(heldout, tracker.bones, fps=hz, key="held-out")
+    if data is None:
         return np.zeros((0, len(WINDOW_FEATURES)))
-    clips = ({c.name: c.qpos for c in runs}, {c.name: c.other_qpos for c in runs})
-    data = tracking_data(clips, tracker.bones, fps=hz, key="held-out")
     played = play_clips(tracker.policy, data, tracker.config, as_filmed=True)
     return replay_windows(played, hz)
 

@@ -85,10 +85,12 @@ def _distil(
     """Distil tracker run ``teacher`` into ``trainer``'s policy on the dataset's train clips;
     each round's figures as metrics ``distill_<name>_<round>``."""
     with connect(db, read_only=True) as con:
-        clips = footage_tracking(con, dataset_key, fps=trainer.config.env.policy_hz)["train"]
+        found = footage_tracking(
+            con, dataset_key, fps=trainer.config.env.policy_hz, splits=("train",)
+        )
     config = build(TrainConfig, teacher.config, section="train")
     policy, _ = checkpoint_policy(read_bytes(artifacts, teacher.artifact), config)
-    rounds = trainer.distill_from(policy, clips)
+    rounds = trainer.distill_from(policy, found["train"])
     return {
         f"distill_{name}_{int(r['round'])}": value
         for r in rounds
@@ -190,7 +192,7 @@ def train(
         trainer.close()
     with connect(db, read_only=True) as con:
         means = iteration_means(con, key, dataset_key, since=max(0, total - SUMMARY_WINDOW))
-        first = iteration_means(con, key, dataset_key, since=0)
+        first = iteration_means(con, key, dataset_key, since=0, until=0)
     summary = {name: value for name, value in means.items() if name in SUMMARY}
     summary |= {name: value for name, value in first.items() if name.startswith("distill_")}
     summary["iterations"] = float(total)

@@ -210,14 +210,21 @@ def drop_iterations(con: duckdb.DuckDBPyConnection, key: str, dataset_key: str, 
 
 
 def iteration_means(
-    con: duckdb.DuckDBPyConnection, key: str, dataset_key: str, *, since: int
+    con: duckdb.DuckDBPyConnection,
+    key: str,
+    dataset_key: str,
+    *,
+    since: int,
+    until: int | None = None,
 ) -> dict[str, float]:
-    """Each per-iteration metric of run ``key``, averaged from iteration ``since`` on."""
+    """Each per-iteration metric of run ``key``, averaged from iteration ``since`` on (to
+    ``until``, inclusive, if given)."""
+    last = "" if until is None else " AND iteration <= ?"
     return dict(
         con.execute(
             "SELECT name, avg(value) FROM train_iterations WHERE key = ? AND video_id = ? "
-            "AND iteration >= ? GROUP BY name",
-            [key, dataset_key, since],
+            f"AND iteration >= ?{last} GROUP BY name",
+            [key, dataset_key, since, *([] if until is None else [until])],
         ).fetchall()
     )
 

@@ -1,21 +1,24 @@
 """The train stage's tracker (train.objective 'track', `models.maaip.tracking`): a dataset's
 footage as the clips to track, and what the trained tracker makes of each clip.
 
-Agent 0 tracks the adversary's footage, agent 1 the opponent's: every unbroken run of an
-interaction clip's steps lifted for both fighters (`footage_clips`), on the two humanoids the
-dataset trains (`training_bones`). Training reads the train split only; once trained, every clip
-of both splits is tracked from its first frame (`clip_tracking`), so the held-out clips' errors
-judge the tracker on footage it never learned from, and each clip's errors say how well a
-physics body can follow it (a clip the lift made impossible scores badly).
+Agent 0 tracks the adversary's footage, agent 1 the opponent's at the same steps
+(`paired_tracking`): every unbroken run of an interaction clip's steps lifted for both fighters
+(`footage_clips`), on the two humanoids the dataset trains (`training_bones`). Training reads
+the train split only; once trained, every clip of both splits is tracked from its first frame
+(`clip_tracking`), so the held-out clips' errors judge the tracker on footage it never learned
+from, and each clip's errors say how well a physics body can follow it (a clip the lift made
+impossible scores badly).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import duckdb
 
+from models.humanoid.boxer import BoneLengths
 from models.maaip.config import TrainConfig
 from models.maaip.networks import Policy
 from models.maaip.tracking import GateRow, TrackingData, gate_of, play_clips, tracking_data
@@ -33,16 +36,29 @@ class TrackingRow(GateRow):
     split: str
 
 
-def _trackable(clips: list[FootageClip]) -> dict[str, FootageClip]:
-    # A clip of one frame has no next frame to track.
-    return {c.name: c for c in clips if len(c.qpos) >= 2}
+def paired_tracking(
+    clips: Sequence[FootageClip], bones: tuple[BoneLengths, BoneLengths], *, fps: float, key: str
+) -> TrackingData | None:
+    """Footage ``clips`` as TrackingData, paired clip by clip: agent 0 follows each clip's
+    fighter, agent 1 the other fighter at the same steps (so `Tracker.reset(as_filmed=True)` may
+    start them together); None when no clip has the two frames tracking needs (a first and a
+    next)."""
+    runs = [c for c in clips if len(c.qpos) >= 2]
+    if not runs:
+        return None
+    qpos = ({c.name: c.qpos for c in runs}, {c.name: c.other_qpos for c in runs})
+    return tracking_data(qpos, bones, fps=fps, key=key)
 
 
 def footage_tracking(
-    con: duckdb.DuckDBPyConnection, dataset_key: str, *, fps: float
+    con: duckdb.DuckDBPyConnection,
+    dataset_key: str,
+    *,
+    fps: float,
+    splits: Sequence[str] = SPLITS,
 ) -> dict[str, TrackingData]:
-    """Each split's footage of dataset ``dataset_key`` as TrackingData (module docstring), by
-    split; a split without footage is left out.
+    """The footage of dataset ``dataset_key``'s ``splits`` as TrackingData (module docstring),
+    by split; a split without footage is left out.
 
     Raises:
         BadInput: the train split holds no interaction clip to track.
@@ -50,17 +66,11 @@ def footage_tracking(
     info = dataset_info(con, dataset_key)
     bones = training_bones(con, info.dataset_key)
     found = {}
-    for split in SPLITS:
-        clips = [_trackable(footage_clips(con, info.dataset_key, role, split)) for role in ROLES]
-        if bones is None or not all(clips):
-            continue
-        qpos = tuple({name: c.qpos for name, c in agent.items()} for agent in clips)
-        found[split] = tracking_data(
-            qpos,  # type: ignore[arg-type]
-            bones,
-            fps=fps,
-            key=f"{info.dataset_key}:{split}",
-        )
+    for split in splits if bones is not None else ():
+        clips = footage_clips(con, info.dataset_key, ROLES[0], split)
+        made = paired_tracking(clips, bones, fps=fps, key=f"{info.dataset_key}:{split}")
+        if made is not None:
+            found[split] = made
     if "train" not in found:
         raise BadInput(
             f"dataset {info.dataset_key}",
