@@ -18,10 +18,12 @@ import contextlib
 import fcntl
 import os
 import re
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from datetime import datetime, timedelta
@@ -262,6 +264,7 @@ def stop_workers(workers: list[subprocess.Popen], timeout_s: float = 10.0) -> No
     _end(left, timeout_s)
     for worker in workers:
         worker.wait()
+        forget_worker(worker)
 
 
 def _end(processes: list, timeout_s: float) -> None:
@@ -311,8 +314,10 @@ def supervise(paths: DataPaths, workers: list[Supervised]) -> list[str]:
         run_ids = sorted({worker.runs[p] for p in left} - {None})
         # The new worker first: the old one's runs may take seconds to stop. A run stopped by
         # SIGTERM marks itself Crashed; one that could not is marked here.
+        ended = worker.process
         worker.process, worker.runs = start_worker(paths), {}
         _end(left, 10.0)
+        forget_worker(ended)
         crash_flow_runs(run_ids, f"its worker (pid {dead}) died")
         how = f"signal {-code}" if code < 0 else f"exit {code}"
         replaced.append(
@@ -539,24 +544,63 @@ def worker_log(paths: DataPaths) -> Path:
     return paths.prefect_home / WORKER_LOG
 
 
+# Each worker's temporary directory (`start_worker`), by the worker's pid.
+_worker_tmp: dict[int, Path] = {}
+
+
+def worker_tmp_root(paths: DataPaths) -> Path:
+    """Where the workers' temporary directories go: ``DATA/prefect/tmp``."""
+    return paths.prefect_home / "tmp"
+
+
 def start_worker(paths: DataPaths, limit: int = 1) -> subprocess.Popen:
     """A Prefect process worker on `WORK_POOL` of the server ``PREFECT_API_URL`` names, taking
     ``limit`` runs at a time, each in a process of its own; its log goes to
-    ``DATA/prefect/worker.log``. It dies with this process, as the private servers do."""
+    ``DATA/prefect/worker.log``. It dies with this process, as the private servers do.
+
+    Prefect's worker leaves a directory in the system's temporary folder for each run it starts,
+    removed only when the worker exits cleanly: every `make test` left one in /tmp. So each
+    worker (and its runs) gets a temporary directory of its own under `worker_tmp_root`,
+    removed once the worker has ended (`forget_worker`); those of commands that were killed are
+    removed by the next worker's start."""
     log_path = worker_log(paths)
     log_path.parent.mkdir(parents=True, exist_ok=True)
+    root = worker_tmp_root(paths)
+    root.mkdir(parents=True, exist_ok=True)
+    _sweep_tmp(root)
+    tmp = Path(tempfile.mkdtemp(prefix=f"{os.getpid()}-", dir=root))
     command = [sys.executable, "-m", "prefect", "worker", "start", "--pool", WORK_POOL]
     command += ["--type", "process", "--limit", str(limit)]
     with log_path.open("ab") as log:
-        return subprocess.Popen(
+        worker = subprocess.Popen(
             command,
-            env={**WORKER_SETTINGS, **os.environ, **SERVER_LOG_SETTINGS},
+            env={**WORKER_SETTINGS, **os.environ, **SERVER_LOG_SETTINGS, "TMPDIR": str(tmp)},
             stdout=log,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             start_new_session=True,
             preexec_fn=die_with_parent if sys.platform == "linux" else None,
         )
+    _worker_tmp[worker.pid] = tmp
+    return worker
+
+
+def forget_worker(worker: subprocess.Popen) -> None:
+    """Remove the temporary directory of ``worker``, which has ended."""
+    tmp = _worker_tmp.pop(worker.pid, None)
+    if tmp is not None:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _sweep_tmp(root: Path) -> None:
+    """Remove the worker directories under ``root`` whose command (the pid that starts each
+    one's name) no longer runs: it was killed before it could remove them."""
+    import psutil
+
+    for found in root.iterdir():
+        owner = found.name.partition("-")[0]
+        if not (owner.isdigit() and psutil.pid_exists(int(owner))):
+            shutil.rmtree(found, ignore_errors=True)
 
 
 async def _run_until_stopped(runner, look=None) -> None:

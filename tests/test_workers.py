@@ -23,7 +23,7 @@ import pytest
 from conftest import api_post, flow_runs, run_cli, stage_contents, wait_for
 
 from flows.launch import run_progress, served_api
-from flows.serve import WORK_POOL, free_port
+from flows.serve import WORK_POOL, free_port, worker_tmp_root
 from storage.check import scan
 from storage.paths import data_paths
 
@@ -168,6 +168,8 @@ def test_a_killed_worker_is_replaced_its_run_crashed_and_the_next_run_completes(
             log=log_path,
         )
         wait_for("the run to start", lambda: run_progress(paths, first).state == "Running")
+        # Its temporary files go to the data directory, not the system's.
+        assert str(worker_tmp_root(paths)) in run.environ()["TMPDIR"]
         worker.kill()
         killed = time.monotonic()
         replacement = wait_for(
@@ -203,6 +205,8 @@ def test_a_killed_worker_is_replaced_its_run_crashed_and_the_next_run_completes(
         serve.send_signal(signal.SIGTERM)
         assert serve.wait(timeout=60) == 0
         log.close()
+    # The workers' temporary directories (Prefect's per-run ones in them) went with them.
+    assert list(worker_tmp_root(paths).iterdir()) == []
     said = [line for line in log_path.read_text().splitlines() if f"worker {worker.pid}" in line]
     assert len(said) == 1 and f"worker {worker.pid} died (signal 9)" in said[0], said
     assert "its 1 flow run(s) stopped and marked Crashed" in said[0], said
