@@ -8,6 +8,10 @@ The demonstrations are DeepMimic's punch clip performed by two facing fighters
   rewards from the discriminators, discriminator and PPO updates), environment steps per
   second of wall time, with the split of an iteration's time.
 Prints both and, last, ``train_vs_physics: R x`` (end to end over raw physics).
+
+``--stepping warp`` steps the arenas on MuJoCo Warp (`models.maaip.warp_physics`), on the GPU
+with ``--device cuda``, and measures the default stepping's raw physics in the same run beside
+it; ``--envs`` sets the batch (1,024 to 8,192 worlds suit a GPU).
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 # As `ringside` sets it (flows/cli/environment.py).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from models.maaip.config import TrainConfig  # noqa: E402
+from models.maaip.config import STEPPINGS, EnvConfig, TrainConfig  # noqa: E402
 from models.maaip.env import ArenaEnv  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
@@ -44,6 +48,14 @@ def main() -> None:
         type=int,
         help="environments per batch instead of the default (the PPO minibatch scales with it)",
     )
+    parser.add_argument(
+        "--stepping",
+        choices=STEPPINGS,
+        help="how the arenas are stepped (train.env.stepping) instead of the default",
+    )
+    parser.add_argument(
+        "--device", default="cpu", help="where the networks (and Warp's worlds) run: cpu or cuda"
+    )
     args = parser.parse_args()
     assets = data_paths().assets
     pull(assets, dev=True, log=lambda _line: None)
@@ -59,16 +71,18 @@ def main() -> None:
                 config.ppo, minibatch_size=round(config.ppo.minibatch_size * scale)
             ),
         )
+    default = config.env
+    config = dataclasses.replace(config, device=args.device)
+    if args.stepping:
+        config = dataclasses.replace(
+            config, env=dataclasses.replace(config.env, stepping=args.stepping)
+        )
     n = config.env.num_envs
-
-    with ArenaEnv(config.env, np.random.default_rng(0), demos.bones) as env:
-        env.reset(np.arange(n), demos.reference)
-        physics = 0.0
-        for _ in range(REPEATS):
-            start = time.perf_counter()
-            for _ in range(PHYSICS_STEPS):
-                env.step_physics()
-            physics = max(physics, PHYSICS_STEPS * n / (time.perf_counter() - start))
+    physics = raw_physics(config.env, demos, args.device)
+    baseline = None
+    if config.env.stepping != default.stepping:
+        env = dataclasses.replace(config.env, stepping=default.stepping)
+        baseline = raw_physics(env, demos, "cpu")
 
     trainer = Trainer(config, demos)
     try:
@@ -91,6 +105,11 @@ def main() -> None:
         f"{config.network.hidden_sizes}, stepping {config.env.stepping}"
     )
     print(f"raw_physics: {physics:,.0f} env steps/s")
+    if baseline is not None:
+        print(
+            f"raw_physics with stepping {default.stepping} (the default), same run: "
+            f"{baseline:,.0f} env steps/s ({physics / baseline:.3f} x)"
+        )
     print(f"end_to_end: {best:,.0f} env steps/s")
     print("split: " + ", ".join(f"{k[:-2]} {v / total:.0%}" for k, v in split.items()))
     # Microseconds of wall time per environment step: the ratio can reach 0.5 only if everything
@@ -99,6 +118,21 @@ def main() -> None:
     per_step = ", ".join(f"{k[:-2]} {v / steps * 1e6:.0f}" for k, v in split.items())
     print(f"per env step (us): raw physics {1e6 / physics:.0f}; end to end: {per_step}")
     print(f"train_vs_physics: {best / physics:.3f} x")
+
+
+def raw_physics(config: EnvConfig, demos, device: str) -> float:
+    """Environment steps per second of `ArenaEnv.step_physics`, best of `REPEATS`."""
+    n = config.num_envs
+    with ArenaEnv(config, np.random.default_rng(0), demos.bones, device) as env:
+        env.reset(np.arange(n), demos.reference)
+        env.step_physics()  # warm-up: Warp loads its kernels on the first step
+        best = 0.0
+        for _ in range(REPEATS):
+            start = time.perf_counter()
+            for _ in range(PHYSICS_STEPS):
+                env.step_physics()
+            best = max(best, PHYSICS_STEPS * n / (time.perf_counter() - start))
+    return best
 
 
 if __name__ == "__main__":

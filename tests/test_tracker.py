@@ -197,8 +197,10 @@ def _parameters(trainer: Trainer) -> torch.Tensor:
     return torch.cat([p.detach().reshape(-1) for n in nets for p in n.state_dict().values()])
 
 
-def test_a_tracking_run_resumes_from_its_checkpoint_exactly(data):
-    whole = Trainer(TINY, data)
+@pytest.mark.parametrize("stepping", ["rollout", "warp"])
+def test_a_tracking_run_resumes_from_its_checkpoint_exactly(data, stepping):
+    config = dataclasses.replace(TINY, env=dataclasses.replace(TINY.env, stepping=stepping))
+    whole = Trainer(config, data)
     try:
         expected = [whole.iterate() for _ in range(3)]
         final = _parameters(whole)
@@ -209,18 +211,18 @@ def test_a_tracking_run_resumes_from_its_checkpoint_exactly(data):
     assert 0 < expected[0]["reward_total"] <= 1
     assert "motion_accuracy_real" not in expected[0]  # no discriminators
 
-    first = Trainer(TINY, data)
+    first = Trainer(config, data)
     try:
         first.iterate()
         blob = first.checkpoint()
     finally:
         first.close()
-    resumed = Trainer(TINY, data)
+    resumed = Trainer(config, data)
     try:
         resumed.restore(blob)
         got = [resumed.iterate() for _ in range(2)]
         assert torch.equal(_parameters(resumed), final)
-        gate = track_gate(resumed.nets.policy, data, TINY)
+        gate = track_gate(resumed.nets.policy, data, config)
     finally:
         resumed.close()
     timing = {k for k in expected[0] if k.endswith("_s") and not k.startswith("episode")}

@@ -232,7 +232,7 @@ def test_centred_pair_and_facing_reference_geometry(punch):
 # ---------------------------------------------------------------- observations
 
 
-@pytest.mark.parametrize("stepping", ["rollout", "threads"])
+@pytest.mark.parametrize("stepping", ["rollout", "threads", "warp"])
 def test_observations_are_the_dataset_functions_on_the_simulated_state(punch, stepping):
     rng = np.random.default_rng(4)
     with _env(num_envs=3, stepping=stepping) as env:
@@ -255,7 +255,7 @@ def test_observations_are_the_dataset_functions_on_the_simulated_state(punch, st
 # ---------------------------------------------------------------- falls and time-outs
 
 
-@pytest.mark.parametrize("stepping", ["rollout", "threads"])
+@pytest.mark.parametrize("stepping", ["rollout", "threads", "warp"])
 def test_zero_actions_stand_and_a_shove_knocks_a_fighter_down(stepping):
     with _env(num_envs=2, stepping=stepping) as env:
         reference = _standing(env)
@@ -280,7 +280,7 @@ def test_zero_actions_stand_and_a_shove_knocks_a_fighter_down(stepping):
         assert not result.done[0]
 
 
-@pytest.mark.parametrize("stepping", ["rollout", "threads"])
+@pytest.mark.parametrize("stepping", ["rollout", "threads", "warp"])
 def test_a_blown_up_simulation_ends_its_episode_with_finite_numbers(punch, stepping):
     with _env(num_envs=2, stepping=stepping) as env:
         env.reset([0, 1], punch, frames=[5, 5])
@@ -422,7 +422,7 @@ def test_threaded_stepping_is_bitwise_sequential_stepping(punch):
         assert np.array_equal(one.damage, two.damage)
 
 
-@pytest.mark.parametrize("stepping", ["rollout", "threads"])
+@pytest.mark.parametrize("stepping", ["rollout", "threads", "warp"])
 def test_physics_rates_follow_the_config(stepping):
     for substeps, timestep in ((2, 1 / 60), (4, 1 / 120)):
         with _env(substeps=substeps, stepping=stepping) as env:

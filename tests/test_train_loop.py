@@ -101,10 +101,13 @@ def test_episode_length_is_the_mean_length_of_the_episodes_that_ended(demos):
     assert metrics["episode_age_s"] < metrics["episode_length_s"] + 1e-9
 
 
-@pytest.mark.parametrize("task", ["none", "heading"])
-def test_resumed_run_matches_the_uninterrupted_one(demos, task):
+@pytest.mark.parametrize(
+    ("task", "stepping"), [("none", "rollout"), ("heading", "rollout"), ("none", "warp")]
+)
+def test_resumed_run_matches_the_uninterrupted_one(demos, task, stepping):
     reward = RewardConfig(w_control=0.5 if task == "heading" else 0.0, control_task=task)
-    config = dataclasses.replace(TINY, reward=reward)
+    env = dataclasses.replace(TINY.env, stepping=stepping)
+    config = dataclasses.replace(TINY, reward=reward, env=env)
     whole = Trainer(config, demos)
     try:
         expected = [whole.iterate() for _ in range(3)]

@@ -26,7 +26,7 @@ CONTROL_TASKS = ("none", "damage_min", "damage_max", "heading")
 DISCRIMINATOR_LOSSES = ("gail", "lsgan")
 NUM_AGENTS = 2
 HEADING_OBSERVATION_DIM = 2
-STEPPINGS = ("rollout", "threads")
+STEPPINGS = ("rollout", "threads", "warp")
 RESET_VELOCITIES = ("zero", "clip", "reference")
 OBJECTIVES = ("maaip", "track")
 
@@ -83,7 +83,10 @@ class EnvConfig:
         "rollout",
         "How the batch is stepped: 'rollout' (mujoco.rollout, contacts from sensors; measured "
         "faster) or 'threads' (own thread pool over the MjData, contacts from MjData.contact, "
-        "bit-identical to stepping the environments one by one).",
+        "bit-identical to stepping the environments one by one) or 'warp' (MuJoCo Warp: every "
+        "environment a world of one batch, on the GPU where train.device is one, else on the "
+        "CPU, where it is slower (benchmarks/train_speed.py --stepping warp); "
+        "models/maaip/warp_physics.py).",
     )
 
     def __post_init__(self) -> None:

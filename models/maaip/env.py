@@ -35,7 +35,7 @@ whose positions or velocities are no longer finite or exceed mjMAXVAL after a st
 `unstable`: its episode ends (terminal) with zeros for observation and damage, and the
 trainer resets it like any other finished environment and counts it.
 
-Batched stepping, two ways (`EnvConfig.stepping`), measured by `benchmarks/physics_speed.py`:
+Batched stepping, three ways (`EnvConfig.stepping`), measured by `benchmarks/physics_speed.py`:
 - "rollout" (default): `mujoco.rollout.Rollout`, MuJoCo's own thread pool. It takes and
   returns states (mjSTATE_FULLPHYSICS) and sensor values, not MjData: contacts come from
   contact sensors the arena gets for it (`arena_mjcf(contact_sensors=True)`; they report the
@@ -48,6 +48,9 @@ Batched stepping, two ways (`EnvConfig.stepping`), measured by `benchmarks/physi
   `mj_step`, which releases the GIL; after every substep a worker reads the contacts from
   `MjData.contact` (`mj_contactForce`), and after the chunk it refreshes the kinematics and
   reads the body states. Bit-identical to stepping the environments one by one.
+- "warp": MuJoCo Warp steps all N environments as the worlds of one batch, on the GPU where
+  there is one (`models.maaip.warp_physics`); contacts come from the contact sensors as with
+  "rollout", and the state goes to the device and back around each policy step.
 Measured by `benchmarks/physics_speed.py` on 2 cores, N = 64, 60 Hz x 2: the whole step runs
 at about 7,500 environment steps/s with "rollout" and 5,800 with "threads" (raw physics alone:
 14-15k with either): "rollout" steps its environments back to back in C, while "threads" reads
@@ -400,6 +403,7 @@ class ArenaEnv:
         config: EnvConfig,
         rng: np.random.Generator,
         bones: tuple[BoneLengths, BoneLengths] = (BoneLengths(), BoneLengths()),  # noqa: B008
+        device: str = "cpu",
     ):
         if not isinstance(config, EnvConfig):
             raise TypeError(f"config must be an EnvConfig, got {type(config).__name__}")
@@ -408,7 +412,8 @@ class ArenaEnv:
         self.config = config
         self.rng = rng
         rollout = config.stepping == "rollout"
-        xml = arena_mjcf(bones, timestep=config.timestep, contact_sensors=rollout)
+        warp = config.stepping == "warp"
+        xml = arena_mjcf(bones, timestep=config.timestep, contact_sensors=rollout or warp)
         self.model = mujoco.MjModel.from_xml_string(xml)
         # An unstable simulation is caught here (`StepResult.unstable`) rather than silently
         # restarted by MuJoCo at the model's rest state, which would read as a teleport.
@@ -427,7 +432,7 @@ class ArenaEnv:
         self._chunks = [
             c for c in np.array_split(np.arange(config.num_envs), config.threads) if c.size
         ]
-        threaded = not rollout and len(self._chunks) > 1
+        threaded = config.stepping == "threads" and len(self._chunks) > 1
         self._pool = ThreadPoolExecutor(len(self._chunks)) if threaded else None
         self._rollout = None
         if rollout:
@@ -436,6 +441,11 @@ class ArenaEnv:
             self._rollout = mujoco.rollout.Rollout(nthread=threads)
             self._scratch = [mujoco.MjData(self.model) for _ in range(max(threads, 1))]
             self._nstate = mujoco.mj_stateSize(self.model, _FULL)
+        self._warp = None
+        if warp:
+            from models.maaip.warp_physics import WarpPhysics, warp_device
+
+            self._warp = WarpPhysics(self.model, config.num_envs, warp_device(device))
 
     def close(self) -> None:
         """End the worker threads."""
@@ -674,7 +684,7 @@ class ArenaEnv:
     def _puppet_paths(self, puppet: Puppet) -> tuple[slice, slice, np.ndarray, np.ndarray]:
         """The puppet's qpos and qvel slices, and per environment the whole model's qpos at the
         step's start (N, nq) and a qvel (N, nv) that is the puppet's velocity to its pose."""
-        if self._rollout is not None:
+        if self.config.stepping != "threads":
             raise ValueError('a puppet needs EnvConfig.stepping "threads"')
         if puppet.agent not in (0, 1):
             raise ValueError(f"puppet.agent must be 0 or 1, got {puppet.agent!r}")
@@ -712,6 +722,8 @@ class ArenaEnv:
         (`_puppet_paths`) moves a puppet along its path before every substep."""
         if self._rollout is not None:
             return self._advance_rollout(ctrl, contacts=contacts)
+        if self._warp is not None:
+            return self._advance_warp(ctrl, contacts=contacts)
         damage = np.zeros((self.num_envs, NUM_AGENTS))
         floor = np.zeros((self.num_envs, NUM_AGENTS), dtype=bool)
 
@@ -777,5 +789,18 @@ class ArenaEnv:
                 self._gather(i)
         if not contacts:
             return np.zeros((n, NUM_AGENTS)), np.zeros((n, NUM_AGENTS), dtype=bool)
+        assert self.index.sensors is not None
+        return sensor_contacts(sensordata, self.index.sensors)
+
+    def _advance_warp(self, ctrl: np.ndarray, *, contacts: bool) -> tuple[np.ndarray, np.ndarray]:
+        assert self._warp is not None
+        for i, data in enumerate(self.datas):
+            data.ctrl[:] = ctrl[i]
+        sensordata = self._warp.advance(self.datas, self.config.substeps)
+        n = self.num_envs
+        if not contacts:
+            return np.zeros((n, NUM_AGENTS)), np.zeros((n, NUM_AGENTS), dtype=bool)
+        for i in range(n):
+            self._gather(i)
         assert self.index.sensors is not None
         return sensor_contacts(sensordata, self.index.sensors)

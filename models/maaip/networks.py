@@ -86,7 +86,12 @@ def mlp(
 def _linear(a: int, b: int, gain: float, generator: torch.Generator | None) -> nn.Linear:
     layer = nn.Linear(a, b)
     with torch.no_grad():
-        nn.init.orthogonal_(layer.weight, gain, generator=generator)
+        # Drawn and orthogonalised in float64, then rounded: LAPACK's float32 QR of a tall
+        # matrix (the first layer's) gave weights 2e-7 apart in two constructions in one
+        # process (MKL's path follows memory alignment), so one seed was not always one run.
+        weight = torch.empty(b, a, dtype=torch.float64)
+        nn.init.orthogonal_(weight, gain, generator=generator)
+        layer.weight.copy_(weight)
         layer.bias.zero_()
     return layer
 

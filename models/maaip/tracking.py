@@ -594,7 +594,7 @@ def play_clips(
     device = next(policy.parameters()).device
     rows: list[GateRow] = []
     played: list[np.ndarray] = []
-    with ArenaEnv(env_config, np.random.default_rng(0), data.bones) as env:
+    with ArenaEnv(env_config, np.random.default_rng(0), data.bones, str(device)) as env:
         tracker = Tracker(data, config.track, env_config)
         clips = np.stack([np.minimum(np.arange(n), c - 1) for c in counts], 1)
         last = np.array(

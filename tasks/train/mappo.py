@@ -198,7 +198,9 @@ class Trainer:
         # never learned from; the first HELD_OUT_ROWS of each, so the check costs little.
         held = () if demos is None else demos.held_out
         self.held_out = [torch.from_numpy(x[:HELD_OUT_ROWS]).to(self.device) for x in held]
-        self.env = ArenaEnv(config.env, np.random.default_rng(config.seed), bones)
+        self.env = ArenaEnv(
+            config.env, np.random.default_rng(config.seed), bones, device=str(self.device)
+        )
         # The heading task (§5.4): each agent's target direction on the floor, a world yaw drawn
         # anew at every episode start.
         self.heading = config.reward.control_task == "heading"

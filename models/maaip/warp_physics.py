@@ -1,0 +1,119 @@
+"""The arena's physics on MuJoCo Warp: every environment a world of one batched simulation.
+
+`EnvConfig.stepping = "warp"`. MuJoCo Warp (`mujoco-warp`, Google DeepMind and NVIDIA) reads the
+same MJCF as MuJoCo and steps thousands of worlds in one batch on an NVIDIA GPU; it also runs on
+the CPU, slowly, which is what the tests and this 2-core machine use. Its arrays are float32,
+MuJoCo's float64: trajectories agree to float32's precision for a while, then part as any two
+floating-point schedules of a contact-rich simulation do (measured in tests/test_warp.py).
+
+What runs where, today: the physics substeps and the contact sensors run on the device; before
+each policy step the state (qpos, qvel, act, the solver's warm start, time and ctrl) goes up from
+the arena's MjData, and after it comes back, so resets, observations, rewards, checkpoints and
+everything else read the MjData as with the other steppings. The observations and rewards are
+not yet computed on the device.
+
+Contacts come from the arena's contact sensors (`arena_mjcf(contact_sensors=True)`), as with
+"rollout". MuJoCo's automatic reset is not in Warp; Warp never resets a world on its own, so an
+unstable world is caught by the arena's own finiteness test as before.
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+
+import mujoco
+import numpy as np
+
+# The state that decides the next step, as `mujoco.mj_step` reads it (mjSTATE_INTEGRATION less
+# what the arena never sets: applied forces, mocap, equality switches).
+_STATE_FIELDS = ("qpos", "qvel", "act", "qacc_warmstart", "ctrl")
+# Contacts per world the device holds: two fighters in a clinch, feet flat, touch in about 30
+# places; the solver's rows follow from them (pyramidal cone: 2 x condim - 2 per contact).
+CONTACTS_PER_WORLD = 96
+ROWS_PER_WORLD = 1024
+
+
+class WarpOverflow(RuntimeError):
+    """The device ran out of room for contacts or constraint rows in some world: its physics
+    would silently have gone wrong."""
+
+
+@functools.cache
+def _warp():
+    """warp and mujoco_warp, imported (and Warp initialised quietly) on first use: importing
+    them costs seconds, and Warp's banner would otherwise land in the CLI's JSON output."""
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING  # no banner, no line per kernel module loaded
+    import mujoco_warp as mjw
+
+    wp.init()
+    return wp, mjw
+
+
+def warp_device(name: str) -> str:
+    """Warp's name for torch device ``name`` ('cpu', 'cuda', 'cuda:1')."""
+    if name.startswith("cuda"):
+        return name if ":" in name else "cuda:0"
+    return "cpu"
+
+
+class WarpPhysics:
+    """``num_envs`` worlds of ``model`` on the Warp device ``device``."""
+
+    def __init__(self, model: mujoco.MjModel, num_envs: int, device: str = "cpu"):
+        wp, mjw = _warp()
+        self.device = device
+        host = copy.copy(model)
+        # Not in Warp (it never resets a world by itself, the same behaviour).
+        host.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        with wp.ScopedDevice(device):
+            self._model = mjw.put_model(host)
+            self._data = mjw.put_data(
+                host,
+                mujoco.MjData(host),
+                nworld=num_envs,
+                nconmax=CONTACTS_PER_WORLD,
+                njmax=ROWS_PER_WORLD,
+            )
+        self._fatal = int(
+            mjw.OverflowType.NEFC
+            | mjw.OverflowType.NJMAX_NNZ
+            | mjw.OverflowType.BROADPHASE
+            | mjw.OverflowType.NARROWPHASE
+            | mjw.OverflowType.CCD
+        )
+        self._names = mjw.OverflowType
+
+    def advance(self, datas: list[mujoco.MjData], substeps: int) -> np.ndarray:
+        """Step every world ``substeps`` times from the state and ctrl of ``datas`` (one MjData
+        per world), write the new state back into them, and return the sensor values after each
+        substep, (N, substeps, nsensordata), as `mujoco.rollout` does."""
+        wp, mjw = _warp()
+        d = self._data
+        for name in _STATE_FIELDS:
+            getattr(d, name).assign(np.stack([getattr(data, name) for data in datas]))
+        d.time.assign(np.array([data.time for data in datas]))
+        d.overflow.zero_()
+        sensordata = np.empty((len(datas), substeps, d.sensordata.shape[1]))
+        with wp.ScopedDevice(self.device):
+            for k in range(substeps):
+                mjw.step(self._model, d)
+                sensordata[:, k] = d.sensordata.numpy()
+        overflow = d.overflow.numpy() & self._fatal
+        if overflow.any():
+            world = int(np.flatnonzero(overflow)[0])
+            raise WarpOverflow(
+                f"MuJoCo Warp ran out of room in world {world} "
+                f"({self._names(int(overflow[world])).name}): raise CONTACTS_PER_WORLD or "
+                f"ROWS_PER_WORLD in models/maaip/warp_physics.py"
+            )
+        for name in ("qpos", "qvel", "act", "qacc_warmstart"):
+            values = getattr(d, name).numpy()
+            for i, data in enumerate(datas):
+                getattr(data, name)[:] = values[i]
+        times = d.time.numpy()
+        for i, data in enumerate(datas):
+            data.time = float(times[i])
+        return sensordata
