@@ -28,10 +28,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from models.maaip.config import PRESETS, NetworkConfig, TrainConfig  # noqa: E402
+from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.train.data import clip_demonstrations  # noqa: E402
-from tasks.train.mappo import Trainer  # noqa: E402
 
 REPEATS = 2
 SIZES = ((128, 128), (256, 128), (256, 256, 128), (512, 256), (512, 512, 256), PRESETS["paper"])

@@ -38,10 +38,10 @@ import torch  # noqa: E402
 from models.humanoid.boxer import BoneLengths  # noqa: E402
 from models.maaip.config import TrainConfig  # noqa: E402
 from models.maaip.tracking import Gate, TrackingData, track_gate, tracking_data  # noqa: E402
+from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.deepmimic import WALKER_CLIPS, clip_path, load_deepmimic, retarget  # noqa: E402
-from tasks.train.mappo import Trainer  # noqa: E402
 
 CLIPS = ("walk", "punch", *WALKER_CLIPS)
 GATE = {"finished_pct": 90.0, "body_error_cm": 5.0, "root_error_cm": 10.0}

@@ -32,10 +32,10 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from models.maaip.config import STEPPINGS, EnvConfig, TrainConfig  # noqa: E402
 from models.maaip.env import ArenaEnv  # noqa: E402
+from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.train.data import clip_demonstrations  # noqa: E402
-from tasks.train.mappo import Trainer  # noqa: E402
 
 REPEATS = 3
 PHYSICS_STEPS = 100

@@ -27,13 +27,13 @@ from models.maaip.config import (
     TrainConfig,
 )
 from models.maaip.networks import Policy, make_networks
+from models.maaip.trainer import Trainer
 from storage.files import sha256_file
 from tasks.errors import BadInput
 from tasks.evaluate.export import export_opponent, onnx_max_abs_diff, policy_onnx
 from tasks.evaluate.opponent import load_opponent
 from tasks.evaluate.spar import Partner, spar
 from tasks.train.data import clip_demonstrations
-from tasks.train.mappo import Trainer
 
 REPO = Path(__file__).resolve().parent.parent
 ARTIFACTS = REPO / "data" / "test-artifacts" / "spar"
@@ -176,10 +176,11 @@ def test_spar_renders_a_bout_that_plays(tmp_path, pair):
     _, frames = read_video(video)
     assert len(frames) == 60 and frames[0].shape == (180, 320, 3)
     # The fighters are on screen: the middle of the picture differs from its empty edges, and
-    # they move.
-    first, last = frames[0].astype(float), frames[-1].astype(float)
+    # they move: every fifth of a second the picture has changed from the first (by 0.17-0.31
+    # of 255 on average for this tiny run's fighters, which sway in their guard; 0 if frozen).
+    first = frames[0].astype(float)
     assert first[:, 120:200].std() > first[:, :40].std() + 5
-    assert np.abs(first - last).mean() > 0.5
+    assert min(np.abs(f.astype(float) - first).mean() for f in frames[6::6]) > 0.1
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     for index in (0, 30, 59):
         cv2.imwrite(str(ARTIFACTS / f"bout_{index:02d}.png"), frames[index])

@@ -32,9 +32,9 @@ from models.maaip.tracking import (
     track_gate,
     tracking_data,
 )
+from models.maaip.trainer import Trainer
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.train.data import clip_demonstrations
-from tasks.train.mappo import Trainer
 
 BONES = (BoneLengths(), BoneLengths())
 TINY = TrainConfig(

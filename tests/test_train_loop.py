@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import io
 
 import numpy as np
 import pytest
@@ -19,8 +20,9 @@ from models.maaip.config import (
     TrainConfig,
 )
 from models.maaip.demonstrations import Demonstrations
+from models.maaip.env import ArenaEnv
+from models.maaip.trainer import CheckpointMismatch, Trainer, TrainState, default_networks
 from tasks.train.data import clip_demonstrations
-from tasks.train.mappo import CheckpointMismatch, Trainer
 
 TINY = TrainConfig(
     seed=3,
@@ -151,6 +153,43 @@ def test_a_checkpoint_of_another_humanoid_is_refused(demos, assets):
             other.restore(blob)
     finally:
         other.close()
+
+
+def test_a_checkpoint_is_one_train_state_and_an_older_format_is_refused_in_one_line(demos):
+    trainer = Trainer(TINY, demos)
+    try:
+        trainer.iterate()
+        state = TrainState.from_bytes(trainer.checkpoint())
+    finally:
+        trainer.close()
+    assert state.iteration == 1 and len(state.buffers) == 3
+    assert state.arena["physics"].shape[0] == TINY.env.num_envs
+    older = {**dataclasses.asdict(state), "signature": {**state.signature, "format": 2}}
+    out = io.BytesIO()
+    torch.save(older, out)
+    with pytest.raises(CheckpointMismatch, match="format 2 cannot be resumed") as error:
+        TrainState.from_bytes(out.getvalue())
+    assert "\n" not in str(error.value)
+
+
+def test_the_trainer_builds_its_arena_and_networks_with_the_factories_it_is_given(demos):
+    made = []
+
+    def arena(config, rng, bones, device):
+        made.append(ArenaEnv(dataclasses.replace(config, stepping="threads"), rng, bones, device))
+        return made[-1]
+
+    def networks(config, data, generator):
+        made.append(default_networks(config, data, generator))
+        return made[-1]
+
+    trainer = Trainer(TINY, demos, arena=arena, networks=networks)
+    try:
+        assert trainer.nets is made[0] and trainer.env is made[1]
+        assert trainer.env.config.stepping == "threads"
+        assert trainer.iterate()["episodes_ended"] >= 0
+    finally:
+        trainer.close()
 
 
 def test_the_heading_task_rewards_moving_along_the_target(demos):

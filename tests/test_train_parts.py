@@ -47,8 +47,8 @@ from models.maaip.networks import (
     action_stds,
     make_networks,
 )
+from models.maaip.trainer import training_device
 from tasks.config import build
-from tasks.train.mappo import training_device
 
 
 @pytest.fixture(autouse=True)
@@ -98,7 +98,8 @@ def test_discriminator_separates_demonstrations_from_random_transitions(loss):
     assert len(fake_pool) == 16384
     d.norm.update(torch.cat([real_pool, fake_pool.sample(16384, generator=gen)]))
     optimizer = torch.optim.Adam(d.parameters(), lr=1e-3)
-    for _ in range(300):
+    # 500 steps: with 300, one in eight initialisations (seeds 0-3, both losses) fell short.
+    for _ in range(500):
         real = real_pool[torch.randint(len(real_pool), (128,), generator=gen)]
         fake = fake_pool.sample(128, generator=gen)
         value, stats = discriminator_loss(d, real, fake, config=config)
@@ -152,8 +153,9 @@ def test_discriminator_losses_match_the_equations():
     gail, stats = gail_discriminator_loss(d, real, fake, gp_weight=0.0, logit_reg=0.5)
     weights = d.output_weight.square().sum()
     assert gail.item() == pytest.approx((bce + 0.5 * weights).item(), rel=1e-10)
-    assert stats.accuracy_real == (lr > 0).double().mean().item()
-    assert stats.accuracy_fake == (lf < 0).double().mean().item()
+    # Counted in float32, as the losses report it.
+    assert stats.accuracy_real == pytest.approx((lr > 0).double().mean().item(), abs=1e-7)
+    assert stats.accuracy_fake == pytest.approx((lf < 0).double().mean().item(), abs=1e-7)
     ls, _ = lsgan_discriminator_loss(d, real, fake, gp_weight=0.0)
     expected = ((lr - 1) ** 2).mean() + ((lf + 1) ** 2).mean()  # eq 12
     assert ls.item() == pytest.approx(expected.item(), rel=1e-10)
@@ -176,8 +178,9 @@ def test_instance_noise_blurs_the_inputs_but_not_the_reported_accuracy():
         bce = -(sig(d.logits(z_real)).log().mean() + (1 - sig(d.logits(z_fake))).log().mean())
         lr, lf = d(real), d(fake)
     assert noisy.item() == pytest.approx(bce.item(), rel=1e-10)
-    assert stats.accuracy_real == (lr > 0).double().mean().item()
-    assert stats.accuracy_fake == (lf < 0).double().mean().item()
+    # Counted in float32, as the losses report it.
+    assert stats.accuracy_real == pytest.approx((lr > 0).double().mean().item(), abs=1e-7)
+    assert stats.accuracy_fake == pytest.approx((lf < 0).double().mean().item(), abs=1e-7)
     clean, _ = gail_discriminator_loss(d, real, fake, gp_weight=0.0)
     assert clean.item() != pytest.approx(noisy.item())
 

@@ -22,6 +22,7 @@ from models.maaip.config import (
     PPOConfig,
     TrainConfig,
 )
+from models.maaip.trainer import Trainer
 from storage.artifacts import artifact_path, read_bytes
 from storage.db import connect
 from storage.paths import data_paths
@@ -32,7 +33,6 @@ from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.store import dataset_info, footage_clips, record_dataset
 from tasks.evaluate.opponent import load_opponent
 from tasks.roles import ROLES
-from tasks.train.mappo import Trainer
 from tasks.train.run import train
 from tasks.train.store import _fits, warm_start_source
 from tasks.train.tracking import SPLITS

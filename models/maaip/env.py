@@ -111,6 +111,7 @@ from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 @dataclass(frozen=True, eq=False)
@@ -465,6 +466,37 @@ class ArenaEnv:
     @property
     def num_envs(self) -> int:
         return self.config.num_envs
+
+    def state(self) -> dict:
+        """Everything that decides what the environments do next, for `load_state`: each
+        one's physics (mjSTATE_INTEGRATION and the solver's warm start), its age in steps and
+        the generator of its resets."""
+        size = mujoco.mj_stateSize(self.model, _INTEGRATION)
+        physics = np.empty((self.num_envs, size))
+        warm = np.empty((self.num_envs, self.model.nv))
+        for i, data in enumerate(self.datas):
+            mujoco.mj_getState(self.model, data, physics[i], _INTEGRATION)
+            warm[i] = data.qacc_warmstart
+        return {
+            "physics": physics,
+            "warmstart": warm,
+            "elapsed": self.elapsed.copy(),
+            "rng": self.rng.bit_generator.state,
+        }
+
+    def load_state(self, state: dict) -> None:
+        """Continue from a `state` of environments of this model and number."""
+        if state["physics"].shape != (self.num_envs, mujoco.mj_stateSize(self.model, _INTEGRATION)):
+            raise ValueError(
+                f"an arena state of shape {state['physics'].shape} does not fit {self.num_envs} "
+                "environments of this model"
+            )
+        for i, data in enumerate(self.datas):
+            mujoco.mj_setState(self.model, data, state["physics"][i], _INTEGRATION)
+            data.qacc_warmstart[:] = state["warmstart"][i]
+            mujoco.mj_forward(self.model, data)
+        self.elapsed[:] = state["elapsed"]
+        self.rng.bit_generator.state = state["rng"]
 
     # ---------------------------------------------------------------- reset
 

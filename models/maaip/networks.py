@@ -422,6 +422,20 @@ class ReplayBuffer:
         self._next = (self._next + n) % self.capacity
         self._size = min(self._size + n, self.capacity)
 
+    def state(self) -> dict:
+        """What `load_state` takes back: the filled rows only, so a short run's is small."""
+        return {"rows": self._data[: self._size].clone(), "next": self._next, "size": self._size}
+
+    def load_state(self, state: dict) -> None:
+        rows = state["rows"]
+        if rows.shape[1:] != (self.dim,) or len(rows) > self.capacity:
+            raise ValueError(
+                f"a ReplayBuffer state of {tuple(rows.shape)} rows does not fit one of capacity "
+                f"{self.capacity} and width {self.dim}"
+            )
+        self._data[: len(rows)].copy_(rows)
+        self._next, self._size = state["next"], state["size"]
+
     def sample(self, k: int, *, generator: torch.Generator | None = None) -> Tensor:
         """K rows (K, F) drawn uniformly with replacement."""
         if self._size == 0:

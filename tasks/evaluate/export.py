@@ -27,13 +27,13 @@ from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_
 from models.maaip.arena import arena_mjcf
 from models.maaip.config import EnvConfig, TrainConfig
 from models.maaip.networks import Policy
+from models.maaip.trainer import checkpoint_policy
 from storage.artifacts import read_bytes
 from storage.db import connect
 from storage.records import output_metrics
 from tasks.config import build
 from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent
 from tasks.evaluate.store import resolve_run
-from tasks.train.mappo import checkpoint_policy
 from tasks.train.store import RunInfo
 
 ONNX_OPSET = 17

@@ -17,10 +17,13 @@ corrections, the reward is DeepMimic's, computed as the steps are collected, and
 discriminators (steps 2-3 are skipped); GAE, PPO, the normalisers and the checkpoints are the
 same.
 
-Everything that decides what comes next is in :class:`Trainer` and saved by
-:meth:`Trainer.checkpoint`: networks, optimisers, normalisers, replay buffers, random
-generators, the environments' physics states and the iteration, so a run restored from a
-checkpoint continues exactly as the uninterrupted run would (tested).
+Everything that decides what comes next is one :class:`TrainState` (`Trainer.state`,
+`Trainer.load`; `Trainer.checkpoint` is its bytes): networks, optimisers, normalisers, replay
+buffers, random generators, the environments' physics states and the iteration, so a run
+restored from a checkpoint continues exactly as the uninterrupted run would (tested, with each
+stepping). The trainer builds its arena and networks with the factories it is given (`ArenaEnv`
+and `default_networks` unless told), and imports no storage, Prefect or stage code: the train
+stage (`tasks.train`) runs it.
 """
 
 from __future__ import annotations
@@ -31,14 +34,13 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
-import mujoco
 import numpy as np
 import torch
 from torch import Tensor
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, SELF_DIM, block_slices
-from models.maaip.config import TrainConfig
+from models.maaip.config import EnvConfig, TrainConfig
 from models.maaip.demonstrations import Demonstrations
 from models.maaip.distill import distill
 from models.maaip.env import ArenaEnv
@@ -62,17 +64,18 @@ from models.maaip.tracking import (
     tracking_networks,
 )
 
-_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 HELD_OUT_ROWS = 4096
 _LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
 _ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 3)
-CHECKPOINT_FORMAT = 2  # 2: the policy's offset (its guard) is part of its state
+# 2: the policy's offset (its guard) is part of its state; 3: a `TrainState` (the arena's and
+# the replay buffers' own states). Export and warm starts read the networks of any format.
+CHECKPOINT_FORMAT = 3
 
 
 def checkpoint_policy(blob: bytes, config: TrainConfig) -> tuple[Policy, tuple[BoneLengths, ...]]:
     """The policy of a `Trainer.checkpoint` made with ``config`` (a tracker's sees the
     tracker's observation), in eval mode, and the run's two humanoids."""
-    state = torch.load(io.BytesIO(blob), weights_only=False, map_location="cpu")
+    state = _load(blob)
     policy = Policy(
         hidden=config.network.hidden_sizes,
         action_std=action_stds(config),
@@ -141,6 +144,67 @@ class Rollout:
     terminal: Tensor | None = None
 
 
+# Builds the arena: (EnvConfig, its generator, the two humanoids, the torch device's name).
+ArenaFactory = Callable[[EnvConfig, np.random.Generator, tuple, str], ArenaEnv]
+# Builds the networks for the run's config and data from its generator.
+NetworksFactory = Callable[
+    [TrainConfig, "Demonstrations | TrackingData", torch.Generator], Networks
+]
+
+
+def default_networks(
+    config: TrainConfig, data: Demonstrations | TrackingData, generator: torch.Generator
+) -> Networks:
+    """MAAIP's networks (the policy starting from the dataset's guard), or a tracker's: its
+    policy and value, with no priors."""
+    if isinstance(data, TrackingData):
+        policy, value = tracking_networks(config, generator=generator)
+        return Networks(policy, value, motion=None, interaction=())  # type: ignore[arg-type]
+    return make_networks(config, generator=generator, stance=data.reference.stance)
+
+
+@dataclass
+class TrainState:
+    """Everything that decides what a run does next, saved and restored as one object
+    (`Trainer.state`, `Trainer.load`): networks (normalisers included), optimisers, replay
+    buffers, random generators, the environments and the iteration."""
+
+    signature: dict
+    iteration: int
+    networks: dict  # state dicts: policy, value, discriminators (a list)
+    optimiser: dict
+    d_optimisers: list
+    buffers: list  # `ReplayBuffer.state` of each discriminator's
+    torch_generator: Tensor
+    torch_rng: Tensor
+    task_rng: dict
+    targets: np.ndarray
+    obs: np.ndarray
+    arena: dict  # `ArenaEnv.state`
+    tracker: dict | None  # `Tracker.state`
+
+    def to_bytes(self) -> bytes:
+        out = io.BytesIO()
+        torch.save(asdict(self), out)
+        return out.getvalue()
+
+    @classmethod
+    def from_bytes(cls, blob: bytes) -> TrainState:
+        """The state of a `to_bytes`; CheckpointMismatch, in one line, for another format."""
+        found = _load(blob)
+        version = found.get("signature", {}).get("format")
+        if version != CHECKPOINT_FORMAT:
+            raise CheckpointMismatch(
+                f"checkpoint format {version} cannot be resumed by this version (format "
+                f"{CHECKPOINT_FORMAT}): start the run again (`--rerun`)"
+            )
+        return cls(**found)
+
+
+def _load(blob: bytes) -> dict:
+    return torch.load(io.BytesIO(blob), weights_only=False, map_location="cpu")
+
+
 class Trainer:
     """One training run on one dataset; `iterate` runs Algorithm 1 once (or, with objective
     'track', its collection and PPO steps on the tracking reward).
@@ -149,7 +213,14 @@ class Trainer:
     for 'track'.
     """
 
-    def __init__(self, config: TrainConfig, data: Demonstrations | TrackingData):
+    def __init__(
+        self,
+        config: TrainConfig,
+        data: Demonstrations | TrackingData,
+        *,
+        arena: ArenaFactory = ArenaEnv,
+        networks: NetworksFactory | None = None,
+    ):
         torch.manual_seed(config.seed)
         track = config.objective == "track"
         if track != isinstance(data, TrackingData):
@@ -164,19 +235,14 @@ class Trainer:
         self.generator = torch.Generator().manual_seed(config.seed)
         ppo, disc = config.ppo, config.discriminator
         self.tracker: Tracker | None = None
+        self.nets = (networks or default_networks)(config, data, self.generator)
         if isinstance(data, TrackingData):
             self.demos = None
-            policy, value = tracking_networks(config, generator=self.generator)
-            # A tracker has no priors: no discriminators, replay buffers or demonstrations.
-            self.nets = Networks(policy, value, motion=None, interaction=())  # type: ignore[arg-type]
             self.tracker = Tracker(data, config.track, config.env)
             self.discriminators: tuple = ()
             key, bones = data.key, data.bones
         else:
             self.demos = data
-            self.nets = make_networks(
-                config, generator=self.generator, stance=data.reference.stance
-            )
             self.discriminators = (self.nets.motion, *self.nets.interaction)
             key, bones = data.dataset_key, data.bones
         for net in (self.nets.policy, self.nets.value, *self.discriminators):
@@ -198,9 +264,7 @@ class Trainer:
         # never learned from; the first HELD_OUT_ROWS of each, so the check costs little.
         held = () if demos is None else demos.held_out
         self.held_out = [torch.from_numpy(x[:HELD_OUT_ROWS]).to(self.device) for x in held]
-        self.env = ArenaEnv(
-            config.env, np.random.default_rng(config.seed), bones, device=str(self.device)
-        )
+        self.env = arena(config.env, np.random.default_rng(config.seed), bones, str(self.device))
         # The heading task (§5.4): each agent's target direction on the floor, a world yaw drawn
         # anew at every episode start.
         self.heading = config.reward.control_task == "heading"
@@ -540,47 +604,37 @@ class Trainer:
 
     # ------------------------------------------------------------------ checkpoints
 
-    def checkpoint(self) -> bytes:
-        """Everything needed to continue exactly from here, as bytes (torch.save)."""
-        env = self.env
-        size = mujoco.mj_stateSize(env.model, _STATE)
-        physics = np.empty((env.num_envs, size))
-        warm = np.empty((env.num_envs, env.model.nv))
-        for i, data in enumerate(env.datas):
-            mujoco.mj_getState(env.model, data, physics[i], _STATE)
-            warm[i] = data.qacc_warmstart
-        state = {
-            "signature": self.signature,
-            "iteration": self.iteration,
-            "networks": {
+    def state(self) -> TrainState:
+        """Everything needed to continue exactly from here."""
+        return TrainState(
+            signature=self.signature,
+            iteration=self.iteration,
+            networks={
                 "policy": self.nets.policy.state_dict(),
                 "value": self.nets.value.state_dict(),
                 "discriminators": [d.state_dict() for d in self.discriminators],
             },
-            "optimiser": self.optimiser.state_dict(),
-            "d_optimisers": [o.state_dict() for o in self.d_optimisers],
-            # Only the filled rows: a short run's checkpoint stays small.
-            "buffers": [(b._data[: b._size].clone(), b._next, b._size) for b in self.buffers],
-            "torch_generator": self.generator.get_state(),
-            "torch_rng": torch.get_rng_state(),
-            "env_rng": env.rng.bit_generator.state,
-            "task_rng": self.task_rng.bit_generator.state,
-            "targets": self.targets.copy(),
-            "physics": physics,
-            "warmstart": warm,
-            "elapsed": env.elapsed.copy(),
-            "obs": self.obs.copy(),
-            "tracker": None if self.tracker is None else self.tracker.state(),
-        }
-        out = io.BytesIO()
-        torch.save(state, out)
-        return out.getvalue()
+            optimiser=self.optimiser.state_dict(),
+            d_optimisers=[o.state_dict() for o in self.d_optimisers],
+            buffers=[b.state() for b in self.buffers],
+            torch_generator=self.generator.get_state(),
+            torch_rng=torch.get_rng_state(),
+            task_rng=self.task_rng.bit_generator.state,
+            targets=self.targets.copy(),
+            obs=self.obs.copy(),
+            arena=self.env.state(),
+            tracker=None if self.tracker is None else self.tracker.state(),
+        )
+
+    def checkpoint(self) -> bytes:
+        """`state` as bytes."""
+        return self.state().to_bytes()
 
     def warm_start(self, blob: bytes) -> None:
         """Start from the networks of another run's `checkpoint` (its policy, value and
         discriminators, normalisers included), at iteration 0 with fresh optimisers and replay
         buffers; CheckpointMismatch unless its humanoids and network sizes are this run's."""
-        state = torch.load(io.BytesIO(blob), weights_only=False, map_location="cpu")
+        state = _load(blob)
         theirs = state.get("signature", {})
         shared = ("bones", "observation_dim", "hidden", "task_dim")
         differs = sorted(k for k in shared if theirs.get(k) != self.signature[k])
@@ -616,8 +670,11 @@ class Trainer:
 
     def restore(self, blob: bytes) -> None:
         """Continue from a `checkpoint`; CheckpointMismatch if it belongs to another run."""
-        state = torch.load(io.BytesIO(blob), weights_only=False, map_location="cpu")
-        theirs = state.get("signature", {})
+        self.load(TrainState.from_bytes(blob))
+
+    def load(self, state: TrainState) -> None:
+        """Continue from ``state``; CheckpointMismatch if it belongs to another run."""
+        theirs = state.signature
         differs = sorted(k for k in self.signature if theirs.get(k) != self.signature[k])
         if differs:
             first = differs[0]
@@ -625,28 +682,21 @@ class Trainer:
                 f"checkpoint was made for another run: its {', '.join(differs)} differ "
                 f"({first}: {theirs.get(first)!r} there, {self.signature[first]!r} here)"
             )
-        self.iteration = state["iteration"]
-        self.nets.policy.load_state_dict(state["networks"]["policy"])
-        self.nets.value.load_state_dict(state["networks"]["value"])
-        for d, s in zip(self.discriminators, state["networks"]["discriminators"], strict=True):
+        self.iteration = state.iteration
+        self.nets.policy.load_state_dict(state.networks["policy"])
+        self.nets.value.load_state_dict(state.networks["value"])
+        for d, s in zip(self.discriminators, state.networks["discriminators"], strict=True):
             d.load_state_dict(s)
-        self.optimiser.load_state_dict(state["optimiser"])
-        for o, s in zip(self.d_optimisers, state["d_optimisers"], strict=True):
+        self.optimiser.load_state_dict(state.optimiser)
+        for o, s in zip(self.d_optimisers, state.d_optimisers, strict=True):
             o.load_state_dict(s)
-        for b, (data, nxt, size) in zip(self.buffers, state["buffers"], strict=True):
-            b._data[: len(data)].copy_(data)
-            b._next, b._size = nxt, size
-        self.generator.set_state(state["torch_generator"])
-        torch.set_rng_state(state["torch_rng"])
-        env = self.env
-        env.rng.bit_generator.state = state["env_rng"]
-        self.task_rng.bit_generator.state = state["task_rng"]
-        self.targets = state["targets"]
-        for i, data in enumerate(env.datas):
-            mujoco.mj_setState(env.model, data, state["physics"][i], _STATE)
-            data.qacc_warmstart[:] = state["warmstart"][i]
-            mujoco.mj_forward(env.model, data)
-        env.elapsed[:] = state["elapsed"]
-        self.obs = state["obs"]
+        for b, s in zip(self.buffers, state.buffers, strict=True):
+            b.load_state(s)
+        self.generator.set_state(state.torch_generator)
+        torch.set_rng_state(state.torch_rng)
+        self.task_rng.bit_generator.state = state.task_rng
+        self.targets = state.targets.copy()
+        self.env.load_state(state.arena)
+        self.obs = state.obs.copy()
         if self.tracker is not None:
-            self.tracker.load_state(state["tracker"])
+            self.tracker.load_state(state.tracker)
