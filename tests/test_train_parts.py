@@ -531,6 +531,28 @@ def test_other_configs_reject_bad_settings():
     assert config.seed == 3 and config.reward.task_observation_dim == 2
 
 
+def test_the_paper_preset_is_the_thesis_table_and_a_given_value_wins():
+    paper = TrainConfig(preset="paper")
+    # Table 3.1: 131,072 samples per iteration in 2 minibatches of 6 epochs, episodes of
+    # 1,200 steps, gradient penalty 5, K 4,096, action variance 0.0025, clip 0.02.
+    assert paper.ppo.batch_size(paper.env.num_envs) == 131072
+    assert paper.ppo.batch_size(paper.env.num_envs) // paper.ppo.minibatch_size == 2
+    assert paper.ppo.epochs == 6 and paper.env.max_steps == 1200
+    assert paper.discriminator.gp_weight == 5 and paper.discriminator.samples_per_update == 4096
+    assert paper.ppo.action_std**2 == pytest.approx(0.0025) and paper.ppo.arm_action_std == 0
+    assert paper.ppo.clip_coef == 0.02 and paper.network.hidden_sizes == (1024, 1024, 512)
+    assert paper.env.stepping == "warp"
+    assert TrainConfig() == TrainConfig(preset="cpu")
+    # As `ringside train --train-preset paper --train-env-stepping threads` gives them: a value
+    # other than the default wins (one equal to it cannot be told from ringside.toml's own).
+    given = build(TrainConfig, {"preset": "paper", "env": {"stepping": "threads"}}, section="train")
+    assert given.env.stepping == "threads" and given.env.num_envs == 2048
+    # Built again from its own values (a flow's parameters), it is the same config.
+    assert build(TrainConfig, dataclasses.asdict(given), section="train") == given
+    with pytest.raises(ValueError, match="train.preset must be one of"):
+        TrainConfig(preset="gpu")
+
+
 def test_the_training_device_is_chosen_or_refused_clearly():
     with pytest.raises(ValueError, match="train.device must be one of"):
         TrainConfig(device="tpu")

@@ -10,7 +10,7 @@ supplementary hyper-parameters are not available here), most following AMP (Peng
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 from models.settings import setting
 
@@ -20,6 +20,30 @@ PRESETS: dict[str, tuple[int, ...]] = {
     # For training without a GPU: the fastest of the sizes `benchmarks/network_sizes.py`
     # measures (2,554 env steps/s end to end on 2 cores against 1,617 for 256,256,128).
     "cpu": (128, 128),
+}
+# Settings by name (`TrainConfig.preset`): what each changes from the built-in defaults, which
+# are the 'cpu' preset. 'paper' is MAAIP's thesis (Younes 2024, §3.3.1 and Table 3.1): 2,048
+# arenas of two agents, 32 steps each, so 131,072 samples per iteration in 2 PPO minibatches of
+# 6 epochs; episodes of 1,200 steps (40 s at 30 Hz); gradient penalty 5; discriminator batches
+# of 4,096; action variance 0.0025 (std 0.05) on every joint; PPO clip 0.02; 1024-1024-512
+# networks; on MuJoCo Warp. What it keeps: Adam's 2e-5, gamma 0.99, lambda 0.95, replay buffers
+# of 100,000 and 30 Hz policies on 120 Hz physics (Isaac Gym's "60 Hz with 2 substeps") are
+# already the defaults. docs/scaling.md says what each costs.
+TRAIN_PRESETS: dict[str, dict[str, object]] = {
+    "cpu": {},
+    "paper": {
+        "env.num_envs": 2048,
+        "env.episode_s": 40.0,
+        "env.stepping": "warp",
+        "ppo.minibatch_size": 65536,
+        "ppo.epochs": 6,
+        "ppo.clip_coef": 0.02,
+        "ppo.action_std": 0.05,
+        "ppo.arm_action_std": 0.0,
+        "discriminator.gp_weight": 5.0,
+        "discriminator.samples_per_update": 4096,
+        "network.preset": "paper",
+    },
 }
 DEVICES = ("auto", "cpu", "cuda")
 CONTROL_TASKS = ("none", "damage_min", "damage_max", "heading")
@@ -524,6 +548,15 @@ class TrainConfig:
         "'track' (follow reference clips with DeepMimic's reward, the `track` section; no "
         "discriminators).",
     )
+    preset: str = setting(
+        "cpu",
+        "Settings by name: 'cpu' (the defaults: 64 arenas, 128-128 networks, 4,096 samples per "
+        "iteration, for this kind of machine) or 'paper' (MAAIP's thesis, Table 3.1: 2,048 "
+        "arenas on MuJoCo Warp, 1024-1024-512 networks, 131,072 samples per iteration, for a "
+        "GPU; TRAIN_PRESETS in models/maaip/config.py, costs in docs/scaling.md). A preset "
+        "changes only the settings left at their built-in defaults: a value given that differs "
+        "from the default wins, one equal to it cannot be told from ringside.toml's own.",
+    )
     seed: int = setting(0, "Seeds network initialisation, sampling and the environments.")
     device: str = setting(
         "auto",
@@ -557,6 +590,16 @@ class TrainConfig:
     distill: DistillConfig = field(default_factory=DistillConfig)
 
     def __post_init__(self) -> None:
+        if self.preset not in TRAIN_PRESETS:
+            raise ValueError(
+                f"train.preset must be one of {list(TRAIN_PRESETS)}, got {self.preset!r}"
+            )
+        for name, value in TRAIN_PRESETS[self.preset].items():
+            section, leaf = name.split(".")
+            part = getattr(self, section)
+            default = next(f.default for f in fields(part) if f.name == leaf)
+            if getattr(part, leaf) == default:  # a value the user gave wins
+                object.__setattr__(self, section, replace(part, **{leaf: value}))
         if self.objective not in OBJECTIVES:
             raise ValueError(
                 f"train.objective must be one of {list(OBJECTIVES)}, got {self.objective!r}"
