@@ -36,7 +36,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch  # noqa: E402
 
 from models.humanoid.boxer import BoneLengths  # noqa: E402
-from models.maaip.config import TrainConfig  # noqa: E402
+from models.maaip.config import STEPPINGS, TrainConfig  # noqa: E402
 from models.maaip.tracking import Gate, TrackingData, track_gate, tracking_data  # noqa: E402
 from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
@@ -69,7 +69,7 @@ def tracking_config(args: argparse.Namespace) -> TrainConfig:
     return TrainConfig(
         objective="track",
         seed=args.seed,
-        device="cpu",
+        device=args.device,
         iterations=args.iterations,
         ppo=dataclasses.replace(
             base.ppo,
@@ -77,8 +77,12 @@ def tracking_config(args: argparse.Namespace) -> TrainConfig:
             action_std=args.action_std,
             arm_action_std=0.0,
             gamma=args.gamma,
+            # As many minibatches per epoch as with the default 64 arenas.
+            minibatch_size=base.ppo.minibatch_size * args.envs // base.env.num_envs,
         ),
-        env=dataclasses.replace(base.env, num_envs=args.envs, threads=args.threads),
+        env=dataclasses.replace(
+            base.env, num_envs=args.envs, threads=args.threads, stepping=args.stepping
+        ),
     )
 
 
@@ -98,6 +102,8 @@ def main() -> None:
     parser.add_argument("--gate-every", type=int, default=20)
     parser.add_argument("--envs", type=int, default=64)
     parser.add_argument("--threads", type=int, default=1, help="cores (physics and torch)")
+    parser.add_argument("--stepping", choices=STEPPINGS, default=TrainConfig().env.stepping)
+    parser.add_argument("--device", default="cpu", help="cpu or cuda (networks and Warp)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--learning-rate", type=float, default=1e-4)
     parser.add_argument("--action-std", type=float, default=0.05, help="every action's std")
