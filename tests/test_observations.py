@@ -190,6 +190,25 @@ def test_batched_features_equal_one_at_a_time(model):
         np.testing.assert_allclose(batch[t], obs.observation(states[t], states[3 - t]))
 
 
+def test_torch_tensors_get_the_same_features(model):
+    # The arena on MuJoCo Warp observes on its device with these functions, given tensors.
+    import torch
+
+    rng = np.random.default_rng(12)
+    poses = [_random_pose(model, rng) for _ in range(4)]
+    q = np.stack([p[0] for p in poses])
+    v = np.stack([p[1] for p in poses])
+    states = compiled.body_states(model, q, v, humanoid_index(model))
+    want = obs.observation(states, states[::-1])
+    for dtype, tol in ((torch.float64, 1e-12), (torch.float32, 1e-5)):
+        tensors = [torch.as_tensor(x, dtype=dtype) for x in (states.pos, states.rot)]
+        tensors += [torch.as_tensor(x, dtype=dtype) for x in (states.lin_vel, states.ang_vel)]
+        state = obs.BodyState(*tensors)
+        got = obs.observation(state, state[[3, 2, 1, 0]])
+        assert isinstance(got, torch.Tensor) and got.dtype == dtype
+        np.testing.assert_allclose(got.numpy(), want, atol=tol)
+
+
 def test_bad_shapes_are_named(model):
     with pytest.raises(ValueError, match="qvel must have shape"):
         compiled.body_states(model, model.qpos0[None], np.zeros((1, 3)), humanoid_index(model))

@@ -234,6 +234,8 @@ def test_centred_pair_and_facing_reference_geometry(punch):
 
 @pytest.mark.parametrize("stepping", ["rollout", "threads", "warp"])
 def test_observations_are_the_dataset_functions_on_the_simulated_state(punch, stepping):
+    # Warp observes on its device in float32 (measured: 1.5e-6 at most).
+    tol = 1e-5 if stepping == "warp" else 1e-10
     rng = np.random.default_rng(4)
     with _env(num_envs=3, stepping=stepping) as env:
         env.reset([0, 1, 2], punch, frames=[3, 20, 40])
@@ -246,10 +248,10 @@ def test_observations_are_the_dataset_functions_on_the_simulated_state(punch, st
             mujoco.mj_forward(env.model, fresh)
             me = body_state(env.model, fresh, agents[0])
             them = body_state(env.model, fresh, agents[1])
-            assert result.observation[k, 0] == pytest.approx(observation(me, them), abs=1e-10)
-            assert result.observation[k, 1] == pytest.approx(observation(them, me), abs=1e-10)
-            assert result.self_observation[k, 1] == pytest.approx(self_observation(them), abs=1e-10)
-        assert np.array_equal(env.observe(), result.observation)
+            assert result.observation[k, 0] == pytest.approx(observation(me, them), abs=tol)
+            assert result.observation[k, 1] == pytest.approx(observation(them, me), abs=tol)
+            assert result.self_observation[k, 1] == pytest.approx(self_observation(them), abs=tol)
+        assert env.observe() == pytest.approx(result.observation, abs=tol)
 
 
 # ---------------------------------------------------------------- falls and time-outs

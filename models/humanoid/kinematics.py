@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 import numpy as np
+from array_api_compat import array_namespace, is_torch_array
 
 from models.pose.types import BLAZEPOSE_33, COCO_17
 
@@ -257,8 +258,9 @@ assert set(BLAZEPOSE_TO_SITE.values()) <= set(SITE_NAMES)
 
 
 def _check_last(name: str, value: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """`value` as float64, or ValueError naming `name` unless it ends in `shape`."""
-    array = np.asarray(value, dtype=np.float64)
+    """`value` as float64 (a torch tensor as it is), or ValueError naming `name` unless it ends
+    in `shape`."""
+    array = value if is_torch_array(value) else np.asarray(value, dtype=np.float64)
     if array.ndim < len(shape) or array.shape[array.ndim - len(shape) :] != shape:
         want = "(..., " + ", ".join(str(s) for s in shape) + ")"
         raise ValueError(f"{name} must have shape {want}, got {array.shape}")
@@ -426,7 +428,7 @@ def tangent_normal(rotation: np.ndarray) -> np.ndarray:
         (..., 6) [tangent, normal].
     """
     r = _check_last("rotation", rotation, (3, 3))
-    return np.concatenate([r[..., :, 0], r[..., :, 2]], axis=-1)
+    return array_namespace(r).concat([r[..., :, 0], r[..., :, 2]], axis=-1)
 
 
 def tangent_normal_to_matrix(tan_norm: np.ndarray) -> np.ndarray:
@@ -498,9 +500,14 @@ def heading_frame(root_quat: np.ndarray) -> np.ndarray:
 def heading_frame_of_matrix(root_rotation: np.ndarray) -> np.ndarray:
     """`heading_frame` of roots given as rotation matrices (..., 3, 3), such as MuJoCo's xmat:
     the yaw of the x axis on the floor, atan2(R[1, 0], R[0, 0]), without a quaternion between
-    (the observations' hot path)."""
+    (the observations' hot path). NumPy arrays or torch tensors (on any device)."""
     r = _check_last("root_rotation", root_rotation, (3, 3))
-    return axis_angle_matrix(_AXES["z"], np.arctan2(r[..., 1, 0], r[..., 0, 0]))
+    xp = array_namespace(r)
+    yaw = xp.atan2(r[..., 1, 0], r[..., 0, 0])
+    c, s = xp.cos(yaw), xp.sin(yaw)
+    zero, one = xp.zeros_like(c), xp.ones_like(c)
+    rows = [xp.stack(row, axis=-1) for row in ((c, -s, zero), (s, c, zero), (zero, zero, one))]
+    return xp.stack(rows, axis=-2)
 
 
 def to_heading_frame(vectors: np.ndarray, root_quat: np.ndarray) -> np.ndarray:

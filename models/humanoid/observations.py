@@ -36,6 +36,9 @@ The paper lists the self velocities as one block of 45; its total of 274 needs b
 and angular velocities of all 15 bodies (45 each), which is what it says in words and what
 is computed here. Its opponent velocities likewise hold linear and angular (3 each).
 
+Every function takes NumPy arrays or torch tensors (on any device) alike, so the training
+arena can observe on the GPU with the very function the dataset uses (`models.maaip.warp_physics`).
+
 Shape letters: T frames (or any leading batch shape), N = 15 bodies.
 """
 
@@ -45,6 +48,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+from array_api_compat import array_namespace, device
 
 from models.humanoid.kinematics import (
     KEY_BODY_INDEX,
@@ -79,7 +83,7 @@ OPPONENT_DIM = sum(size for _, size in OPPONENT_BLOCKS)  # 51
 OBSERVATION_DIM = SELF_DIM + OPPONENT_DIM  # 274, as in the paper
 assert (SELF_DIM, OPPONENT_DIM, OBSERVATION_DIM) == (223, 51, 274)
 
-_PARENT_INDEX = np.array([max(p, 0) for p in PARENTS])
+_PARENT_INDEX = [max(p, 0) for p in PARENTS]
 
 
 def block_slices(blocks: tuple[tuple[str, int], ...], start: int = 0) -> dict[str, slice]:
@@ -168,19 +172,20 @@ def body_state_from_frames(frames: np.ndarray, body_ids: np.ndarray) -> BodyStat
     Returns:
         BodyState with leading shape frames' leading shape, then A if body_ids has it.
     """
-    picked = frames[..., np.asarray(body_ids), :]
+    xp = array_namespace(frames)
+    picked = frames[..., xp.asarray(body_ids, device=device(frames)), :]
     pos = picked[..., 0:3]
-    rot = picked[..., 3:12].reshape(*picked.shape[:-1], 3, 3)
+    rot = xp.reshape(picked[..., 3:12], (*picked.shape[:-1], 3, 3))
     # cvel is [angular, linear] at the centre of mass of the body's kinematic tree
     # (subtree_com of its root body), world axes; move the linear part to each body origin.
     ang = picked[..., 12:15]
     r = pos - picked[..., 18:21]
     # ang x r written out: np.cross costs more than a physics step at this size (measured).
-    lin = picked[..., 15:18].copy()
+    lin = xp.asarray(picked[..., 15:18], copy=True)
     lin[..., 0] += ang[..., 1] * r[..., 2] - ang[..., 2] * r[..., 1]
     lin[..., 1] += ang[..., 2] * r[..., 0] - ang[..., 0] * r[..., 2]
     lin[..., 2] += ang[..., 0] * r[..., 1] - ang[..., 1] * r[..., 0]
-    return BodyState(pos, rot, lin, ang.copy())
+    return BodyState(pos, rot, lin, xp.asarray(ang, copy=True))
 
 
 def _in_heading(heading: np.ndarray, vectors: np.ndarray) -> np.ndarray:
@@ -190,7 +195,7 @@ def _in_heading(heading: np.ndarray, vectors: np.ndarray) -> np.ndarray:
 
 
 def _flat(values: np.ndarray, trailing: int) -> np.ndarray:
-    return values.reshape(*values.shape[: values.ndim - trailing], -1)
+    return array_namespace(values).reshape(values, (*values.shape[: values.ndim - trailing], -1))
 
 
 def self_observation(state: BodyState) -> np.ndarray:
@@ -201,7 +206,7 @@ def self_observation(state: BodyState) -> np.ndarray:
     parent_rot = state.rot[..., _PARENT_INDEX, :, :]
     local = parent_rot.swapaxes(-1, -2) @ state.rot
     local[..., 0, :, :] = heading.swapaxes(-1, -2) @ state.rot[..., 0, :, :]
-    return np.concatenate(
+    return array_namespace(root).concat(
         [
             root[..., 2:3],
             _flat(positions, 2),
@@ -222,7 +227,7 @@ def opponent_observation(state: BodyState, opponent: BodyState) -> np.ndarray:
     velocities = _in_heading(heading, opponent.lin_vel[..., [0, *KEY_BODY_INDEX], :])
     opponent_rot = heading.swapaxes(-1, -2) @ opponent.rot[..., 0, :, :]
     opponent_ang = _in_heading(heading, opponent.ang_vel[..., 0:1, :])
-    return np.concatenate(
+    return array_namespace(root).concat(
         [
             positions[..., 0, :],
             tangent_normal(opponent_rot),
@@ -237,4 +242,5 @@ def opponent_observation(state: BodyState, opponent: BodyState) -> np.ndarray:
 
 def observation(state: BodyState, opponent: BodyState) -> np.ndarray:
     """o = [o^self, o^opp]: (..., 274)."""
-    return np.concatenate([self_observation(state), opponent_observation(state, opponent)], -1)
+    parts = [self_observation(state), opponent_observation(state, opponent)]
+    return array_namespace(*parts).concat(parts, axis=-1)

@@ -362,7 +362,7 @@ def _refresh(model: mujoco.MjModel, data: mujoco.MjData) -> None:
 
 def _observations(states: BodyState) -> np.ndarray:
     """(n, 2, 274): agent k observes itself and agent 1 - k (MAAIP §4.2)."""
-    return observation(states, states[:, ::-1])
+    return observation(states, states[:, [1, 0]])
 
 
 def _check_ids(env_ids: Sequence[int] | np.ndarray, count: int) -> np.ndarray:
@@ -680,7 +680,11 @@ class ArenaEnv:
         unstable = ~self._stable
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
             states = self._states(self._frames)
-            obs = _observations(states)
+            if self._warp is None:
+                obs = _observations(states)
+            else:  # observed where the worlds are, by the same function
+                found = _observations(body_state_from_frames(self._warp.frames(), self._body_ids))
+                obs = found.double().cpu().numpy()
             fell = (floor | (self._head_z < self.config.fall_height_m)) & self._stable[:, None]
         if unstable.any():
             # Zeros, so that no NaN reaches the networks; the episode ends here.

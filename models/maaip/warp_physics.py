@@ -6,11 +6,13 @@ the CPU, slowly, which is what the tests and this 2-core machine use. Its arrays
 MuJoCo's float64: trajectories agree to float32's precision for a while, then part as any two
 floating-point schedules of a contact-rich simulation do (measured in tests/test_warp.py).
 
-What runs where, today: the physics substeps and the contact sensors run on the device; before
-each policy step the state (qpos, qvel, act, the solver's warm start, time and ctrl) goes up from
-the arena's MjData, and after it comes back, so resets, observations, rewards, checkpoints and
-everything else read the MjData as with the other steppings. The observations and rewards are
-not yet computed on the device.
+What runs where, today: the physics substeps, the contact sensors, the bodies' kinematics and
+the observations (`models.humanoid.observations`, the dataset's own function, on torch views of
+Warp's arrays) run on the device; before each policy step the state (qpos, qvel, act, the
+solver's warm start, time and ctrl) goes up from the arena's MjData, and after it the state and
+the observations come back, so resets, rewards, falls, checkpoints and everything else read the
+MjData as with the other steppings. Rewards, falls and resets are not yet computed on the
+device, so each step still crosses to the host and back.
 
 Contacts come from the arena's contact sensors (`arena_mjcf(contact_sensors=True)`), as with
 "rollout". MuJoCo's automatic reset is not in Warp; Warp never resets a world on its own, so an
@@ -85,6 +87,7 @@ class WarpPhysics:
             | mjw.OverflowType.CCD
         )
         self._names = mjw.OverflowType
+        self._root_ids = model.body_rootid.tolist()
 
     def advance(self, datas: list[mujoco.MjData], substeps: int) -> np.ndarray:
         """Step every world ``substeps`` times from the state and ctrl of ``datas`` (one MjData
@@ -109,6 +112,12 @@ class WarpPhysics:
                 f"({self._names(int(overflow[world])).name}): raise CONTACTS_PER_WORLD or "
                 f"ROWS_PER_WORLD in models/maaip/warp_physics.py"
             )
+        with wp.ScopedDevice(self.device):
+            # What `mujoco.mj_step` leaves a substep behind, brought to the new state, as the
+            # arena's `_refresh` does on the CPU.
+            mjw.kinematics(self._model, d)
+            mjw.com_pos(self._model, d)
+            mjw.com_vel(self._model, d)
         for name in ("qpos", "qvel", "act", "qacc_warmstart"):
             values = getattr(d, name).numpy()
             for i, data in enumerate(datas):
@@ -117,3 +126,23 @@ class WarpPhysics:
         for i, data in enumerate(datas):
             data.time = float(times[i])
         return sensordata
+
+    def frames(self):
+        """(N, nbody, 21) torch tensor on the device of every world's bodies after the last
+        `advance`, as `models.humanoid.observations.world_frames` lays them out (xpos, xmat,
+        cvel, the subtree_com of each body's tree root), built from Warp's arrays as torch
+        views (no copy to the host)."""
+        import torch
+
+        wp, _ = _warp()
+        d = self._data
+        n = d.xpos.shape[0]
+        return torch.cat(
+            [
+                wp.to_torch(d.xpos),
+                wp.to_torch(d.xmat).reshape(n, -1, 9),
+                wp.to_torch(d.cvel),
+                wp.to_torch(d.subtree_com)[:, self._root_ids],
+            ],
+            dim=-1,
+        )
