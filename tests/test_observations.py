@@ -179,12 +179,17 @@ def test_body_velocities_match_mujoco(model):
         np.testing.assert_allclose(state.lin_vel[k], velocity[3:], atol=1e-9)
 
 
-def test_batched_features_equal_one_at_a_time(model):
-    rng = np.random.default_rng(11)
+def _random_states(model, seed: int) -> obs.BodyState:
+    """Four random poses moving at random velocities."""
+    rng = np.random.default_rng(seed)
     poses = [_random_pose(model, rng) for _ in range(4)]
     q = np.stack([p[0] for p in poses])
     v = np.stack([p[1] for p in poses])
-    states = compiled.body_states(model, q, v, humanoid_index(model))
+    return compiled.body_states(model, q, v, humanoid_index(model))
+
+
+def test_batched_features_equal_one_at_a_time(model):
+    states = _random_states(model, 11)
     batch = obs.observation(states, states[::-1])
     for t in range(4):
         np.testing.assert_allclose(batch[t], obs.observation(states[t], states[3 - t]))
@@ -194,11 +199,7 @@ def test_torch_tensors_get_the_same_features(model):
     # The arena on MuJoCo Warp observes on its device with these functions, given tensors.
     import torch
 
-    rng = np.random.default_rng(12)
-    poses = [_random_pose(model, rng) for _ in range(4)]
-    q = np.stack([p[0] for p in poses])
-    v = np.stack([p[1] for p in poses])
-    states = compiled.body_states(model, q, v, humanoid_index(model))
+    states = _random_states(model, 12)
     want = obs.observation(states, states[::-1])
     for dtype, tol in ((torch.float64, 1e-12), (torch.float32, 1e-5)):
         tensors = [torch.as_tensor(x, dtype=dtype) for x in (states.pos, states.rot)]

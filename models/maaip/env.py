@@ -360,6 +360,14 @@ def _refresh(model: mujoco.MjModel, data: mujoco.MjData) -> None:
     mujoco.mj_comVel(model, data)
 
 
+def _finite_state(data: mujoco.MjData) -> bool:
+    """MuJoCo's own test (mj_checkPos / mj_checkVel): positions and velocities finite and
+    within mjMAXVAL."""
+    return bool(
+        np.all(np.abs(data.qpos) < mujoco.mjMAXVAL) and np.all(np.abs(data.qvel) < mujoco.mjMAXVAL)
+    )
+
+
 def _observations(states: BodyState) -> np.ndarray:
     """(n, 2, 274): agent k observes itself and agent 1 - k (MAAIP §4.2)."""
     return observation(states, states[:, [1, 0]])
@@ -395,7 +403,9 @@ class ArenaEnv:
         config: the EnvConfig.
         model: the compiled arena (timestep 1 / (policy_hz * substeps)).
         index: ArenaIndex of the model.
-        datas: the N MjData; between calls their kinematics match their state.
+        datas: the N MjData. Between calls they hold each environment's state, and with the
+            CPU steppings its kinematics too (with "warp" those are read on the device: use
+            `body_states`).
         elapsed: (N,) policy steps since each environment's reset.
     """
 
@@ -421,8 +431,6 @@ class ArenaEnv:
         self.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.index = arena_index(self.model)
         self.datas = [mujoco.MjData(self.model) for _ in range(config.num_envs)]
-        for data in self.datas:
-            _refresh(self.model, data)
         self.elapsed = np.zeros(config.num_envs, dtype=int)
         self._ctrlrange = self.model.actuator_ctrlrange[self.index.actuators]  # (2, 28, 2)
         self._tables = _contact_tables(self.model, self.index)
@@ -430,6 +438,8 @@ class ArenaEnv:
         self._frames = np.empty((config.num_envs, self.model.nbody, FRAME_WIDTH))
         self._head_z = np.empty((config.num_envs, NUM_AGENTS))
         self._stable = np.ones(config.num_envs, dtype=bool)
+        for i in range(config.num_envs):
+            self._gather(i)
         self._chunks = [
             c for c in np.array_split(np.arange(config.num_envs), config.threads) if c.size
         ]
@@ -495,6 +505,7 @@ class ArenaEnv:
             mujoco.mj_setState(self.model, data, state["physics"][i], _INTEGRATION)
             data.qacc_warmstart[:] = state["warmstart"][i]
             mujoco.mj_forward(self.model, data)
+            self._gather(i)
         self.elapsed[:] = state["elapsed"]
         self.rng.bit_generator.state = state["rng"]
 
@@ -567,7 +578,7 @@ class ArenaEnv:
             # start in the air is a drop the policy did not choose.
             for a in range(NUM_AGENTS):
                 data.qpos[agents[a].qpos_start + 2] -= geom_bottoms(self.model, data, mine[a]).min()
-            _refresh(self.model, data)
+            self._gather(i)
         self.elapsed[ids] = 0
         return self.observe(ids)
 
@@ -591,7 +602,7 @@ class ArenaEnv:
             for a, agent in enumerate(self.index.agents):
                 data.qpos[agent.qpos] = q[k, a]
                 data.qvel[agent.qvel] = v[k, a]
-            _refresh(self.model, data)
+            self._gather(i)
         self.elapsed[ids] = 0
         return self.observe(ids)
 
@@ -613,18 +624,16 @@ class ArenaEnv:
             mujoco.mj_kinematics(self.model, data)
             mine = np.flatnonzero(self.index.agent_of_geom == agent)
             data.qpos[index.qpos_start + 2] -= geom_bottoms(self.model, data, mine).min()
-        _refresh(self.model, data)
+        self._gather(i)
         return self.observe(np.array([i]))[0]
 
     # ---------------------------------------------------------------- observe
 
     def body_states(self, env_ids: np.ndarray | None = None) -> BodyState:
-        """Both agents' BodyState in the given environments (all by default), leading (n, 2)."""
+        """Both agents' BodyState in the given environments (all by default), leading (n, 2),
+        as the last step, reset or placement left them."""
         ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids)
-        frames = np.empty((len(ids), self.model.nbody, FRAME_WIDTH))
-        for row, i in enumerate(ids):
-            world_frames(self.model, self.datas[i], frames[row])
-        return self._states(frames)
+        return self._states(self._frames[ids])
 
     def _states(self, frames: np.ndarray) -> BodyState:
         """(n, 2) BodyState from (n, nbody, 21) `world_frames`, in one vectorised pass."""
@@ -683,7 +692,7 @@ class ArenaEnv:
             if self._warp is None:
                 obs = _observations(states)
             else:  # observed where the worlds are, by the same function
-                found = _observations(body_state_from_frames(self._warp.frames(), self._body_ids))
+                found = _observations(body_state_from_frames(self._device_frames, self._body_ids))
                 obs = found.double().cpu().numpy()
             fell = (floor | (self._head_z < self.config.fall_height_m)) & self._stable[:, None]
         if unstable.any():
@@ -798,11 +807,7 @@ class ArenaEnv:
         _refresh(self.model, data)
         world_frames(self.model, data, self._frames[i])
         self._head_z[i] = data.geom_xpos[self.index.head_geoms, 2]
-        # MuJoCo's own test (mj_checkPos / mj_checkVel): not finite or beyond mjMAXVAL.
-        self._stable[i] = bool(
-            np.all(np.abs(data.qpos) < mujoco.mjMAXVAL)
-            and np.all(np.abs(data.qvel) < mujoco.mjMAXVAL)
-        )
+        self._stable[i] = _finite_state(data)
 
     def _advance_rollout(
         self, ctrl: np.ndarray, *, contacts: bool
@@ -836,7 +841,12 @@ class ArenaEnv:
         n = self.num_envs
         if not contacts:
             return np.zeros((n, NUM_AGENTS)), np.zeros((n, NUM_AGENTS), dtype=bool)
-        for i in range(n):
-            self._gather(i)
+        # What `_gather` reads from each MjData on the CPU, read from the device in one pass:
+        # the MjData get the new state, not its kinematics.
+        self._device_frames = self._warp.frames()
+        self._frames[:] = self._device_frames.double().cpu().numpy()
+        self._head_z[:] = self._warp.geom_heights(self.index.head_geoms)
+        for i, data in enumerate(self.datas):
+            self._stable[i] = _finite_state(data)
         assert self.index.sensors is not None
         return sensor_contacts(sensordata, self.index.sensors)

@@ -146,3 +146,12 @@ class WarpPhysics:
             ],
             dim=-1,
         )
+
+    def geom_heights(self, geoms: list[int] | np.ndarray) -> np.ndarray:
+        """(N, len(geoms)) the centre heights of ``geoms`` in every world after the last
+        `advance`."""
+        import torch
+
+        wp, _ = _warp()
+        heights = wp.to_torch(self._data.geom_xpos)[:, torch.as_tensor(geoms), 2]
+        return heights.double().cpu().numpy()
