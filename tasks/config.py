@@ -72,7 +72,9 @@ def build(cls: type[T], values: Mapping[str, Any], *, section: str) -> T:
             kwargs[name] = build(types[name], value, section=where)
         else:
             kwargs[name] = coerce(value, types[name], where)
-    return cls(**kwargs)
+    built = cls(**kwargs)
+    # A config with settings by name (`TrainConfig.preset`) takes them as it is built.
+    return built.with_preset() if hasattr(built, "with_preset") else built
 
 
 def leaf_fields(cls: type, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], Any]]:

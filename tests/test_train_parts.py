@@ -532,7 +532,7 @@ def test_other_configs_reject_bad_settings():
 
 
 def test_the_paper_preset_is_the_thesis_table_and_a_given_value_wins():
-    paper = TrainConfig(preset="paper")
+    paper = TrainConfig(preset="paper").with_preset()
     # Table 3.1: 131,072 samples per iteration in 2 minibatches of 6 epochs, episodes of
     # 1,200 steps, gradient penalty 5, K 4,096, action variance 0.0025, clip 0.02.
     assert paper.ppo.batch_size(paper.env.num_envs) == 131072
@@ -542,7 +542,10 @@ def test_the_paper_preset_is_the_thesis_table_and_a_given_value_wins():
     assert paper.ppo.action_std**2 == pytest.approx(0.0025) and paper.ppo.arm_action_std == 0
     assert paper.ppo.clip_coef == 0.02 and paper.network.hidden_sizes == (1024, 1024, 512)
     assert paper.env.stepping == "warp"
-    assert TrainConfig() == TrainConfig(preset="cpu")
+    assert TrainConfig() == TrainConfig(preset="cpu").with_preset()
+    # Changed in code afterwards, a built config keeps what it is given.
+    rollout = dataclasses.replace(paper, env=dataclasses.replace(paper.env, stepping="rollout"))
+    assert rollout.env.stepping == "rollout"
     # As `ringside train --train-preset paper --train-env-stepping threads` gives them: a value
     # other than the default wins (one equal to it cannot be told from ringside.toml's own).
     given = build(TrainConfig, {"preset": "paper", "env": {"stepping": "threads"}}, section="train")

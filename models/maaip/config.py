@@ -594,12 +594,6 @@ class TrainConfig:
             raise ValueError(
                 f"train.preset must be one of {list(TRAIN_PRESETS)}, got {self.preset!r}"
             )
-        for name, value in TRAIN_PRESETS[self.preset].items():
-            section, leaf = name.split(".")
-            part = getattr(self, section)
-            default = next(f.default for f in fields(part) if f.name == leaf)
-            if getattr(part, leaf) == default:  # a value the user gave wins
-                object.__setattr__(self, section, replace(part, **{leaf: value}))
         if self.objective not in OBJECTIVES:
             raise ValueError(
                 f"train.objective must be one of {list(OBJECTIVES)}, got {self.objective!r}"
@@ -632,3 +626,17 @@ class TrainConfig:
                 f"train.ppo.minibatch_size ({self.ppo.minibatch_size}) must not exceed the "
                 f"batch, env.num_envs x ppo.horizon x {NUM_AGENTS} agents = {batch}"
             )
+
+    def with_preset(self) -> TrainConfig:
+        """This config with its preset's values (`TRAIN_PRESETS`) in the settings left at their
+        built-in defaults: a value given that differs from the default wins. Settings read from
+        ringside.toml or flags get it as they are built (`tasks.config.build`); a config built
+        in code and then changed (`dataclasses.replace`) keeps what it was given."""
+        config = self
+        for name, value in TRAIN_PRESETS[self.preset].items():
+            section, leaf = name.split(".")
+            part = getattr(config, section)
+            default = next(f.default for f in fields(part) if f.name == leaf)
+            if getattr(part, leaf) == default:
+                config = replace(config, **{section: replace(part, **{leaf: value})})
+        return config

@@ -134,6 +134,14 @@ def still_actor(hinges: np.ndarray) -> Actor:
     return act
 
 
+def mujoco_stepping(env_config: EnvConfig) -> EnvConfig:
+    """``env_config`` stepped by MuJoCo: a run trained on MuJoCo Warp is judged in the physics
+    its exported opponent spars in (`tasks.evaluate.spar`), with the default stepping."""
+    if env_config.stepping != "warp":
+        return env_config
+    return replace(env_config, stepping=EnvConfig().stepping)
+
+
 def simulate(
     actors: tuple[Actor, Actor],
     *,
@@ -166,7 +174,7 @@ def simulate(
     starts = rng.integers(reference.num_frames, size=episodes)
     targets = rng.uniform(-math.pi, math.pi, (episodes, 2)) if heading is not None else None
     config = replace(
-        env_config,
+        mujoco_stepping(env_config),
         num_envs=episodes,
         episode_s=frames / env_config.policy_hz,
         standing_share=1.0,

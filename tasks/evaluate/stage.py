@@ -37,7 +37,7 @@ same tables:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import mujoco
@@ -59,7 +59,15 @@ from tasks.dataset.config import DatasetConfig, PunchConfig
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import FootageClip, dataset_info, footage_clips
-from tasks.evaluate.bouts import Actor, Bouts, HeadingTask, simulate, still_actor, torch_actor
+from tasks.evaluate.bouts import (
+    Actor,
+    Bouts,
+    HeadingTask,
+    mujoco_stepping,
+    simulate,
+    still_actor,
+    torch_actor,
+)
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.export import (
     TrainedPolicy,
@@ -275,7 +283,9 @@ def _replay(tracker: TrainedPolicy, heldout: tuple[FootageClip, ...]) -> np.ndar
     data = paired_tracking(heldout, tracker.bones, fps=hz, key="held-out")
     if data is None:
         return np.zeros((0, len(WINDOW_FEATURES)))
-    played = play_clips(tracker.policy, data, tracker.config, as_filmed=True)
+    # In the physics the adversary's bouts are judged in (`mujoco_stepping`).
+    config = replace(tracker.config, env=mujoco_stepping(tracker.config.env))
+    played = play_clips(tracker.policy, data, config, as_filmed=True)
     return replay_windows(played, hz)
 
 
