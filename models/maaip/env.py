@@ -430,7 +430,7 @@ class ArenaEnv:
         # restarted by MuJoCo at the model's rest state, which would read as a teleport.
         self.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
         self.index = arena_index(self.model)
-        self.datas = [mujoco.MjData(self.model) for _ in range(config.num_envs)]
+        self._datas = [mujoco.MjData(self.model) for _ in range(config.num_envs)]
         self.elapsed = np.zeros(config.num_envs, dtype=int)
         self._ctrlrange = self.model.actuator_ctrlrange[self.index.actuators]  # (2, 28, 2)
         self._tables = _contact_tables(self.model, self.index)
@@ -452,6 +452,10 @@ class ArenaEnv:
             self._rollout = mujoco.rollout.Rollout(nthread=threads)
             self._scratch = [mujoco.MjData(self.model) for _ in range(max(threads, 1))]
             self._nstate = mujoco.mj_stateSize(self.model, _FULL)
+        # With "warp": environments set on the host since the last step (to go up before the
+        # next), and whether the MjData are behind the device.
+        self._dirty = np.ones(config.num_envs, dtype=bool)
+        self._stale = False
         self._warp = None
         if warp:
             from models.maaip.warp_physics import WarpPhysics, warp_device
@@ -477,6 +481,29 @@ class ArenaEnv:
     def num_envs(self) -> int:
         return self.config.num_envs
 
+    @property
+    def datas(self) -> list[mujoco.MjData]:
+        """The N MjData, holding each environment's state. With "warp" they are brought from the
+        device when read, and what is written into them goes up before the next step."""
+        self._sync()
+        if self._warp is not None:
+            self._dirty[:] = True
+        return self._datas
+
+    def _sync(self) -> None:
+        """With "warp": the worlds' state into the MjData, after sending up the worlds reset on
+        the host since the last step (so that they are not overwritten)."""
+        if self._warp is None or not self._stale:
+            return
+        self._upload_dirty()
+        self._warp.download(self._datas)
+        self._stale = False
+
+    def _upload_dirty(self) -> None:
+        if self._warp is not None and self._dirty.any():
+            self._warp.upload(np.flatnonzero(self._dirty), self._datas)
+            self._dirty[:] = False
+
     def state(self) -> dict:
         """Everything that decides what the environments do next, for `load_state`: each
         one's physics (mjSTATE_INTEGRATION and the solver's warm start), its age in steps and
@@ -484,7 +511,8 @@ class ArenaEnv:
         size = mujoco.mj_stateSize(self.model, _INTEGRATION)
         physics = np.empty((self.num_envs, size))
         warm = np.empty((self.num_envs, self.model.nv))
-        for i, data in enumerate(self.datas):
+        self._sync()
+        for i, data in enumerate(self._datas):
             mujoco.mj_getState(self.model, data, physics[i], _INTEGRATION)
             warm[i] = data.qacc_warmstart
         return {
@@ -501,11 +529,12 @@ class ArenaEnv:
                 f"an arena state of shape {state['physics'].shape} does not fit {self.num_envs} "
                 "environments of this model"
             )
-        for i, data in enumerate(self.datas):
+        for i, data in enumerate(self._datas):
             mujoco.mj_setState(self.model, data, state["physics"][i], _INTEGRATION)
             data.qacc_warmstart[:] = state["warmstart"][i]
             mujoco.mj_forward(self.model, data)
             self._gather(i)
+        self._dirty[:], self._stale = True, False
         self.elapsed[:] = state["elapsed"]
         self.rng.bit_generator.state = state["rng"]
 
@@ -568,7 +597,7 @@ class ArenaEnv:
         agents = self.index.agents
         mine = [np.flatnonzero(self.index.agent_of_geom == a) for a in range(NUM_AGENTS)]
         for k, i in enumerate(ids):
-            data = self.datas[i]
+            data = self._datas[i]
             mujoco.mj_resetData(self.model, data)
             for a, qpos in enumerate((qpos0, qpos1)):
                 data.qpos[agents[a].qpos] = qpos[k]
@@ -579,6 +608,7 @@ class ArenaEnv:
             for a in range(NUM_AGENTS):
                 data.qpos[agents[a].qpos_start + 2] -= geom_bottoms(self.model, data, mine[a]).min()
             self._gather(i)
+        self._dirty[ids] = True
         self.elapsed[ids] = 0
         return self.observe(ids)
 
@@ -597,12 +627,13 @@ class ArenaEnv:
         if v.shape != (len(ids), NUM_AGENTS, NV) or not np.isfinite(v).all():
             raise ValueError(f"qvel must be finite with shape ({len(ids)}, 2, {NV}), got {v.shape}")
         for k, i in enumerate(ids):
-            data = self.datas[i]
+            data = self._datas[i]
             mujoco.mj_resetData(self.model, data)
             for a, agent in enumerate(self.index.agents):
                 data.qpos[agent.qpos] = q[k, a]
                 data.qvel[agent.qvel] = v[k, a]
             self._gather(i)
+        self._dirty[ids] = True
         self.elapsed[ids] = 0
         return self.observe(ids)
 
@@ -617,7 +648,9 @@ class ArenaEnv:
             raise ValueError(f"qpos must be {NQ} finite numbers, got shape {q.shape}")
         (i,) = _check_ids([env_id], self.num_envs)
         index = self.index.agents[agent]
-        data = self.datas[i]
+        self._sync()  # the other agent as it is now
+        data = self._datas[i]
+        self._dirty[i] = True
         data.qpos[index.qpos] = q
         data.qvel[index.qvel] = 0.0
         if ground:
@@ -648,10 +681,11 @@ class ArenaEnv:
         """(N, 2, 2) the task input of MAAIP §5.4's heading task: each agent's target direction
         on the floor, ``targets`` (N, 2) world yaws, in its own heading frame (the cosine and
         sine of the target yaw minus the agent's)."""
+        self._sync()
         quats = np.array(
             [
                 [data.qpos[agent.qpos][ROOT_QUAT] for agent in self.index.agents]
-                for data in self.datas
+                for data in self._datas
             ]
         )
         relative = np.asarray(targets) - heading_yaw(quats)
@@ -744,7 +778,7 @@ class ArenaEnv:
         starts = np.empty((self.num_envs, self.model.nq))
         velocities = np.zeros((self.num_envs, self.model.nv))
         step_s = self.config.timestep * self.config.substeps
-        for i, data in enumerate(self.datas):
+        for i, data in enumerate(self._datas):
             starts[i] = data.qpos
             end = data.qpos.copy()
             end[moved_qpos] = qpos[i][: moved_qpos.stop - moved_qpos.start]
@@ -776,7 +810,7 @@ class ArenaEnv:
             model, substeps, tables = self.model, self.config.substeps, self._tables
             force = np.zeros(6)
             for i in chunk:
-                data = self.datas[i]
+                data = self._datas[i]
                 data.ctrl[:] = ctrl[i]
                 for k in range(substeps):
                     if paths is not None:
@@ -803,7 +837,7 @@ class ArenaEnv:
     def _gather(self, i: int) -> None:
         """Refresh environment i's kinematics and copy what the observations and the fall rule
         read into row i of `_frames` and `_head_z`."""
-        data = self.datas[i]
+        data = self._datas[i]
         _refresh(self.model, data)
         world_frames(self.model, data, self._frames[i])
         self._head_z[i] = data.geom_xpos[self.index.head_geoms, 2]
@@ -815,7 +849,7 @@ class ArenaEnv:
         assert self._rollout is not None
         model, n = self.model, self.num_envs
         state = np.empty((n, self._nstate))
-        for i, data in enumerate(self.datas):
+        for i, data in enumerate(self._datas):
             mujoco.mj_getState(model, data, state[i], _FULL)
         control = np.repeat(ctrl[:, None, :], self.config.substeps, axis=1)
         # The returned states lack the solver's warm start, so every call starts it cold
@@ -823,7 +857,7 @@ class ArenaEnv:
         states, sensordata = self._rollout.rollout(
             model, self._scratch, state, control, initial_warmstart=np.zeros((n, model.nv))
         )
-        for i, data in enumerate(self.datas):
+        for i, data in enumerate(self._datas):
             mujoco.mj_setState(model, data, states[i, -1], _FULL)
             data.ctrl[:] = ctrl[i]
             if contacts:
@@ -835,18 +869,16 @@ class ArenaEnv:
 
     def _advance_warp(self, ctrl: np.ndarray, *, contacts: bool) -> tuple[np.ndarray, np.ndarray]:
         assert self._warp is not None
-        for i, data in enumerate(self.datas):
-            data.ctrl[:] = ctrl[i]
-        sensordata = self._warp.advance(self.datas, self.config.substeps)
+        self._upload_dirty()
+        sensordata = self._warp.advance(ctrl, self.config.substeps)
+        self._stale = True
         n = self.num_envs
         if not contacts:
             return np.zeros((n, NUM_AGENTS)), np.zeros((n, NUM_AGENTS), dtype=bool)
-        # What `_gather` reads from each MjData on the CPU, read from the device in one pass:
-        # the MjData get the new state, not its kinematics.
+        # What `_gather` reads from each MjData on the CPU, read from the device in one pass.
         self._device_frames = self._warp.frames()
         self._frames[:] = self._device_frames.double().cpu().numpy()
         self._head_z[:] = self._warp.geom_heights(self.index.head_geoms)
-        for i, data in enumerate(self.datas):
-            self._stable[i] = _finite_state(data)
+        self._stable[:] = self._warp.stable()
         assert self.index.sensors is not None
         return sensor_contacts(sensordata, self.index.sensors)

@@ -6,13 +6,14 @@ the CPU, slowly, which is what the tests and this 2-core machine use. Its arrays
 MuJoCo's float64: trajectories agree to float32's precision for a while, then part as any two
 floating-point schedules of a contact-rich simulation do (measured in tests/test_warp.py).
 
-What runs where, today: the physics substeps, the contact sensors, the bodies' kinematics and
-the observations (`models.humanoid.observations`, the dataset's own function, on torch views of
-Warp's arrays) run on the device; before each policy step the state (qpos, qvel, act, the
-solver's warm start, time and ctrl) goes up from the arena's MjData, and after it the state and
-the observations come back, so resets, rewards, falls, checkpoints and everything else read the
-MjData as with the other steppings. Rewards, falls and resets are not yet computed on the
-device, so each step still crosses to the host and back.
+What runs where, today: the worlds' state lives on the device, where the physics substeps, the
+contact sensors, the bodies' kinematics and the observations (`models.humanoid.observations`,
+the dataset's own function, on torch views of Warp's arrays) are computed. Each policy step sends
+the controls up and brings the contact sensors, the body frames, the head heights and the
+observations down; the arena's MjData are brought up to date only when something reads them
+(`ArenaEnv.datas`: a checkpoint, a heading target), and a world reset on the host (`ArenaEnv.reset`
+and the like) goes up before the next step. Resets, falls, damage and rewards are still computed
+on the host.
 
 Contacts come from the arena's contact sensors (`arena_mjcf(contact_sensors=True)`), as with
 "rollout". MuJoCo's automatic reset is not in Warp; Warp never resets a world on its own, so an
@@ -89,21 +90,39 @@ class WarpPhysics:
         self._names = mjw.OverflowType
         self._root_ids = model.body_rootid.tolist()
 
-    def advance(self, datas: list[mujoco.MjData], substeps: int) -> np.ndarray:
-        """Step every world ``substeps`` times from the state and ctrl of ``datas`` (one MjData
-        per world), write the new state back into them, and return the sensor values after each
-        substep, (N, substeps, nsensordata), as `mujoco.rollout` does."""
+    def upload(self, ids: np.ndarray, datas: list[mujoco.MjData]) -> None:
+        """Set worlds ``ids`` to the state of their MjData (``datas``, one per world): what
+        decides the next step (`_STATE_FIELDS` and the time)."""
+        import torch
+
+        wp, _ = _warp()
+        d = self._data
+        rows = torch.as_tensor(ids, device=wp.device_to_torch(self.device))
+        for name in _STATE_FIELDS:
+            values = np.stack([getattr(datas[i], name) for i in ids])
+            wp.to_torch(getattr(d, name))[rows] = torch.as_tensor(values).to(rows.device).float()
+        times = torch.as_tensor([datas[i].time for i in ids])
+        wp.to_torch(d.time)[rows] = times.to(rows.device).float()
+
+    def advance(self, ctrl: np.ndarray, substeps: int) -> np.ndarray:
+        """Step every world ``substeps`` times holding ``ctrl`` (N, nu), then bring its
+        kinematics to the new state; the sensor values after each substep, (N, substeps,
+        nsensordata), as `mujoco.rollout` returns them. WarpOverflow, in one line, if a world
+        ran out of room for its contacts or constraints."""
         wp, mjw = _warp()
         d = self._data
-        for name in _STATE_FIELDS:
-            getattr(d, name).assign(np.stack([getattr(data, name) for data in datas]))
-        d.time.assign(np.array([data.time for data in datas]))
+        d.ctrl.assign(ctrl.astype(np.float32))
         d.overflow.zero_()
-        sensordata = np.empty((len(datas), substeps, d.sensordata.shape[1]))
+        sensordata = np.empty((ctrl.shape[0], substeps, d.sensordata.shape[1]))
         with wp.ScopedDevice(self.device):
             for k in range(substeps):
                 mjw.step(self._model, d)
                 sensordata[:, k] = d.sensordata.numpy()
+            # What `mujoco.mj_step` leaves a substep behind, brought to the new state, as the
+            # arena's `_refresh` does on the CPU.
+            mjw.kinematics(self._model, d)
+            mjw.com_pos(self._model, d)
+            mjw.com_vel(self._model, d)
         overflow = d.overflow.numpy() & self._fatal
         if overflow.any():
             world = int(np.flatnonzero(overflow)[0])
@@ -112,20 +131,28 @@ class WarpPhysics:
                 f"({self._names(int(overflow[world])).name}): raise CONTACTS_PER_WORLD or "
                 f"ROWS_PER_WORLD in models/maaip/warp_physics.py"
             )
-        with wp.ScopedDevice(self.device):
-            # What `mujoco.mj_step` leaves a substep behind, brought to the new state, as the
-            # arena's `_refresh` does on the CPU.
-            mjw.kinematics(self._model, d)
-            mjw.com_pos(self._model, d)
-            mjw.com_vel(self._model, d)
-        for name in ("qpos", "qvel", "act", "qacc_warmstart"):
+        return sensordata
+
+    def download(self, datas: list[mujoco.MjData]) -> None:
+        """Write every world's state into its MjData (its kinematics are left as they were)."""
+        wp, _ = _warp()
+        d = self._data
+        for name in ("qpos", "qvel", "act", "qacc_warmstart", "ctrl"):
             values = getattr(d, name).numpy()
             for i, data in enumerate(datas):
                 getattr(data, name)[:] = values[i]
         times = d.time.numpy()
         for i, data in enumerate(datas):
             data.time = float(times[i])
-        return sensordata
+
+    def stable(self) -> np.ndarray:
+        """(N,) whether each world's positions and velocities are finite and within mjMAXVAL
+        (MuJoCo's mj_checkPos and mj_checkVel)."""
+        import torch
+
+        wp, _ = _warp()
+        state = torch.cat([wp.to_torch(self._data.qpos), wp.to_torch(self._data.qvel)], dim=1)
+        return (state.abs() < mujoco.mjMAXVAL).all(dim=1).cpu().numpy()
 
     def frames(self):
         """(N, nbody, 21) torch tensor on the device of every world's bodies after the last
