@@ -79,6 +79,7 @@ from dataclasses import dataclass
 import mujoco
 import mujoco.rollout
 import numpy as np
+from array_api_compat import array_namespace
 from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths
@@ -330,25 +331,28 @@ def sensor_contacts(sensordata: np.ndarray, layout: SensorLayout) -> tuple[np.nd
     """Damage and floor touches from the arena's contact sensors, summed over substeps.
 
     Args:
-        sensordata: (N, S, nsensordata) sensor values after each of S substeps (`mujoco.rollout`).
+        sensordata: (N, S, nsensordata) sensor values after each of S substeps (`mujoco.rollout`;
+            a NumPy array, or a torch tensor on Warp's device, which gives tensors back).
         layout: from `arena_index` of a model built with contact_sensors=True.
 
     Returns:
         (N, 2) damage in newtons and (N, 2) bool floor touches by a geom other than the
         feet and shins.
     """
-    n = sensordata.shape[0]
-    damage = np.zeros((n, NUM_AGENTS))
-    floor = np.zeros((n, NUM_AGENTS), dtype=bool)
+    xp = array_namespace(sensordata)
     width = 4  # found, then the force in the contact frame (normal first)
+    damage, floor = [], []
     for a in range(NUM_AGENTS):
+        total = 0.0
         for start in layout.damage[a]:
             slots = sensordata[..., start : start + DAMAGE_SENSOR_SLOTS * width]
-            slots = slots.reshape(*slots.shape[:-1], DAMAGE_SENSOR_SLOTS, width)
-            damage[:, a] += np.sum(np.where(slots[..., 0] > 0, slots[..., 1], 0.0), axis=(1, 2))
-        others = sensordata[..., layout.floor[a]] - sensordata[..., layout.grounded[a]].sum(axis=-1)
-        floor[:, a] = np.any(others > 0, axis=1)
-    return damage, floor
+            slots = xp.reshape(slots, (*slots.shape[:-1], DAMAGE_SENSOR_SLOTS, width))
+            found = xp.where(slots[..., 0] > 0, slots[..., 1], xp.zeros_like(slots[..., 1]))
+            total = total + xp.sum(found, axis=(1, 2))
+        grounded = xp.sum(sensordata[..., list(layout.grounded[a])], axis=-1)
+        damage.append(total)
+        floor.append(xp.any(sensordata[..., layout.floor[a]] - grounded > 0, axis=1))
+    return xp.stack(damage, axis=1), xp.stack(floor, axis=1)
 
 
 def _refresh(model: mujoco.MjModel, data: mujoco.MjData) -> None:
@@ -727,7 +731,7 @@ class ArenaEnv:
                 obs = _observations(states)
             else:  # observed where the worlds are, by the same function
                 found = _observations(body_state_from_frames(self._device_frames, self._body_ids))
-                obs = found.double().cpu().numpy()
+                obs = found.cpu().numpy().astype(np.float64)
             fell = (floor | (self._head_z < self.config.fall_height_m)) & self._stable[:, None]
         if unstable.any():
             # Zeros, so that no NaN reaches the networks; the episode ends here.
@@ -877,8 +881,9 @@ class ArenaEnv:
             return np.zeros((n, NUM_AGENTS)), np.zeros((n, NUM_AGENTS), dtype=bool)
         # What `_gather` reads from each MjData on the CPU, read from the device in one pass.
         self._device_frames = self._warp.frames()
-        self._frames[:] = self._device_frames.double().cpu().numpy()
+        self._frames[:] = self._device_frames.cpu().numpy()
         self._head_z[:] = self._warp.geom_heights(self.index.head_geoms)
         self._stable[:] = self._warp.stable()
         assert self.index.sensors is not None
-        return sensor_contacts(sensordata, self.index.sensors)
+        damage, floor = sensor_contacts(sensordata, self.index.sensors)
+        return damage.cpu().numpy().astype(np.float64), floor.cpu().numpy()

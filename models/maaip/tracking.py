@@ -611,7 +611,7 @@ def play_clips(
         while alive.any():
             x = torch.as_tensor(obs, dtype=torch.float32, device=device).reshape(2 * n, -1)
             mean, _ = policy.act(x, agent_ids, deterministic=True)
-            step = tracker.step(env, mean.reshape(n, NUM_AGENTS, -1).double().cpu().numpy())
+            step = tracker.step(env, mean.reshape(n, NUM_AGENTS, -1).cpu().double().numpy())
             played.append(np.stack([d.qpos.copy() for d in env.datas]))
             steps += alive
             body += np.where(alive, np.nan_to_num(step.body_error, nan=1.0), 0.0)

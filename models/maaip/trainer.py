@@ -316,7 +316,7 @@ class Trainer:
                 task=None if task is None else task.reshape(2 * n, -1),
                 generator=self.generator,
             )
-            chosen = actions.reshape(n, 2, -1).double().cpu().numpy()
+            chosen = actions.reshape(n, 2, -1).cpu().double().numpy()
             if self.tracker is None:
                 result = self.env.step(chosen)
             else:

@@ -107,17 +107,19 @@ class WarpPhysics:
     def advance(self, ctrl: np.ndarray, substeps: int) -> np.ndarray:
         """Step every world ``substeps`` times holding ``ctrl`` (N, nu), then bring its
         kinematics to the new state; the sensor values after each substep, (N, substeps,
-        nsensordata), as `mujoco.rollout` returns them. WarpOverflow, in one line, if a world
-        ran out of room for its contacts or constraints."""
+        nsensordata), as `mujoco.rollout` returns them, a torch tensor on the device.
+        WarpOverflow, in one line, if a world ran out of room for its contacts or constraints."""
+        import torch
+
         wp, mjw = _warp()
         d = self._data
         d.ctrl.assign(ctrl.astype(np.float32))
         d.overflow.zero_()
-        sensordata = np.empty((ctrl.shape[0], substeps, d.sensordata.shape[1]))
+        sensors = []
         with wp.ScopedDevice(self.device):
-            for k in range(substeps):
+            for _ in range(substeps):
                 mjw.step(self._model, d)
-                sensordata[:, k] = d.sensordata.numpy()
+                sensors.append(wp.to_torch(d.sensordata).clone())
             # What `mujoco.mj_step` leaves a substep behind, brought to the new state, as the
             # arena's `_refresh` does on the CPU.
             mjw.kinematics(self._model, d)
@@ -131,7 +133,7 @@ class WarpPhysics:
                 f"({self._names(int(overflow[world])).name}): raise CONTACTS_PER_WORLD or "
                 f"ROWS_PER_WORLD in models/maaip/warp_physics.py"
             )
-        return sensordata
+        return torch.stack(sensors, dim=1)
 
     def download(self, datas: list[mujoco.MjData]) -> None:
         """Write every world's state into its MjData (its kinematics are left as they were)."""
@@ -181,4 +183,4 @@ class WarpPhysics:
 
         wp, _ = _warp()
         heights = wp.to_torch(self._data.geom_xpos)[:, torch.as_tensor(geoms), 2]
-        return heights.double().cpu().numpy()
+        return heights.cpu().numpy().astype(np.float64)
