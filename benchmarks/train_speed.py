@@ -50,6 +50,7 @@ def main() -> None:
     )
     parser.add_argument(
         "--stepping",
+        "--backend",
         choices=STEPPINGS,
         help="how the arenas are stepped (train.env.stepping) instead of the default",
     )
