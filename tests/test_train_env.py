@@ -252,6 +252,10 @@ def test_observations_are_the_dataset_functions_on_the_simulated_state(punch, st
             assert result.observation[k, 1] == pytest.approx(observation(them, me), abs=tol)
             assert result.self_observation[k, 1] == pytest.approx(self_observation(them), abs=tol)
         assert env.observe() == pytest.approx(result.observation, abs=tol)
+        # Warp's observations stay on its device too, for the trainer: the same numbers.
+        assert (result.observed is not None) == (stepping == "warp")
+        if result.observed is not None:
+            assert np.array_equal(result.observed.cpu().numpy(), result.observation)
 
 
 # ---------------------------------------------------------------- falls and time-outs
@@ -295,6 +299,8 @@ def test_a_blown_up_simulation_ends_its_episode_with_finite_numbers(punch, stepp
         assert result.fell[1].tolist() == [False, False]  # not counted as a fall
         assert np.isfinite(result.observation).all() and np.isfinite(result.damage).all()
         assert not result.observation[1].any() and result.observation[0].any()
+        if result.observed is not None:
+            assert not result.observed[1].any() and result.observed[0].any()
         # MuJoCo did not quietly restart it at the rest pose: the state is left for the reset.
         assert not np.isfinite(env.datas[1].qpos).all() or np.abs(env.datas[1].qvel).max() > 1e10
         env.reset([1], punch, frames=[5])

@@ -75,6 +75,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import mujoco.rollout
@@ -131,6 +132,8 @@ class StepResult:
             MuJoCo's mjMAXVAL): terminal, the observation and damage are zeros; reset it.
         body: (N, 2) both agents' body states after the step, which the observations are
             computed from (not finite where unstable).
+        observed: with stepping "warp", `observation` as a float32 torch tensor on Warp's
+            device, where it was computed (the trainer takes it from there); else None.
     """
 
     observation: np.ndarray
@@ -141,6 +144,7 @@ class StepResult:
     damage: np.ndarray
     unstable: np.ndarray
     body: BodyState
+    observed: Any = None
 
     @property
     def done(self) -> np.ndarray:
@@ -727,16 +731,20 @@ class ArenaEnv:
         unstable = ~self._stable
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
             states = self._states(self._frames)
+            observed = None
             if self._warp is None:
                 obs = _observations(states)
             else:  # observed where the worlds are, by the same function
-                found = _observations(body_state_from_frames(self._device_frames, self._body_ids))
-                obs = found.cpu().numpy().astype(np.float64)
+                frames = body_state_from_frames(self._device_frames, self._body_ids)
+                observed = _observations(frames)
+                obs = observed.cpu().numpy().astype(np.float64)
             fell = (floor | (self._head_z < self.config.fall_height_m)) & self._stable[:, None]
         if unstable.any():
             # Zeros, so that no NaN reaches the networks; the episode ends here.
             obs[unstable] = 0.0
             damage[unstable] = 0.0
+            if observed is not None:
+                observed[np.flatnonzero(unstable).tolist()] = 0.0
         self.elapsed += 1
         terminated = fell.any(axis=1) | unstable
         truncated = (self.elapsed >= self.config.max_steps) & ~terminated
@@ -749,6 +757,7 @@ class ArenaEnv:
             damage=damage,
             unstable=unstable,
             body=states,
+            observed=observed,
         )
 
     def step_physics(self, ctrl: np.ndarray | None = None) -> None:

@@ -271,6 +271,8 @@ class Trainer:
         self.task_rng = np.random.default_rng([config.seed, 1])
         self.targets = np.zeros((self.env.num_envs, 2))
         self.obs = self._reset(np.arange(self.env.num_envs))
+        # `obs` on the training device when the arena computed it on one (Warp), else None.
+        self._observed: Tensor | None = None
         self.finished_steps = np.zeros(0, dtype=int)
         self.iteration = 0
         self.signature = _signature(config, key, bones, self.nets.policy.obs_dim)
@@ -308,7 +310,7 @@ class Trainer:
         parts: dict[str, list] = {k: [] for k in Rollout.__dataclass_fields__}
         finished: list[np.ndarray] = []
         for _ in range(horizon):
-            obs = self._tensor(self.obs)
+            obs = self._tensor(self.obs) if self._observed is None else self._observed
             task = self.task_observation()
             actions, log_probs = self.nets.policy.act(
                 obs.reshape(2 * n, -1),
@@ -327,7 +329,13 @@ class Trainer:
                 parts["errors"].append(self._tensor(errors))
                 parts["terminal"].append(self._tensor(result.terminal))
             parts["obs"].append(obs)
-            parts["next_obs"].append(self._tensor(result.observation))
+            # Where the arena observed on a device (Warp), from there: no trip through the host.
+            observed = getattr(result, "observed", None)
+            if observed is None:
+                next_obs = self._tensor(result.observation)
+            else:
+                next_obs = observed.to(self.device, torch.float32)
+            parts["next_obs"].append(next_obs)
             parts["actions"].append(actions.reshape(n, 2, -1))
             parts["log_probs"].append(log_probs.reshape(n, 2))
             parts["damage"].append(self._tensor(result.damage))
@@ -340,11 +348,15 @@ class Trainer:
                 # Eq 11 rewards the move just made towards the targets it was made for.
                 parts["next_task"].append(self.task_observation())
             self.obs = result.observation
+            self._observed = None if observed is None else next_obs
             done = np.flatnonzero(result.done)
             if done.size:
                 finished.append(self.env.elapsed[done].copy())
                 self.obs = self.obs.copy()
                 self.obs[done] = self._reset(done)
+                if self._observed is not None:
+                    self._observed = self._observed.clone()
+                    self._observed[done.tolist()] = self._tensor(self.obs[done])
         self.finished_steps = np.concatenate(finished) if finished else np.zeros(0, dtype=int)
         return Rollout(**{k: torch.stack(v) if v else None for k, v in parts.items()})
 
@@ -698,5 +710,6 @@ class Trainer:
         self.targets = state.targets.copy()
         self.env.load_state(state.arena)
         self.obs = state.obs.copy()
+        self._observed = None
         if self.tracker is not None:
             self.tracker.load_state(state.tracker)
