@@ -44,6 +44,8 @@ from storage.paths import data_paths  # noqa: E402
 from tasks.deepmimic import WALKER_CLIPS, clip_path, load_deepmimic, retarget  # noqa: E402
 
 CLIPS = ("walk", "punch", *WALKER_CLIPS)
+# Where `make bench` keeps the run (benchmarks/warp_replay.py replays its tracker).
+DEFAULT_FOLDER = Path("data/bench/tracker_gate")
 GATE = {"finished_pct": 90.0, "body_error_cm": 5.0, "root_error_cm": 10.0}
 
 
@@ -93,9 +95,16 @@ def _write(path: Path, data: bytes) -> None:
     tmp.replace(path)
 
 
-def main() -> None:
+def parser() -> argparse.ArgumentParser:
+    """This benchmark's arguments (benchmarks/warp_replay.py reads its defaults too)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("folder", type=Path, help="checkpoints and progress (resumed if present)")
+    parser.add_argument(
+        "folder",
+        type=Path,
+        nargs="?",
+        default=DEFAULT_FOLDER,
+        help=f"checkpoints and progress, resumed if present (default {DEFAULT_FOLDER})",
+    )
     parser.add_argument("--minutes", type=float, default=60.0, help="this session's budget")
     parser.add_argument("--iterations", type=int, default=100_000, help="at most this many")
     parser.add_argument("--checkpoint-every", type=int, default=20)
@@ -111,7 +120,11 @@ def main() -> None:
     parser.add_argument(
         "--keep-going", action="store_true", help="train on after the gate is met (the curve)"
     )
-    args = parser.parse_args()
+    return parser
+
+
+def main() -> None:
+    args = parser().parse_args()
     torch.set_num_threads(args.threads)
 
     assets = data_paths().assets

@@ -7,6 +7,10 @@ tracker run (`ringside train --dataset KEY --train-objective track`), e.g. the s
 adversary's (`ringside synthetic-adversary`).
 
     python benchmarks/warp_replay.py --data DIR [--dataset KEY] [--stills FILE.png]
+    python benchmarks/warp_replay.py [--gate-folder FOLDER]
+
+Without ``--data``, the tracker of `benchmarks/tracker_gate.py`'s folder (`make bench` runs it
+first) replays DeepMimic's clips, each fighter from its clip's first frame at its own place.
 
 ``--stills`` saves three frames of one clip's replay in each physics, MuJoCo above, Warp below.
 
@@ -33,6 +37,9 @@ import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+import tracker_gate  # noqa: E402  (beside this file)
+
+from models.humanoid.boxer import BoneLengths  # noqa: E402
 from models.maaip.arena import arena_mjcf  # noqa: E402
 from models.maaip.config import TrainConfig  # noqa: E402
 from models.maaip.tracking import gate_of, play_clips  # noqa: E402
@@ -68,30 +75,49 @@ def _stills(model, qpos: np.ndarray, label: str) -> np.ndarray:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, required=True, help="the data directory")
+    parser.add_argument("--data", type=Path, help="a data directory with a tracker run")
+    parser.add_argument(
+        "--gate-folder",
+        type=Path,
+        default=tracker_gate.DEFAULT_FOLDER,
+        help="without --data: benchmarks/tracker_gate.py's folder",
+    )
     parser.add_argument("--dataset", help="a dataset key (prefix); default: the newest tracker's")
     parser.add_argument("--stills", type=Path, help="a PNG of one clip's replay in both physics")
     parser.add_argument("--clip", type=int, default=3, help="the clip --stills shows")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    paths = data_paths(args.data)
-    with connect(paths.db, read_only=True) as con:
-        runs = [r for r in finished_runs(con, "TRUE", []) if r.objective == "track"]
-        if args.dataset:
-            runs = [r for r in runs if r.dataset_key.startswith(args.dataset)]
-        if not runs:
-            sys.exit(f"{paths.db}: no finished tracker run")
-        run = runs[-1]
-        config = build(TrainConfig, run.config, section="train")
-        data = footage_tracking(con, run.dataset_key, fps=config.env.policy_hz)["validation"]
-    policy, bones = checkpoint_policy(read_bytes(paths.artifacts, run.artifact), config)
-    print(f"tracker {run.run_key[:12]} on dataset {run.dataset_key[:12]}, held-out clips")
+    if args.data is None:
+        blob = args.gate_folder / "checkpoint.pt"
+        if not blob.exists():
+            sys.exit(f"{blob}: missing; run benchmarks/tracker_gate.py first (make bench does)")
+        gate_args = tracker_gate.parser().parse_args([str(args.gate_folder)])
+        config = tracker_gate.tracking_config(gate_args)
+        assets = data_paths().assets
+        data = tracker_gate.synthetic_adversary(assets, BoneLengths(), float(config.env.policy_hz))
+        policy, bones = checkpoint_policy(blob.read_bytes(), config)
+        filmed = False
+        print(f"tracker of {args.gate_folder} on DeepMimic's clips")
+    else:
+        paths = data_paths(args.data)
+        with connect(paths.db, read_only=True) as con:
+            runs = [r for r in finished_runs(con, "TRUE", []) if r.objective == "track"]
+            if args.dataset:
+                runs = [r for r in runs if r.dataset_key.startswith(args.dataset)]
+            if not runs:
+                sys.exit(f"{paths.db}: no finished tracker run")
+            run = runs[-1]
+            config = build(TrainConfig, run.config, section="train")
+            data = footage_tracking(con, run.dataset_key, fps=config.env.policy_hz)["validation"]
+        policy, bones = checkpoint_policy(read_bytes(paths.artifacts, run.artifact), config)
+        filmed = True
+        print(f"tracker {run.run_key[:12]} on dataset {run.dataset_key[:12]}, held-out clips")
     played = {}
     for stepping in ("rollout", "warp"):
         env = dataclasses.replace(config.env, stepping=stepping)
         start = time.perf_counter()
         played[stepping] = play_clips(
-            policy, data, dataclasses.replace(config, env=env), as_filmed=True
+            policy, data, dataclasses.replace(config, env=env), as_filmed=filmed
         )
         gate = gate_of(played[stepping].rows)
         print(
