@@ -75,7 +75,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import mujoco
 import mujoco.rollout
@@ -112,6 +112,9 @@ from models.maaip.arena import (
 from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions
 
+if TYPE_CHECKING:  # torch only where Warp's observations are (annotations)
+    import torch
+
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 
@@ -144,7 +147,7 @@ class StepResult:
     damage: np.ndarray
     unstable: np.ndarray
     body: BodyState
-    observed: Any = None
+    observed: torch.Tensor | None = None
 
     @property
     def done(self) -> np.ndarray:

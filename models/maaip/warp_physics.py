@@ -12,8 +12,8 @@ the dataset's own function, on torch views of Warp's arrays) are computed. Each 
 the controls up and brings the contact sensors, the body frames, the head heights and the
 observations down; the arena's MjData are brought up to date only when something reads them
 (`ArenaEnv.datas`: a checkpoint, a heading target), and a world reset on the host (`ArenaEnv.reset`
-and the like) goes up before the next step. Resets, falls, damage and rewards are still computed
-on the host.
+and the like) goes up before the next step. Damage and floor touches are summed on the device;
+the PD targets, the resets and the rewards are still computed on the host.
 
 Contacts come from the arena's contact sensors (`arena_mjcf(contact_sensors=True)`), as with
 "rollout". MuJoCo's automatic reset is not in Warp; Warp never resets a world on its own, so an
@@ -31,8 +31,9 @@ import numpy as np
 # The state that decides the next step, as `mujoco.mj_step` reads it (mjSTATE_INTEGRATION less
 # what the arena never sets: applied forces, mocap, equality switches).
 _STATE_FIELDS = ("qpos", "qvel", "act", "qacc_warmstart", "ctrl")
-# Contacts per world the device holds: two fighters in a clinch, feet flat, touch in about 30
-# places; the solver's rows follow from them (pyramidal cone: 2 x condim - 2 per contact).
+# Room per world on the device: contacts (of the fighters with each other and the floor) and
+# the solver's constraint rows (4 per contact with the pyramidal cone and condim 3, plus joint
+# limits). A world that needs more raises WarpOverflow instead of losing contacts.
 CONTACTS_PER_WORLD = 96
 ROWS_PER_WORLD = 1024
 
