@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 import numpy as np
-from array_api_compat import array_namespace, is_torch_array
+from array_api_compat import array_namespace, device, is_torch_array
 
 from models.pose.types import BLAZEPOSE_33, COCO_17
 
@@ -320,7 +320,8 @@ def axis_angle_matrix(axis: Sequence[float] | np.ndarray, angle: np.ndarray) -> 
 
     Args:
         axis: (3,) rotation axis; normalised here.
-        angle: (...) angles in radians.
+        angle: (...) angles in radians: a NumPy array, or a torch tensor (on any device), which
+            gives tensors of its dtype there.
 
     Returns:
         (..., 3, 3) rotation matrices.
@@ -330,11 +331,16 @@ def axis_angle_matrix(axis: Sequence[float] | np.ndarray, angle: np.ndarray) -> 
         raise ValueError(f"axis must be a non-zero (3,) vector, got {a!r}")
     # Kept rather than scipy's Rotation.from_rotvec(...).as_matrix(), 4-5x slower at the
     # observations' (N, 2) heading frames (13 against 61 us at N = 1, benchmarks/rotations.py),
-    # which every environment step builds.
+    # which every environment step builds; and scipy's takes no tensors.
     a = a / np.linalg.norm(a)
     k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    t = np.asarray(angle, dtype=np.float64)[..., None, None]
-    return np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * (k @ k)
+    eye = np.eye(3)
+    if is_torch_array(angle):
+        xp, t = array_namespace(angle), angle[..., None, None]
+        k, eye = (xp.asarray(m, dtype=t.dtype, device=device(t)) for m in (k, eye))
+    else:
+        xp, t = np, np.asarray(angle, dtype=np.float64)[..., None, None]
+    return eye + xp.sin(t) * k + (1 - xp.cos(t)) * (k @ k)
 
 
 def euler_yxz_to_matrix(angles: np.ndarray) -> np.ndarray:
@@ -502,12 +508,8 @@ def heading_frame_of_matrix(root_rotation: np.ndarray) -> np.ndarray:
     the yaw of the x axis on the floor, atan2(R[1, 0], R[0, 0]), without a quaternion between
     (the observations' hot path). NumPy arrays or torch tensors (on any device)."""
     r = _check_last("root_rotation", root_rotation, (3, 3))
-    xp = array_namespace(r)
-    yaw = xp.atan2(r[..., 1, 0], r[..., 0, 0])
-    c, s = xp.cos(yaw), xp.sin(yaw)
-    zero, one = xp.zeros_like(c), xp.ones_like(c)
-    rows = [xp.stack(row, axis=-1) for row in ((c, -s, zero), (s, c, zero), (zero, zero, one))]
-    return xp.stack(rows, axis=-2)
+    yaw = array_namespace(r).atan2(r[..., 1, 0], r[..., 0, 0])
+    return axis_angle_matrix(_AXES["z"], yaw)
 
 
 def to_heading_frame(vectors: np.ndarray, root_quat: np.ndarray) -> np.ndarray:

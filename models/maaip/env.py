@@ -50,7 +50,9 @@ Batched stepping, three ways (`EnvConfig.stepping`), measured by `benchmarks/phy
   reads the body states. Bit-identical to stepping the environments one by one.
 - "warp": MuJoCo Warp steps all N environments as the worlds of one batch, on the GPU where
   there is one (`models.maaip.warp_physics`); contacts come from the contact sensors as with
-  "rollout", and the state goes to the device and back around each policy step.
+  "rollout". The state stays on the device, where the kinematics, damage and observations are
+  computed too; environments reset on the host go up before the next step, and the MjData are
+  brought from the device when read (`ArenaEnv.datas`).
 Measured by `benchmarks/physics_speed.py` on 2 cores, N = 64, 60 Hz x 2: the whole step runs
 at about 7,500 environment steps/s with "rollout" and 5,800 with "threads" (raw physics alone:
 14-15k with either): "rollout" steps its environments back to back in C, while "threads" reads
@@ -369,14 +371,6 @@ def _refresh(model: mujoco.MjModel, data: mujoco.MjData) -> None:
     mujoco.mj_kinematics(model, data)
     mujoco.mj_comPos(model, data)
     mujoco.mj_comVel(model, data)
-
-
-def _finite_state(data: mujoco.MjData) -> bool:
-    """MuJoCo's own test (mj_checkPos / mj_checkVel): positions and velocities finite and
-    within mjMAXVAL."""
-    return bool(
-        np.all(np.abs(data.qpos) < mujoco.mjMAXVAL) and np.all(np.abs(data.qvel) < mujoco.mjMAXVAL)
-    )
 
 
 def _observations(states: BodyState) -> np.ndarray:
@@ -857,7 +851,11 @@ class ArenaEnv:
         _refresh(self.model, data)
         world_frames(self.model, data, self._frames[i])
         self._head_z[i] = data.geom_xpos[self.index.head_geoms, 2]
-        self._stable[i] = _finite_state(data)
+        # MuJoCo's own test (mj_checkPos / mj_checkVel): not finite or beyond mjMAXVAL.
+        self._stable[i] = bool(
+            np.all(np.abs(data.qpos) < mujoco.mjMAXVAL)
+            and np.all(np.abs(data.qvel) < mujoco.mjMAXVAL)
+        )
 
     def _advance_rollout(
         self, ctrl: np.ndarray, *, contacts: bool

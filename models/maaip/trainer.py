@@ -330,7 +330,8 @@ class Trainer:
                 parts["terminal"].append(self._tensor(result.terminal))
             parts["obs"].append(obs)
             # Where the arena observed on a device (Warp), from there: no trip through the host.
-            observed = getattr(result, "observed", None)
+            # (A tracker's observations are its own, made on the host.)
+            observed = result.observed if self.tracker is None else None
             if observed is None:
                 next_obs = self._tensor(result.observation)
             else:

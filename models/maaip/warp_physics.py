@@ -140,7 +140,7 @@ class WarpPhysics:
         """Write every world's state into its MjData (its kinematics are left as they were)."""
         wp, _ = _warp()
         d = self._data
-        for name in ("qpos", "qvel", "act", "qacc_warmstart", "ctrl"):
+        for name in _STATE_FIELDS:
             values = getattr(d, name).numpy()
             for i, data in enumerate(datas):
                 getattr(data, name)[:] = values[i]
