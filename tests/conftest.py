@@ -83,6 +83,22 @@ def assets() -> Path:
 
 
 @pytest.fixture(scope="session")
+def punch(assets: Path):
+    """DeepMimic's punch performed by both fighters, 1.2 m apart and facing each other (a
+    `ReferenceMotions`)."""
+    import mujoco
+
+    from models.humanoid.boxer import boxer_mjcf
+    from models.humanoid.compiled import velocities
+    from models.maaip.demonstrations import facing_reference
+    from tasks.deepmimic import clip_path, load_deepmimic, retarget
+
+    qpos = retarget(load_deepmimic(clip_path(assets, "punch")))
+    model = mujoco.MjModel.from_xml_string(boxer_mjcf())
+    return facing_reference(qpos, velocities(model, qpos, 30.0), distance=1.2)
+
+
+@pytest.fixture(scope="session")
 def sample_video(assets: Path) -> Path:
     return assets / SAMPLE_VIDEO
 

@@ -418,6 +418,23 @@ def test_actions_map_to_hinge_targets_and_back() -> None:
     )
 
 
+def test_torch_actions_get_the_same_targets_and_headings() -> None:
+    # Warp's arena computes them on its device, from torch tensors: the same numbers. Tiny and
+    # zero exponential maps included (Rodrigues' formula's series there), and angles past pi.
+    import torch
+
+    rng = np.random.default_rng(12)
+    actions = rng.normal(0.0, 1.5, (200, 2, 28))
+    actions[0, 0, :3], actions[1, 0, :3] = 0.0, 1e-7
+    want = K.action_to_joint_targets(actions)
+    got = K.action_to_joint_targets(torch.from_numpy(actions))
+    assert isinstance(got, torch.Tensor)
+    np.testing.assert_allclose(got.numpy(), want, atol=1e-12)
+    quats = rng.normal(size=(50, 2, 4))
+    yaw = K.heading_yaw(torch.from_numpy(quats))
+    np.testing.assert_allclose(yaw.numpy(), K.heading_yaw(quats), atol=1e-12)
+
+
 def test_heading_frame_is_yaw_only() -> None:
     rng = np.random.default_rng(8)
     quats = rng.normal(size=(30, 4))

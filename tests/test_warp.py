@@ -10,7 +10,7 @@ import pytest
 
 from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions
-from models.maaip.env import ArenaEnv
+from models.maaip.env import ArenaEnv, geom_bottoms, to_host
 from models.maaip.warp_physics import WarpPhysics
 
 # Feet pressed this far into the floor at the start. The arena's resets put the soles exactly on
@@ -37,7 +37,7 @@ def _play(stepping: str, actions: np.ndarray):
             result = env.step(a)
             qpos.append(np.stack([d.qpos.copy() for d in env.datas]))
             fell.append(result.fell)
-            damage.append(result.damage)
+            damage.append(to_host(result.damage))
     return np.array(qpos), np.array(fell), np.array(damage)
 
 
@@ -58,19 +58,64 @@ def test_warp_follows_mujoco_for_30_policy_steps():
 
 
 def test_a_jab_does_the_same_damage_within_5_percent():
-    # Agent 0 lunges, glove first, at agent 1's head (tests/test_train_env.py's jab).
-    from test_train_env import _jab_setup
+    # Agent 0 lunges, glove first, at agent 1's head (tests/test_train_env.py's jab, started as
+    # there: with the lunge's velocity, never standing).
+    from test_train_env import _env, _jab_setup
 
     totals = {}
     for stepping in ("threads", "warp"):
-        config = EnvConfig(num_envs=1, threads=1, stepping=stepping)
-        with ArenaEnv(config, np.random.default_rng(0)) as env:
+        with _env(num_envs=1, stepping=stepping) as env:
             reference, actions = _jab_setup(env)
             env.reset([0], reference)
-            totals[stepping] = sum(env.step(actions).damage[0] for _ in range(8))
+            totals[stepping] = sum(to_host(env.step(actions).damage)[0] for _ in range(8))
     # Measured: 3,751 N against 3,876 (the soles start touching the floor, as above).
     assert totals["threads"][0] == totals["warp"][0] == 0.0
+    assert totals["threads"][1] > 1000.0  # the jab lands
     assert totals["warp"][1] == pytest.approx(totals["threads"][1], rel=0.05)
+
+
+def test_resets_on_the_device_start_where_mujocos_do(punch):
+    # Episode starts from DeepMimic's punch, half of them standing in the rest pose, drawn by the
+    # same generator; then two of the four arenas restart mid-episode, the others moving on. On
+    # Warp the starts are grounded and observed on the device.
+    import mujoco
+    from test_train_env import _env
+
+    reference = punch
+    actions = np.random.default_rng(3).normal(0.0, 0.2, (4, 2, 28))
+    got = {}
+    for stepping in ("threads", "warp"):
+        with _env(num_envs=4, stepping=stepping, standing_share=0.5) as env:
+            first = to_host(env.reset(np.arange(4), reference))
+            env.step(actions)
+            again = to_host(env.reset([1, 3], reference))
+            qpos = np.stack([d.qpos.copy() for d in env.datas])
+            lowest = []
+            for data in env.datas:
+                mujoco.mj_kinematics(env.model, data)
+                lowest.append(
+                    [
+                        geom_bottoms(
+                            env.model, data, np.flatnonzero(env.index.agent_of_geom == a)
+                        ).min()
+                        for a in range(2)
+                    ]
+                )
+            heading = to_host(env.heading_inputs(np.full((4, 2), 0.5)))
+            got[stepping] = first, again, qpos, np.array(lowest), to_host(env.observe()), heading
+            assert env.elapsed.tolist() == [1, 0, 1, 0]
+    (first, again, qpos, lowest, observed, heading), want = got["warp"], got["threads"]
+    # Warp's float32 poses and kinematics, measured: observations 2.4e-6 apart at most, poses
+    # 9e-8 m, the lowest points 5e-8 m from the floor, the heading inputs 6e-8.
+    assert np.abs(first - want[0]).max() < 1e-5 and np.abs(again - want[1]).max() < 1e-5
+    assert np.abs(qpos[[1, 3]] - want[2][[1, 3]]).max() < 1e-6
+    assert np.abs(lowest[[1, 3]]).max() < 1e-6  # each fighter's lowest point on the floor
+    # The heading task's inputs, read from the worlds on the device.
+    assert np.abs(heading[[1, 3]] - want[5][[1, 3]]).max() < 1e-6
+    # The host's copy after the restarts: the restarted arenas as `reset` returned them, and the
+    # others as stepped, not restarted (where the two physics part at touching soles, above).
+    assert np.abs(observed[[1, 3]] - again).max() < 1e-5  # float64 on the host, float32 there
+    assert np.abs(observed[[0, 2]] - first[[0, 2]]).max() > 1e-3
 
 
 def test_a_world_out_of_contact_room_is_an_error_not_wrong_physics(monkeypatch):

@@ -378,16 +378,17 @@ def matrix_to_euler_yxz(rotation: np.ndarray) -> np.ndarray:
     # R = [[ca cc + sa sb sc, sa sb cc - ca sc, sa cb],
     #      [cb sc,            cb cc,            -sb  ],
     #      [ca sb sc - sa cc, sa sc + ca sb cc, ca cb]]
-    cb = np.hypot(r[..., 1, 0], r[..., 1, 1])
-    b = np.arctan2(-r[..., 1, 2], cb)
+    xp = array_namespace(r)  # NumPy, or torch for Warp's actions on its device
+    cb = xp.hypot(r[..., 1, 0], r[..., 1, 1])
+    b = xp.atan2(-r[..., 1, 2], cb)
     regular = cb > 1e-9
-    a = np.where(regular, np.arctan2(r[..., 0, 2], r[..., 2, 2]), 0.0)
-    c = np.where(regular, np.arctan2(r[..., 1, 0], r[..., 1, 1]), 0.0)
+    zero = xp.zeros_like(cb)
+    c = xp.where(regular, xp.atan2(r[..., 1, 0], r[..., 1, 1]), zero)
     # Singular: R00 = ca, R01 = sa sb (with c = 0).
-    sb = np.sign(np.sin(b))
-    a_singular = np.arctan2(r[..., 0, 1] * sb, r[..., 0, 0])
-    a = np.where(regular, a, a_singular)
-    return np.stack([a, b, c], axis=-1)
+    sb = xp.sign(xp.sin(b))
+    a_singular = xp.atan2(r[..., 0, 1] * sb, r[..., 0, 0])
+    a = xp.where(regular, xp.atan2(r[..., 0, 2], r[..., 2, 2]), a_singular)
+    return xp.stack([a, b, c], axis=-1)
 
 
 def expmap_to_matrix(expmap: np.ndarray) -> np.ndarray:
@@ -400,7 +401,23 @@ def expmap_to_matrix(expmap: np.ndarray) -> np.ndarray:
         (..., 3, 3) rotation matrices.
     """
     e = _check_last("expmap", expmap, (3,))
-    return _rotation().from_rotvec(e).as_matrix()
+    if not is_torch_array(e):
+        return _rotation().from_rotvec(e).as_matrix()
+    # A torch tensor (Warp's actions, on its device): Rodrigues' formula on the unnormalised
+    # skew matrix E of e, R = I + sin(t)/t E + (1 - cos(t))/t^2 E^2, since scipy takes no
+    # tensors; below t = 1e-4 the two factors' Taylor series (their float64 error is 1e-17).
+    xp = array_namespace(e)
+    t2 = xp.sum(e * e, axis=-1)[..., None, None]
+    small = t2 < 1e-8
+    t = xp.sqrt(xp.where(small, xp.ones_like(t2), t2))
+    first = xp.where(small, 1 - t2 / 6, xp.sin(t) / t)
+    second = xp.where(small, 0.5 - t2 / 24, (1 - xp.cos(t)) / (t * t))
+    x, y, z = e[..., 0], e[..., 1], e[..., 2]
+    zero = xp.zeros_like(x)
+    skew = xp.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1)
+    skew = xp.reshape(skew, (*e.shape[:-1], 3, 3))
+    eye = xp.eye(3, dtype=e.dtype, device=device(e))
+    return eye + first * skew + second * (skew @ skew)
 
 
 def matrix_to_expmap(rotation: np.ndarray) -> np.ndarray:
@@ -471,7 +488,7 @@ def heading_yaw(root_quat: np.ndarray) -> np.ndarray:
     """Yaw (radians, about +z) of the root's facing direction, its x axis on the floor.
 
     Args:
-        root_quat: (..., 4) root quaternions (w, x, y, z).
+        root_quat: (..., 4) root quaternions (w, x, y, z): a NumPy array, or a torch tensor.
 
     Returns:
         (...) yaw angles in (-pi, pi]; 0 where the x axis points straight up or down.
@@ -481,9 +498,10 @@ def heading_yaw(root_quat: np.ndarray) -> np.ndarray:
     # elsewhere: for a fighter on its back (x axis within about 1e-7 rad of vertical) scipy
     # meets gimbal lock and folds the roll into the yaw (1.1 rad for a true 0.7), and it is 4-7x
     # slower at (N, 2) roots (benchmarks/rotations.py).
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.arctan2(2 * (x * y + w * z), 1 - 2 * (y * y + z * z))
+    xp = array_namespace(q)  # NumPy, or torch for Warp's worlds on their device
+    q = q / xp.sqrt(xp.sum(q * q, axis=-1))[..., None]
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return xp.atan2(2 * (x * y + w * z), 1 - 2 * (y * y + z * z))
 
 
 def heading_frame(root_quat: np.ndarray) -> np.ndarray:
@@ -677,15 +695,20 @@ def action_to_joint_targets(action: np.ndarray) -> np.ndarray:
     pass through.
 
     Args:
-        action: (..., 28) actions in JOINT_LAYOUT order.
+        action: (..., 28) actions in JOINT_LAYOUT order: a NumPy array, or a torch tensor (on
+            any device), which gives a tensor there.
 
     Returns:
         (..., 28) hinge targets in radians (actuator order), before clipping to ctrlrange.
     """
     a = _check_last("action", action, (NUM_ACTUATED,))
-    targets = a.copy()
+    if is_torch_array(a):  # on Warp's device: the same columns, indexed by a tensor there
+        columns = array_namespace(a).asarray(_EXPMAP_COLUMNS, device=device(a))
+        targets = a.clone()
+    else:
+        columns, targets = _EXPMAP_COLUMNS, a.copy()
     # All 3-DoF joints in one call each: per joint, the calls' overhead dominated the step.
-    targets[..., _EXPMAP_COLUMNS] = matrix_to_euler_yxz(expmap_to_matrix(a[..., _EXPMAP_COLUMNS]))
+    targets[..., columns] = matrix_to_euler_yxz(expmap_to_matrix(a[..., columns]))
     return targets
 
 

@@ -561,7 +561,7 @@ class TrainConfig:
     device: str = setting(
         "auto",
         "Where the networks train: 'auto' (CUDA when torch sees a GPU, else the CPU), 'cpu' or "
-        "'cuda'. The physics always runs on the CPU.",
+        "'cuda'. The physics runs there too with train.env.stepping 'warp', else on the CPU.",
     )
     iterations: int = setting(1000, "Training iterations (collect, update D, update pi and V).")
     minutes: float = setting(

@@ -50,9 +50,10 @@ Batched stepping, three ways (`EnvConfig.stepping`), measured by `benchmarks/phy
   reads the body states. Bit-identical to stepping the environments one by one.
 - "warp": MuJoCo Warp steps all N environments as the worlds of one batch, on the GPU where
   there is one (`models.maaip.warp_physics`); contacts come from the contact sensors as with
-  "rollout". The state stays on the device, where the kinematics, damage and observations are
-  computed too; environments reset on the host go up before the next step, and the MjData are
-  brought from the device when read (`ArenaEnv.datas`).
+  "rollout". The state stays on the device, where the PD targets, the kinematics, damage,
+  observations and episode starts are computed too; a step's observations, damage and bodies
+  are torch tensors there (`StepResult`), and the MjData are brought from the device only when
+  read (`ArenaEnv.datas`).
 Measured by `benchmarks/physics_speed.py` on 2 cores, N = 64, 60 Hz x 2: the whole step runs
 at about 7,500 environment steps/s with "rollout" and 5,800 with "threads" (raw physics alone:
 14-15k with either): "rollout" steps its environments back to back in C, while "threads" reads
@@ -82,7 +83,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import mujoco.rollout
 import numpy as np
-from array_api_compat import array_namespace
+from array_api_compat import array_namespace, device, is_torch_array
 from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths
@@ -125,6 +126,10 @@ _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 class StepResult:
     """What one `ArenaEnv.step` returns.
 
+    With stepping "warp", `observation`, `self_observation`, `damage` and `body` are torch
+    tensors (float32) on Warp's device, where they were computed; the flags, which the host
+    decides resets by, are NumPy arrays with every stepping.
+
     Attributes:
         observation: (N, 2, 274) each agent's o_{t+1} = [o^self, o^opp] (MAAIP §4.2).
         self_observation: (N, 2, 223) o^self_{t+1}, the first 223 numbers of `observation`
@@ -137,19 +142,16 @@ class StepResult:
             MuJoCo's mjMAXVAL): terminal, the observation and damage are zeros; reset it.
         body: (N, 2) both agents' body states after the step, which the observations are
             computed from (not finite where unstable).
-        observed: with stepping "warp", `observation` as a float32 torch tensor on Warp's
-            device, where it was computed (the trainer takes it from there); else None.
     """
 
-    observation: np.ndarray
-    self_observation: np.ndarray
+    observation: np.ndarray | torch.Tensor
+    self_observation: np.ndarray | torch.Tensor
     terminated: np.ndarray
     truncated: np.ndarray
     fell: np.ndarray
-    damage: np.ndarray
+    damage: np.ndarray | torch.Tensor
     unstable: np.ndarray
     body: BodyState
-    observed: torch.Tensor | None = None
 
     @property
     def done(self) -> np.ndarray:
@@ -186,10 +188,13 @@ def joint_targets(actions: np.ndarray, ctrlrange: np.ndarray) -> np.ndarray:
         ctrlrange: (2, 28, 2) each agent's actuator ranges (low, high) in radians.
 
     Returns:
-        (N, 2, 28) hinge targets in radians.
+        (N, 2, 28) hinge targets in radians (a torch tensor where ``actions`` is one, on its
+        device).
     """
     targets = action_to_joint_targets(actions)
-    return np.clip(targets, ctrlrange[..., 0], ctrlrange[..., 1])
+    xp = array_namespace(targets)
+    limits = xp.asarray(ctrlrange, dtype=targets.dtype, device=device(targets))
+    return xp.clip(targets, limits[..., 0], limits[..., 1])
 
 
 def geom_bottoms(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) -> np.ndarray:
@@ -202,22 +207,29 @@ def geom_bottoms(model: mujoco.MjModel, data: mujoco.MjData, geoms: np.ndarray) 
     Returns:
         (G,) heights in metres.
     """
+    xmat = data.geom_xmat[geoms].reshape(-1, 3, 3)
+    return bottoms(model, geoms, data.geom_xpos[geoms], xmat)
+
+
+def bottoms(model: mujoco.MjModel, geoms: np.ndarray, xpos: np.ndarray, xmat: np.ndarray):
+    """`geom_bottoms` from the geoms' world positions ``xpos`` (..., G, 3) and orientations
+    ``xmat`` (..., G, 3, 3), of any batch of worlds: NumPy arrays, or torch tensors (Warp's
+    worlds on their device), which give tensors there."""
     kinds = model.geom_type[geoms]
-    size = model.geom_size[geoms]
-    centre_z = data.geom_xpos[geoms, 2]
-    zrow = data.geom_xmat[geoms].reshape(-1, 3, 3)[:, 2, :]  # world z of each local axis
-    bottom = np.full(len(geoms), np.nan)
-    sphere = kinds == mujoco.mjtGeom.mjGEOM_SPHERE
-    bottom[sphere] = centre_z[sphere] - size[sphere, 0]
-    capsule = kinds == mujoco.mjtGeom.mjGEOM_CAPSULE
-    half = np.abs(zrow[capsule, 2]) * size[capsule, 1]
-    bottom[capsule] = centre_z[capsule] - half - size[capsule, 0]
-    box = kinds == mujoco.mjtGeom.mjGEOM_BOX
-    bottom[box] = centre_z[box] - np.sum(np.abs(zrow[box]) * size[box], axis=1)
-    if np.isnan(bottom).any():
-        bad = [int(g) for g in geoms[np.isnan(bottom)]]
+    known = (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_BOX)
+    if not np.isin(kinds, known).all():
+        bad = [int(g) for g in np.asarray(geoms)[~np.isin(kinds, known)]]
         raise ValueError(f"geom_bottoms handles spheres, capsules and boxes; geoms {bad} are not")
-    return bottom
+    xp = array_namespace(xpos)
+    size = xp.asarray(model.geom_size[geoms], dtype=xpos.dtype, device=device(xpos))
+    centre_z = xpos[..., 2]
+    zrow = xmat[..., 2, :]  # world z of each local axis
+    sphere = centre_z - size[:, 0]
+    capsule = centre_z - xp.abs(zrow[..., 2]) * size[:, 1] - size[:, 0]
+    box = centre_z - xp.sum(xp.abs(zrow) * size, axis=-1)
+    is_sphere = xp.asarray(kinds == mujoco.mjtGeom.mjGEOM_SPHERE, device=device(xpos))
+    is_capsule = xp.asarray(kinds == mujoco.mjtGeom.mjGEOM_CAPSULE, device=device(xpos))
+    return xp.where(is_sphere, sphere, xp.where(is_capsule, capsule, box))
 
 
 def start_velocities(qvel: np.ndarray, mode: str, limit: float) -> np.ndarray:
@@ -364,6 +376,12 @@ def sensor_contacts(sensordata: np.ndarray, layout: SensorLayout) -> tuple[np.nd
     return xp.stack(damage, axis=1), xp.stack(floor, axis=1)
 
 
+def to_host(array: np.ndarray | torch.Tensor) -> np.ndarray:
+    """A float64 NumPy array of an arena's array (with "warp", a torch tensor on its device)."""
+    host = array.cpu().numpy() if is_torch_array(array) else array
+    return np.asarray(host, dtype=np.float64)
+
+
 def _refresh(model: mujoco.MjModel, data: mujoco.MjData) -> None:
     """Kinematics and body velocities at the current qpos and qvel (what
     `models.humanoid.compiled.body_state` reads), as `body_states` computes them for the
@@ -457,8 +475,9 @@ class ArenaEnv:
             self._rollout = mujoco.rollout.Rollout(nthread=threads)
             self._scratch = [mujoco.MjData(self.model) for _ in range(max(threads, 1))]
             self._nstate = mujoco.mj_stateSize(self.model, _FULL)
-        # With "warp": environments set on the host since the last step (to go up before the
-        # next), and whether the MjData are behind the device.
+        # With "warp" the device holds the truth and the host a copy: the environments set on
+        # the host since the device last moved (to go up before it moves again), and whether
+        # the MjData and `_frames`, `_head_z`, `_stable` are behind it.
         self._dirty = np.ones(config.num_envs, dtype=bool)
         self._stale = False
         self._warp = None
@@ -466,6 +485,7 @@ class ArenaEnv:
             from models.maaip.warp_physics import WarpPhysics, warp_device
 
             self._warp = WarpPhysics(self.model, config.num_envs, warp_device(device))
+            self._on_device = self._measure_device()
 
     def close(self) -> None:
         """End the worker threads."""
@@ -496,18 +516,31 @@ class ArenaEnv:
         return self._datas
 
     def _sync(self) -> None:
-        """With "warp": the worlds' state into the MjData, after sending up the worlds reset on
-        the host since the last step (so that they are not overwritten)."""
+        """With "warp": the worlds' state into the MjData, and what the observations and the
+        fall rule read into `_frames`, `_head_z` and `_stable`."""
         if self._warp is None or not self._stale:
             return
-        self._upload_dirty()
         self._warp.download(self._datas)
+        frames, head_z, stable = self._on_device
+        self._frames[:] = frames.cpu().numpy()
+        self._head_z[:] = head_z.cpu().numpy()
+        self._stable[:] = stable.cpu().numpy()
         self._stale = False
 
     def _upload_dirty(self) -> None:
+        """With "warp": the environments set on the host since the device last moved go up,
+        their kinematics computed there, before the device moves again."""
         if self._warp is not None and self._dirty.any():
             self._warp.upload(np.flatnonzero(self._dirty), self._datas)
             self._dirty[:] = False
+            self._warp.refresh()
+
+    def _measure_device(self) -> tuple:
+        """With "warp", after a `refresh`: (N, nbody, 21) body frames, (N, 2) head heights and
+        (N,) stability of every world, torch tensors on the device."""
+        assert self._warp is not None
+        head_z = self._warp.view("geom_xpos")[:, self.index.head_geoms.tolist(), 2]
+        return self._warp.frames(), head_z, self._warp.stable()
 
     def state(self) -> dict:
         """Everything that decides what the environments do next, for `load_state`: each
@@ -599,23 +632,7 @@ class ArenaEnv:
             for qpos, v, hinges in zip((qpos0, qpos1), qvel, stance, strict=True):
                 qpos[standing] = standing_like(qpos[standing], hinges)
                 v[standing] = 0.0
-        agents = self.index.agents
-        mine = [np.flatnonzero(self.index.agent_of_geom == a) for a in range(NUM_AGENTS)]
-        for k, i in enumerate(ids):
-            data = self._datas[i]
-            mujoco.mj_resetData(self.model, data)
-            for a, qpos in enumerate((qpos0, qpos1)):
-                data.qpos[agents[a].qpos] = qpos[k]
-                data.qvel[agents[a].qvel] = qvel[a][k]
-            mujoco.mj_kinematics(self.model, data)
-            # Each fighter's lowest point on the floor: a lifted frame may float or sink, and a
-            # start in the air is a drop the policy did not choose.
-            for a in range(NUM_AGENTS):
-                data.qpos[agents[a].qpos_start + 2] -= geom_bottoms(self.model, data, mine[a]).min()
-            self._gather(i)
-        self._dirty[ids] = True
-        self.elapsed[ids] = 0
-        return self.observe(ids)
+        return self._start(ids, np.stack([qpos0, qpos1], 1), np.stack(qvel, 1), ground=True)
 
     def set_states(
         self, env_ids: Sequence[int] | np.ndarray, qpos: np.ndarray, qvel: np.ndarray
@@ -631,16 +648,61 @@ class ArenaEnv:
             raise ValueError(f"qpos must be finite with shape ({len(ids)}, 2, {NQ}), got {q.shape}")
         if v.shape != (len(ids), NUM_AGENTS, NV) or not np.isfinite(v).all():
             raise ValueError(f"qvel must be finite with shape ({len(ids)}, 2, {NV}), got {v.shape}")
+        return self._start(ids, q, v, ground=False)
+
+    def _start(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, *, ground: bool):
+        """Environments ``ids`` reset (`mj_resetData`) and started with both agents at ``qpos``
+        (n, 2, 35) moving at ``qvel`` (n, 2, 34); with ``ground``, each fighter is moved up or
+        down until its lowest point touches the floor (a lifted frame may float or sink, and a
+        start in the air is a drop the policy did not choose). Their observations (n, 2, 274):
+        with "warp" computed on the device, where the starts are made, as a torch tensor."""
+        agents = self.index.agents
+        mine = [np.flatnonzero(self.index.agent_of_geom == a) for a in range(NUM_AGENTS)]
+        self.elapsed[ids] = 0
+        if self._warp is not None:
+            return self._start_on_device(ids, qpos, qvel, mine if ground else None)
         for k, i in enumerate(ids):
             data = self._datas[i]
             mujoco.mj_resetData(self.model, data)
-            for a, agent in enumerate(self.index.agents):
-                data.qpos[agent.qpos] = q[k, a]
-                data.qvel[agent.qvel] = v[k, a]
+            for a, agent in enumerate(agents):
+                data.qpos[agent.qpos] = qpos[k, a]
+                data.qvel[agent.qvel] = qvel[k, a]
+            if ground:
+                mujoco.mj_kinematics(self.model, data)
+                for a, agent in enumerate(agents):
+                    data.qpos[agent.qpos_start + 2] -= geom_bottoms(self.model, data, mine[a]).min()
             self._gather(i)
-        self._dirty[ids] = True
-        self.elapsed[ids] = 0
         return self.observe(ids)
+
+    def _start_on_device(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, ground):
+        """`_start` with "warp": the starts go up as they are and are grounded there (``ground``:
+        each agent's geoms, or None)."""
+        assert self._warp is not None
+        warp = self._warp
+        self._upload_dirty()
+        full_q = np.tile(self.model.qpos0, (len(ids), 1))
+        full_v = np.zeros((len(ids), self.model.nv))
+        for a, agent in enumerate(self.index.agents):
+            full_q[:, agent.qpos] = qpos[:, a]
+            full_v[:, agent.qvel] = qvel[:, a]
+        import torch
+
+        rows = torch.as_tensor(ids, device=warp.torch_device)
+        warp.start(rows, *(torch.as_tensor(x, device=rows.device) for x in (full_q, full_v)))
+        if ground:
+            warp.refresh(velocities=False)
+            xpos, xmat = warp.view("geom_xpos")[rows], warp.view("geom_xmat")[rows]
+            lows = [
+                bottoms(self.model, geoms, xpos[:, geoms.tolist()], xmat[:, geoms.tolist()])
+                for geoms in ground
+            ]
+            for agent, low in zip(self.index.agents, lows, strict=True):
+                warp.view("qpos")[rows, agent.qpos_start + 2] -= low.amin(dim=1)
+        warp.refresh()
+        self._on_device = self._measure_device()
+        self._stale = True
+        frames = self._on_device[0][rows]
+        return _observations(body_state_from_frames(frames, self._body_ids))
 
     def place(
         self, env_id: int, agent: int, qpos: np.ndarray, *, ground: bool = True
@@ -671,6 +733,7 @@ class ArenaEnv:
         """Both agents' BodyState in the given environments (all by default), leading (n, 2),
         as the last step, reset or placement left them."""
         ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids)
+        self._sync()
         return self._states(self._frames[ids])
 
     def _states(self, frames: np.ndarray) -> BodyState:
@@ -685,16 +748,19 @@ class ArenaEnv:
     def heading_inputs(self, targets: np.ndarray) -> np.ndarray:
         """(N, 2, 2) the task input of MAAIP §5.4's heading task: each agent's target direction
         on the floor, ``targets`` (N, 2) world yaws, in its own heading frame (the cosine and
-        sine of the target yaw minus the agent's)."""
-        self._sync()
-        quats = np.array(
-            [
-                [data.qpos[agent.qpos][ROOT_QUAT] for agent in self.index.agents]
-                for data in self._datas
-            ]
-        )
-        relative = np.asarray(targets) - heading_yaw(quats)
-        return np.stack([np.cos(relative), np.sin(relative)], -1)
+        sine of the target yaw minus the agent's). With "warp", read and computed on the
+        device, a torch tensor there."""
+        agents = self.index.agents
+        if self._warp is None:
+            quats = np.array([[d.qpos[a.qpos][ROOT_QUAT] for a in agents] for d in self._datas])
+        else:
+            self._upload_dirty()
+            qpos = self._warp.view("qpos").double()
+            rows = [qpos[:, a.qpos][:, ROOT_QUAT] for a in agents]
+            quats = array_namespace(qpos).stack(rows, axis=1)
+        xp = array_namespace(quats)
+        relative = xp.asarray(targets, device=device(quats)) - heading_yaw(quats)
+        return xp.stack([xp.cos(relative), xp.sin(relative)], axis=-1)
 
     # ---------------------------------------------------------------- step
 
@@ -709,39 +775,31 @@ class ArenaEnv:
         Returns:
             StepResult for every environment (module docstring: damage, falls, time-outs).
         """
-        a = np.asarray(actions, dtype=np.float64)
-        want = (self.num_envs, NUM_AGENTS, NUM_ACTUATED)
-        if a.shape != want:
-            raise ValueError(f"actions must have shape {want} (N, agents, 28), got {a.shape}")
-        if not np.isfinite(a).all():
-            bad = np.argwhere(~np.isfinite(a))[0]
-            raise ValueError(
-                f"actions must be finite; env {bad[0]}, agent {bad[1]}, action {bad[2]} "
-                f"is {a[tuple(bad)]}"
-            )
+        a = self._actions(actions)
         targets = joint_targets(a, self._ctrlrange)
-        ctrl = np.zeros((self.num_envs, self.model.nu))
+        xp = array_namespace(targets)
+        ctrl = xp.zeros((self.num_envs, self.model.nu), dtype=a.dtype, device=device(a))
         for agent in range(NUM_AGENTS):
-            ctrl[:, self.index.actuators[agent]] = targets[:, agent]
+            ids = xp.asarray(self.index.actuators[agent], device=device(a))
+            ctrl[:, ids] = targets[:, agent]
         paths = None if puppet is None else self._puppet_paths(puppet)
         damage, floor = self._advance(ctrl, contacts=True, paths=paths)
-        unstable = ~self._stable
+        # Where the worlds are: the host's copies, or with "warp" the device's tensors.
+        frames, head_z, stable = (
+            (self._frames, self._head_z, self._stable) if self._warp is None else self._on_device
+        )
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
-            states = self._states(self._frames)
-            observed = None
-            if self._warp is None:
-                obs = _observations(states)
-            else:  # observed where the worlds are, by the same function
-                frames = body_state_from_frames(self._device_frames, self._body_ids)
-                observed = _observations(frames)
-                obs = observed.cpu().numpy().astype(np.float64)
-            fell = (floor | (self._head_z < self.config.fall_height_m)) & self._stable[:, None]
+            states = self._states(frames)
+            obs = _observations(states)
+            fell = (floor | (head_z < self.config.fall_height_m)) & stable[:, None]
+        unstable = ~stable
+        if self._warp is not None:  # the flags the host decides resets by come down
+            fell, unstable = fell.cpu().numpy(), unstable.cpu().numpy()
         if unstable.any():
             # Zeros, so that no NaN reaches the networks; the episode ends here.
-            obs[unstable] = 0.0
-            damage[unstable] = 0.0
-            if observed is not None:
-                observed[np.flatnonzero(unstable).tolist()] = 0.0
+            mask = xp.asarray(unstable, device=device(obs))
+            obs[mask] = 0.0
+            damage[mask] = 0.0
         self.elapsed += 1
         terminated = fell.any(axis=1) | unstable
         truncated = (self.elapsed >= self.config.max_steps) & ~terminated
@@ -754,8 +812,29 @@ class ArenaEnv:
             damage=damage,
             unstable=unstable,
             body=states,
-            observed=observed,
         )
+
+    def _actions(self, actions) -> np.ndarray:
+        """``actions`` (N, 2, 28), NumPy or torch, checked, in float64 where the physics runs:
+        on the host, or with "warp" on its device (a torch tensor there)."""
+        if self._warp is None:
+            a = to_host(actions)
+        else:
+            import torch
+
+            a = torch.as_tensor(actions).to(self._warp.torch_device, torch.float64)
+        want = (self.num_envs, NUM_AGENTS, NUM_ACTUATED)
+        if tuple(a.shape) != want:
+            raise ValueError(f"actions must have shape {want} (N, agents, 28), got {a.shape}")
+        xp = array_namespace(a)
+        if not bool(xp.all(xp.isfinite(a))):
+            host = to_host(a)
+            bad = np.argwhere(~np.isfinite(host))[0]
+            raise ValueError(
+                f"actions must be finite; env {bad[0]}, agent {bad[1]}, action {bad[2]} "
+                f"is {host[tuple(bad)]}"
+            )
+        return a
 
     def step_physics(self, ctrl: np.ndarray | None = None) -> None:
         """Raw physics for benchmarks: `substeps` mj_step calls per environment with `ctrl`
@@ -881,19 +960,14 @@ class ArenaEnv:
         assert self.index.sensors is not None
         return sensor_contacts(sensordata, self.index.sensors)
 
-    def _advance_warp(self, ctrl: np.ndarray, *, contacts: bool) -> tuple[np.ndarray, np.ndarray]:
+    def _advance_warp(self, ctrl, *, contacts: bool):
         assert self._warp is not None
         self._upload_dirty()
         sensordata = self._warp.advance(ctrl, self.config.substeps)
+        self._on_device = self._measure_device()
         self._stale = True
-        n = self.num_envs
         if not contacts:
+            n = self.num_envs
             return np.zeros((n, NUM_AGENTS)), np.zeros((n, NUM_AGENTS), dtype=bool)
-        # What `_gather` reads from each MjData on the CPU, read from the device in one pass.
-        self._device_frames = self._warp.frames()
-        self._frames[:] = self._device_frames.cpu().numpy()
-        self._head_z[:] = self._warp.geom_heights(self.index.head_geoms)
-        self._stable[:] = self._warp.stable()
         assert self.index.sensors is not None
-        damage, floor = sensor_contacts(sensordata, self.index.sensors)
-        return damage.cpu().numpy().astype(np.float64), floor.cpu().numpy()
+        return sensor_contacts(sensordata, self.index.sensors)

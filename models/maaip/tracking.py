@@ -51,7 +51,7 @@ from models.humanoid.kinematics import (
 )
 from models.humanoid.observations import SELF_DIM, BodyState, self_observation
 from models.maaip.config import NUM_AGENTS, EnvConfig, TrackConfig, TrainConfig
-from models.maaip.env import ArenaEnv, StepResult
+from models.maaip.env import ArenaEnv, StepResult, to_host
 from models.maaip.networks import CentralValue, Policy, action_stds
 
 TRACK_INPUT_DIM = SELF_DIM + 5  # the next frame's o^self, its pelvis (3) and heading (cos, sin)
@@ -468,7 +468,9 @@ class Tracker:
             )
         result: StepResult = env.step(self.actions(corrections))
         self.flat = self._next()
-        sim = result.body
+        # The rewards are computed on the host, from the host's copy of the bodies (with "warp",
+        # brought from the device: `StepResult.body` is there).
+        sim = env.body_states()
         ref = self.reference(self.flat)
         sim_com = np.stack(
             [
@@ -498,7 +500,7 @@ class Tracker:
             truncated=truncated,
             terminal=terminal,
             fell=result.fell,
-            damage=result.damage,
+            damage=to_host(result.damage),
             unstable=result.unstable,
             reward=reward,
             terms=stacked,

@@ -270,9 +270,8 @@ class Trainer:
         self.heading = config.reward.control_task == "heading"
         self.task_rng = np.random.default_rng([config.seed, 1])
         self.targets = np.zeros((self.env.num_envs, 2))
-        self.obs = self._reset(np.arange(self.env.num_envs))
-        # `obs` on the training device when the arena computed it on one (Warp), else None.
-        self._observed: Tensor | None = None
+        # The current observations, on the training device.
+        self.obs = self._tensor(self._reset(np.arange(self.env.num_envs)))
         self.finished_steps = np.zeros(0, dtype=int)
         self.iteration = 0
         self.signature = _signature(config, key, bones, self.nets.policy.obs_dim)
@@ -295,11 +294,13 @@ class Trainer:
             return None
         return self._tensor(self.env.heading_inputs(self.targets))
 
-    def _tensor(self, array: np.ndarray) -> Tensor:
-        """A float32 (or bool) tensor of an environment array, on the training device."""
-        if array.dtype != np.bool_:
-            array = array.astype(np.float32)
-        return torch.from_numpy(array).to(self.device)
+    def _tensor(self, array: np.ndarray | Tensor) -> Tensor:
+        """A float32 (or bool) tensor of an environment array (NumPy, or a tensor where the
+        arena computed it on a device: Warp), on the training device."""
+        tensor = torch.as_tensor(array)
+        if tensor.dtype != torch.bool:
+            tensor = tensor.to(dtype=torch.float32)
+        return tensor.to(self.device)
 
     # ------------------------------------------------------------------ collect
 
@@ -310,7 +311,7 @@ class Trainer:
         parts: dict[str, list] = {k: [] for k in Rollout.__dataclass_fields__}
         finished: list[np.ndarray] = []
         for _ in range(horizon):
-            obs = self._tensor(self.obs) if self._observed is None else self._observed
+            obs = self.obs
             task = self.task_observation()
             actions, log_probs = self.nets.policy.act(
                 obs.reshape(2 * n, -1),
@@ -318,11 +319,12 @@ class Trainer:
                 task=None if task is None else task.reshape(2 * n, -1),
                 generator=self.generator,
             )
-            chosen = actions.reshape(n, 2, -1).cpu().double().numpy()
+            chosen = actions.reshape(n, 2, -1)
             if self.tracker is None:
+                # To the arena as they are: the host's, or Warp's device, takes them.
                 result = self.env.step(chosen)
             else:
-                result = self.tracker.step(self.env, chosen)
+                result = self.tracker.step(self.env, chosen.cpu().double().numpy())
                 parts["reward"].append(self._tensor(result.reward))
                 parts["reward_terms"].append(self._tensor(result.terms))
                 errors = np.stack([result.body_error, result.root_error], -1)
@@ -331,11 +333,7 @@ class Trainer:
             parts["obs"].append(obs)
             # Where the arena observed on a device (Warp), from there: no trip through the host.
             # (A tracker's observations are its own, made on the host.)
-            observed = result.observed if self.tracker is None else None
-            if observed is None:
-                next_obs = self._tensor(result.observation)
-            else:
-                next_obs = observed.to(self.device, torch.float32)
+            next_obs = self._tensor(result.observation)
             parts["next_obs"].append(next_obs)
             parts["actions"].append(actions.reshape(n, 2, -1))
             parts["log_probs"].append(log_probs.reshape(n, 2))
@@ -348,16 +346,12 @@ class Trainer:
                 parts["task"].append(task)
                 # Eq 11 rewards the move just made towards the targets it was made for.
                 parts["next_task"].append(self.task_observation())
-            self.obs = result.observation
-            self._observed = None if observed is None else next_obs
+            self.obs = next_obs
             done = np.flatnonzero(result.done)
             if done.size:
                 finished.append(self.env.elapsed[done].copy())
-                self.obs = self.obs.copy()
-                self.obs[done] = self._reset(done)
-                if self._observed is not None:
-                    self._observed = self._observed.clone()
-                    self._observed[done.tolist()] = self._tensor(self.obs[done])
+                self.obs = self.obs.clone()
+                self.obs[done.tolist()] = self._tensor(self._reset(done))
         self.finished_steps = np.concatenate(finished) if finished else np.zeros(0, dtype=int)
         return Rollout(**{k: torch.stack(v) if v else None for k, v in parts.items()})
 
@@ -634,7 +628,7 @@ class Trainer:
             torch_rng=torch.get_rng_state(),
             task_rng=self.task_rng.bit_generator.state,
             targets=self.targets.copy(),
-            obs=self.obs.copy(),
+            obs=self.obs.cpu().numpy().copy(),
             arena=self.env.state(),
             tracker=None if self.tracker is None else self.tracker.state(),
         )
@@ -710,7 +704,6 @@ class Trainer:
         self.task_rng.bit_generator.state = state.task_rng
         self.targets = state.targets.copy()
         self.env.load_state(state.arena)
-        self.obs = state.obs.copy()
-        self._observed = None
+        self.obs = self._tensor(state.obs)
         if self.tracker is not None:
             self.tracker.load_state(state.tracker)

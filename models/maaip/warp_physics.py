@@ -6,14 +6,19 @@ the CPU, slowly, which is what the tests and this 2-core machine use. Its arrays
 MuJoCo's float64: trajectories agree to float32's precision for a while, then part as any two
 floating-point schedules of a contact-rich simulation do (measured in tests/test_warp.py).
 
-What runs where, today: the worlds' state lives on the device, where the physics substeps, the
-contact sensors, the bodies' kinematics and the observations (`models.humanoid.observations`,
-the dataset's own function, on torch views of Warp's arrays) are computed. Each policy step sends
-the controls up and brings the contact sensors, the body frames, the head heights and the
-observations down; the arena's MjData are brought up to date only when something reads them
-(`ArenaEnv.datas`: a checkpoint, a heading target), and a world reset on the host (`ArenaEnv.reset`
-and the like) goes up before the next step. Damage and floor touches are summed on the device;
-the PD targets, the resets and the rewards are still computed on the host.
+What runs where: the worlds' state lives on the device, and the device is where a policy step
+happens: the actions become PD targets there (`models.humanoid.kinematics`, which takes torch
+tensors), the physics substeps, the contact sensors are summed into damage and floor touches,
+the bodies' kinematics and the observations (`models.humanoid.observations`, the dataset's own
+function, on torch views of Warp's arrays) are computed, and the arena returns them there
+(`StepResult`). Only the flags the host decides resets by come down each step (falls,
+instability: a few bytes per world). An episode start is chosen on the host (which reference
+frame, whether standing: the arena's generator, as with MuJoCo's stepping) and made on the
+device: the poses go up and are grounded, and their kinematics and observations computed, there
+(`ArenaEnv.reset`). The arena's MjData, and its host copies of the bodies, are brought down only
+when read (`ArenaEnv.datas`, `ArenaEnv.body_states`: a checkpoint, the tracker's rewards, which
+are computed on the host), and what is set on the host (`ArenaEnv.place`, a checkpoint's state)
+goes up before the device moves again.
 
 Contacts come from the arena's contact sensors (`arena_mjcf(contact_sensors=True)`), as with
 "rollout". MuJoCo's automatic reset is not in Warp; Warp never resets a world on its own, so an
@@ -91,41 +96,69 @@ class WarpPhysics:
         self._names = mjw.OverflowType
         self._root_ids = model.body_rootid.tolist()
 
+    @property
+    def torch_device(self):
+        """The torch device of Warp's arrays."""
+        wp, _ = _warp()
+        return wp.device_to_torch(self.device)
+
+    def view(self, name: str):
+        """A torch view (no copy) of Warp's array ``name`` (qpos, geom_xpos, ...), (N, ...)."""
+        wp, _ = _warp()
+        return wp.to_torch(getattr(self._data, name))
+
     def upload(self, ids: np.ndarray, datas: list[mujoco.MjData]) -> None:
         """Set worlds ``ids`` to the state of their MjData (``datas``, one per world): what
-        decides the next step (`_STATE_FIELDS` and the time)."""
+        decides the next step (`_STATE_FIELDS` and the time); their kinematics follow at the
+        next `refresh` or `advance`."""
         import torch
 
-        wp, _ = _warp()
-        d = self._data
-        rows = torch.as_tensor(ids, device=wp.device_to_torch(self.device))
+        rows = torch.as_tensor(ids, device=self.torch_device)
         for name in _STATE_FIELDS:
             values = np.stack([getattr(datas[i], name) for i in ids])
-            wp.to_torch(getattr(d, name))[rows] = torch.as_tensor(values).to(rows.device).float()
+            self.view(name)[rows] = torch.as_tensor(values).to(rows.device).float()
         times = torch.as_tensor([datas[i].time for i in ids])
-        wp.to_torch(d.time)[rows] = times.to(rows.device).float()
+        self.view("time")[rows] = times.to(rows.device).float()
 
-    def advance(self, ctrl: np.ndarray, substeps: int) -> np.ndarray:
-        """Step every world ``substeps`` times holding ``ctrl`` (N, nu), then bring its
-        kinematics to the new state; the sensor values after each substep, (N, substeps,
-        nsensordata), as `mujoco.rollout` returns them, a torch tensor on the device.
-        WarpOverflow, in one line, if a world ran out of room for its contacts or constraints."""
+    def start(self, ids, qpos, qvel) -> None:
+        """Worlds ``ids`` (a torch index on the device) reset, as `mujoco.mj_resetData` does,
+        then at ``qpos`` (n, nq) and ``qvel`` (n, nv) (tensors on the device); their kinematics
+        follow at the next `refresh` or `advance`."""
+        for name in _STATE_FIELDS:
+            self.view(name)[ids] = 0.0
+        self.view("time")[ids] = 0.0
+        self.view("qpos")[ids] = qpos.float()
+        self.view("qvel")[ids] = qvel.float()
+
+    def refresh(self, *, velocities: bool = True) -> None:
+        """Every world's kinematics at its positions (and, with ``velocities``, the bodies'
+        velocities too), as the arena's `_refresh` computes them on the CPU."""
+        wp, mjw = _warp()
+        with wp.ScopedDevice(self.device):
+            mjw.kinematics(self._model, self._data)
+            if velocities:
+                mjw.com_pos(self._model, self._data)
+                mjw.com_vel(self._model, self._data)
+
+    def advance(self, ctrl, substeps: int):
+        """Step every world ``substeps`` times holding ``ctrl`` (N, nu: a NumPy array, or a
+        torch tensor on the device), then bring its kinematics to the new state; the sensor
+        values after each substep, (N, substeps, nsensordata), as `mujoco.rollout` returns them,
+        a torch tensor on the device. WarpOverflow, in one line, if a world ran out of room for
+        its contacts or constraints."""
         import torch
 
         wp, mjw = _warp()
         d = self._data
-        d.ctrl.assign(ctrl.astype(np.float32))
+        self.view("ctrl").copy_(torch.as_tensor(ctrl, device=self.torch_device))
         d.overflow.zero_()
         sensors = []
         with wp.ScopedDevice(self.device):
             for _ in range(substeps):
                 mjw.step(self._model, d)
                 sensors.append(wp.to_torch(d.sensordata).clone())
-            # What `mujoco.mj_step` leaves a substep behind, brought to the new state, as the
-            # arena's `_refresh` does on the CPU.
-            mjw.kinematics(self._model, d)
-            mjw.com_pos(self._model, d)
-            mjw.com_vel(self._model, d)
+        # What `mujoco.mj_step` leaves a substep behind, brought to the new state.
+        self.refresh()
         overflow = d.overflow.numpy() & self._fatal
         if overflow.any():
             world = int(np.flatnonzero(overflow)[0])
@@ -138,7 +171,6 @@ class WarpPhysics:
 
     def download(self, datas: list[mujoco.MjData]) -> None:
         """Write every world's state into its MjData (its kinematics are left as they were)."""
-        wp, _ = _warp()
         d = self._data
         for name in _STATE_FIELDS:
             values = getattr(d, name).numpy()
@@ -148,40 +180,28 @@ class WarpPhysics:
         for i, data in enumerate(datas):
             data.time = float(times[i])
 
-    def stable(self) -> np.ndarray:
-        """(N,) whether each world's positions and velocities are finite and within mjMAXVAL
-        (MuJoCo's mj_checkPos and mj_checkVel)."""
+    def stable(self):
+        """(N,) torch bools on the device: whether each world's positions and velocities are
+        finite and within mjMAXVAL (MuJoCo's mj_checkPos and mj_checkVel)."""
         import torch
 
-        wp, _ = _warp()
-        state = torch.cat([wp.to_torch(self._data.qpos), wp.to_torch(self._data.qvel)], dim=1)
-        return (state.abs() < mujoco.mjMAXVAL).all(dim=1).cpu().numpy()
+        state = torch.cat([self.view("qpos"), self.view("qvel")], dim=1)
+        return (state.abs() < mujoco.mjMAXVAL).all(dim=1)
 
     def frames(self):
         """(N, nbody, 21) torch tensor on the device of every world's bodies after the last
-        `advance`, as `models.humanoid.observations.world_frames` lays them out (xpos, xmat,
+        `refresh`, as `models.humanoid.observations.world_frames` lays them out (xpos, xmat,
         cvel, the subtree_com of each body's tree root), built from Warp's arrays as torch
         views (no copy to the host)."""
         import torch
 
-        wp, _ = _warp()
-        d = self._data
-        n = d.xpos.shape[0]
+        n = self._data.xpos.shape[0]
         return torch.cat(
             [
-                wp.to_torch(d.xpos),
-                wp.to_torch(d.xmat).reshape(n, -1, 9),
-                wp.to_torch(d.cvel),
-                wp.to_torch(d.subtree_com)[:, self._root_ids],
+                self.view("xpos"),
+                self.view("xmat").reshape(n, -1, 9),
+                self.view("cvel"),
+                self.view("subtree_com")[:, self._root_ids],
             ],
             dim=-1,
         )
-
-    def geom_heights(self, geoms: list[int] | np.ndarray) -> np.ndarray:
-        """(N, len(geoms)) the centre heights of ``geoms`` in every world after the last
-        `advance`."""
-        import torch
-
-        wp, _ = _warp()
-        heights = wp.to_torch(self._data.geom_xpos)[:, torch.as_tensor(geoms), 2]
-        return heights.cpu().numpy().astype(np.float64)
