@@ -27,10 +27,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 # As `ringside` sets it (flows/cli/environment.py).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from models.maaip.config import PRESETS, NetworkConfig, TrainConfig  # noqa: E402
+from models.maaip.config import PRESETS, NetworkConfig  # noqa: E402
 from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
+from tasks.train.config import TrainConfig  # noqa: E402
 from tasks.train.data import clip_demonstrations  # noqa: E402
 
 REPEATS = 2

@@ -22,13 +22,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 # As `ringside` sets it (flows/cli/environment.py).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from models.maaip.config import TrainConfig  # noqa: E402
 from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.evaluate.export import export_opponent  # noqa: E402
 from tasks.evaluate.opponent import load_opponent  # noqa: E402
 from tasks.evaluate.spar import Partner, spar  # noqa: E402
+from tasks.train.config import TrainConfig  # noqa: E402
 from tasks.train.data import clip_demonstrations  # noqa: E402
 
 REPEATS = 3

@@ -36,12 +36,13 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch  # noqa: E402
 
 from models.humanoid.boxer import BoneLengths  # noqa: E402
-from models.maaip.config import STEPPINGS, TrainConfig  # noqa: E402
+from models.maaip.config import STEPPINGS  # noqa: E402
 from models.maaip.tracking import Gate, TrackingData, track_gate, tracking_data  # noqa: E402
 from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.deepmimic import WALKER_CLIPS, clip_path, load_deepmimic, retarget  # noqa: E402
+from tasks.train.config import TrainConfig  # noqa: E402
 
 CLIPS = ("walk", "punch", *WALKER_CLIPS)
 # Where `make bench` keeps the run (benchmarks/warp_replay.py replays its tracker).

@@ -41,13 +41,13 @@ import tracker_gate  # noqa: E402  (beside this file)
 
 from models.humanoid.boxer import BoneLengths  # noqa: E402
 from models.maaip.arena import arena_mjcf  # noqa: E402
-from models.maaip.config import TrainConfig  # noqa: E402
 from models.maaip.tracking import gate_of, play_clips  # noqa: E402
 from models.maaip.trainer import checkpoint_policy  # noqa: E402
 from storage.artifacts import read_bytes  # noqa: E402
 from storage.db import connect  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.config import build  # noqa: E402
+from tasks.train.config import TrainConfig  # noqa: E402
 from tasks.train.store import finished_runs  # noqa: E402
 from tasks.train.tracking import footage_tracking  # noqa: E402
 

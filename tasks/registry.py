@@ -16,7 +16,6 @@ from enum import StrEnum
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
-from models.maaip.config import TrainConfig
 from storage.db import add_migrations, remove_migrations
 from tasks.dataset.config import DatasetConfig
 from tasks.evaluate.config import EvaluateConfig
@@ -24,6 +23,7 @@ from tasks.ingest.config import IngestConfig
 from tasks.lift.config import LiftStageConfig
 from tasks.pose.config import PoseConfig
 from tasks.runner import StagePlan
+from tasks.train.config import TrainConfig
 
 
 @dataclass(frozen=True)

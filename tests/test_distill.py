@@ -17,13 +17,13 @@ from models.maaip.config import (
     NetworkConfig,
     PPOConfig,
     TrackConfig,
-    TrainConfig,
 )
 from models.maaip.distill import distill
 from models.maaip.env import ArenaEnv
 from models.maaip.networks import make_networks
 from models.maaip.tracking import Tracker, TrackingData, tracking_data, tracking_networks
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
+from tasks.train.config import TrainConfig
 
 BONES = (BoneLengths(), BoneLengths())
 CONFIG = TrainConfig(

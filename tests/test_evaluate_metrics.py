@@ -126,9 +126,10 @@ def test_time_in_guard_needs_both_wrists_above_the_shoulders():
 
 
 def test_bouts_repeat_exactly_and_stop_at_a_fall(assets):
-    from models.maaip.config import NetworkConfig, TrainConfig
+    from models.maaip.config import NetworkConfig
     from tasks.evaluate.bouts import simulate, torch_actor
     from tasks.evaluate.stage import untrained_policy
+    from tasks.train.config import TrainConfig
     from tasks.train.data import clip_demonstrations
 
     demos = clip_demonstrations(assets, "punch")
@@ -187,8 +188,8 @@ def test_bouts_start_standing_in_the_guard_and_a_still_guard_stays_up(assets):
     places them, so a fall is the policy's, never a start-up one: the guard held still stays up
     for 4 s in every episode, from frames of the punch clip that training starts mid-motion."""
     from models.humanoid.stance import guard_pose
-    from models.maaip.config import TrainConfig
     from tasks.evaluate.bouts import simulate, still_actor
+    from tasks.train.config import TrainConfig
     from tasks.train.data import clip_demonstrations
 
     demos = clip_demonstrations(assets, "punch")

@@ -24,7 +24,6 @@ from models.maaip.config import (
     EnvConfig,
     NetworkConfig,
     PPOConfig,
-    TrainConfig,
 )
 from models.maaip.networks import Policy, make_networks
 from models.maaip.trainer import Trainer
@@ -33,6 +32,7 @@ from tasks.errors import BadInput
 from tasks.evaluate.export import export_opponent, onnx_max_abs_diff, policy_onnx
 from tasks.evaluate.opponent import load_opponent
 from tasks.evaluate.spar import Partner, spar
+from tasks.train.config import TrainConfig
 from tasks.train.data import clip_demonstrations
 
 REPO = Path(__file__).resolve().parent.parent

@@ -19,7 +19,6 @@ from models.maaip.config import (
     PPOConfig,
     RewardConfig,
     TrackConfig,
-    TrainConfig,
 )
 from models.maaip.env import ArenaEnv
 from models.maaip.tracking import (
@@ -34,6 +33,7 @@ from models.maaip.tracking import (
 )
 from models.maaip.trainer import Trainer
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
+from tasks.train.config import TrainConfig
 from tasks.train.data import clip_demonstrations
 
 BONES = (BoneLengths(), BoneLengths())

@@ -17,11 +17,11 @@ from models.maaip.config import (
     NetworkConfig,
     PPOConfig,
     RewardConfig,
-    TrainConfig,
 )
 from models.maaip.demonstrations import Demonstrations
 from models.maaip.env import ArenaEnv
 from models.maaip.trainer import CheckpointMismatch, Trainer, TrainState, default_networks
+from tasks.train.config import TrainConfig
 from tasks.train.data import clip_demonstrations
 
 TINY = TrainConfig(

@@ -19,7 +19,6 @@ from models.maaip.config import (
     NetworkConfig,
     PPOConfig,
     RewardConfig,
-    TrainConfig,
 )
 from models.maaip.losses import (
     PPOBatch,
@@ -49,6 +48,7 @@ from models.maaip.networks import (
 )
 from models.maaip.trainer import training_device
 from tasks.config import build
+from tasks.train.config import TrainConfig
 
 
 @pytest.fixture(autouse=True)

@@ -20,7 +20,6 @@ from models.maaip.config import (
     EnvConfig,
     NetworkConfig,
     PPOConfig,
-    TrainConfig,
 )
 from models.maaip.trainer import Trainer
 from storage.artifacts import artifact_path, read_bytes
@@ -33,6 +32,7 @@ from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.store import dataset_info, footage_clips, record_dataset
 from tasks.evaluate.opponent import load_opponent
 from tasks.roles import ROLES
+from tasks.train.config import TrainConfig
 from tasks.train.run import train
 from tasks.train.store import _fits, warm_start_source
 from tasks.train.tracking import SPLITS

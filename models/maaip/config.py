@@ -1,5 +1,6 @@
-"""The train stage's config: environment, networks, rewards, discriminators and MAPPO, MAAIP
-§4.3-§4.5.
+"""The trainer's config (`TrainerConfig`): environment, networks, rewards, discriminators and
+MAPPO, MAAIP §4.3-§4.5. The train stage's config (`tasks.train.config.TrainConfig`) is this and
+how long a run lasts, when it checkpoints and where it starts from.
 
 Numbers from the paper (Younes et al., "MAAIP: Multi-Agent Adversarial Interaction Priors",
 SCA 2023) are marked as such; the rest are choices where the paper is silent (its
@@ -21,7 +22,7 @@ PRESETS: dict[str, tuple[int, ...]] = {
     # measures (2,554 env steps/s end to end on 2 cores against 1,617 for 256,256,128).
     "cpu": (128, 128),
 }
-# Settings by name (`TrainConfig.preset`): what each changes from the built-in defaults, which
+# Settings by name (`TrainerConfig.preset`): what each changes from the built-in defaults, which
 # are the 'cpu' preset. 'paper' is MAAIP's thesis (Younes 2024, §3.3.1 and Table 3.1): 2,048
 # arenas of two agents, 32 steps each, so 131,072 samples per iteration in 2 PPO minibatches of
 # 6 epochs; episodes of 1,200 steps (40 s at 30 Hz); gradient penalty 5; discriminator batches
@@ -446,7 +447,7 @@ class PPOConfig:
 
 @dataclass(frozen=True)
 class TrackConfig:
-    """The tracking objective (`TrainConfig.objective` 'track', `models.maaip.tracking`): each
+    """The tracking objective (`TrainerConfig.objective` 'track', `models.maaip.tracking`): each
     agent follows a reference clip, its PD targets the clip's next frame plus the policy's
     correction (DReCon, Bergamin et al. 2019), rewarded by DeepMimic's imitation reward (Peng et
     al., ACM TOG 37(4), 2018: r = w_p r_p + w_v r_v + w_e r_e + w_c r_c)."""
@@ -539,8 +540,9 @@ class DistillConfig:
 
 
 @dataclass(frozen=True)
-class TrainConfig:
-    """The whole training setup: seed, length, objective and the parts above."""
+class TrainerConfig:
+    """What the trainer (`models.maaip.trainer.Trainer`) is built from: objective, seed, device
+    and the parts above."""
 
     objective: str = setting(
         "maaip",
@@ -562,24 +564,6 @@ class TrainConfig:
         "auto",
         "Where the networks train: 'auto' (CUDA when torch sees a GPU, else the CPU), 'cpu' or "
         "'cuda'. The physics runs there too with train.env.stepping 'warp', else on the CPU.",
-    )
-    iterations: int = setting(1000, "Training iterations (collect, update D, update pi and V).")
-    minutes: float = setting(
-        0.0,
-        "Wall-clock budget of the run in minutes: it ends at the first checkpoint after it, "
-        "with the iterations done by then (resuming a killed run counts anew); 0 is none.",
-    )
-    checkpoint_every: int = setting(
-        100,
-        "Iterations between checkpoints (each holds the replay buffers: about 590 MB with the "
-        "defaults); a killed run resumes from the newest and recomputes the iterations since.",
-    )
-    warm_start: bool = setting(
-        True,
-        "A new run starts from the networks (policy, value, discriminators) of the newest "
-        "finished run on an earlier dataset of the same adversary with the same humanoids and "
-        "network sizes, e.g. after a video was added to the footage, instead of from nothing; "
-        "false always starts from a fresh initialisation.",
     )
     network: NetworkConfig = field(default_factory=NetworkConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -612,14 +596,6 @@ class TrainConfig:
             )
         if self.device not in DEVICES:
             raise ValueError(f"train.device must be one of {list(DEVICES)}, got {self.device!r}")
-        if self.iterations < 1:
-            raise ValueError(f"train.iterations must be at least 1, got {self.iterations}")
-        if not (_finite(self.minutes) and self.minutes >= 0):
-            raise ValueError(f"train.minutes must be >= 0, got {self.minutes}")
-        if self.checkpoint_every < 1:
-            raise ValueError(
-                f"train.checkpoint_every must be at least 1, got {self.checkpoint_every}"
-            )
         batch = self.ppo.batch_size(self.env.num_envs)
         if self.ppo.minibatch_size > batch:
             raise ValueError(
@@ -627,7 +603,7 @@ class TrainConfig:
                 f"batch, env.num_envs x ppo.horizon x {NUM_AGENTS} agents = {batch}"
             )
 
-    def with_preset(self) -> TrainConfig:
+    def with_preset(self) -> TrainerConfig:
         """This config with its preset's values (`TRAIN_PRESETS`) in the settings left at their
         built-in defaults: a value given that differs from the default wins. Settings read from
         ringside.toml or flags get it as they are built (`tasks.config.build`); a config built

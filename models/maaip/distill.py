@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from models.humanoid.kinematics import NUM_ACTUATED
-from models.maaip.config import NUM_AGENTS, TrainConfig
+from models.maaip.config import NUM_AGENTS, TrainerConfig
 from models.maaip.env import ArenaEnv
 from models.maaip.networks import Policy
 from models.maaip.tracking import Tracker, TrackingData
@@ -41,7 +41,7 @@ def _fit(
     obs: torch.Tensor,
     agents: torch.Tensor,
     labels: torch.Tensor,
-    config: TrainConfig,
+    config: TrainerConfig,
     generator: torch.Generator,
 ) -> float:
     """Fit ``student``'s mean to ``labels``; the last epoch's mean squared error."""
@@ -66,7 +66,7 @@ def distill(
     student: Policy,
     teacher: Policy,
     data: TrackingData,
-    config: TrainConfig,
+    config: TrainerConfig,
     *,
     generator: torch.Generator,
     rng: np.random.Generator,

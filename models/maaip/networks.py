@@ -27,7 +27,7 @@ from torch import Tensor, nn
 
 from models.humanoid.kinematics import JOINT_LAYOUT, NUM_ACTUATED, joint_targets_to_action
 from models.humanoid.observations import OBSERVATION_DIM, SELF_DIM
-from models.maaip.config import NUM_AGENTS, TrainConfig
+from models.maaip.config import NUM_AGENTS, TrainerConfig
 
 ACTION_DIM = NUM_ACTUATED  # 28, as in MAAIP §4.2
 # The shoulders' and elbows' actions: exploring them costs no balance (`PPOConfig.arm_action_std`).
@@ -341,7 +341,7 @@ class Networks:
     interaction: tuple[Discriminator, ...]
 
 
-def action_stds(config: TrainConfig) -> tuple[float, ...]:
+def action_stds(config: TrainerConfig) -> tuple[float, ...]:
     """The fixed exploration std of each of the 28 actions: `ppo.action_std`, and
     `ppo.arm_action_std` on the shoulders and elbows."""
     ppo = config.ppo
@@ -353,7 +353,7 @@ def action_stds(config: TrainConfig) -> tuple[float, ...]:
 
 
 def make_networks(
-    config: TrainConfig, *, generator: torch.Generator, stance: np.ndarray | None = None
+    config: TrainerConfig, *, generator: torch.Generator, stance: np.ndarray | None = None
 ) -> Networks:
     """All networks with the sizes in ``config``, initialised from ``generator``; with
     `NetworkConfig.mean_from_guard` the policy starts from ``stance`` (2, 28), each fighter's

@@ -1,4 +1,4 @@
-"""A tracker: each fighter follows reference clips in the arena (`TrainConfig.objective` 'track').
+"""A tracker: each fighter follows reference clips in the arena (`TrainerConfig.objective` 'track').
 
 The method, as physics-based character animation practises it:
 - Reference state initialisation (DeepMimic, Peng et al., ACM TOG 37(4), 2018): an
@@ -50,7 +50,7 @@ from models.humanoid.kinematics import (
     joint_targets_to_action,
 )
 from models.humanoid.observations import SELF_DIM, BodyState, self_observation
-from models.maaip.config import NUM_AGENTS, EnvConfig, TrackConfig, TrainConfig
+from models.maaip.config import NUM_AGENTS, EnvConfig, TrackConfig, TrainerConfig
 from models.maaip.env import ArenaEnv, StepResult, to_host
 from models.maaip.networks import CentralValue, Policy, action_stds
 
@@ -515,7 +515,7 @@ class Tracker:
 
 
 def tracking_networks(
-    config: TrainConfig, *, generator: torch.Generator
+    config: TrainerConfig, *, generator: torch.Generator
 ) -> tuple[Policy, CentralValue]:
     """The tracker's policy and centralised value: MAAIP's, with the tracker's observation
     (TRACK_OBSERVATION_DIM) and a mean of zero correction (no guard offset)."""
@@ -580,7 +580,7 @@ class Played:
 
 
 def play_clips(
-    policy: Policy, data: TrackingData, config: TrainConfig, *, as_filmed: bool = False
+    policy: Policy, data: TrackingData, config: TrainerConfig, *, as_filmed: bool = False
 ) -> Played:
     """Track every clip of both agents from its first frame to its end, acting on ``policy``'s
     mean, in an arena of its own (the trainer's environments and random state are untouched).
@@ -653,7 +653,7 @@ def gate_of(rows: Sequence[GateRow]) -> Gate:
 def track_gate(
     policy: Policy,
     data: TrackingData,
-    config: TrainConfig,
+    config: TrainerConfig,
     *,
     agents: Sequence[int] = (0, 1),
 ) -> Gate:

@@ -11,7 +11,7 @@ MAAIP Algorithm 1 (§4.5), one iteration:
 4. GAE(lambda) advantages and TD(lambda) returns per agent; PPO epochs over minibatches of
    both agents' samples for the policy and the centralised value.
 
-With `TrainConfig.objective` 'track' the same loop trains a tracker instead
+With `TrainerConfig.objective` 'track' the same loop trains a tracker instead
 (`models.maaip.tracking`): the arena's actions are reference frames plus the policy's
 corrections, the reward is DeepMimic's, computed as the steps are collected, and there are no
 discriminators (steps 2-3 are skipped); GAE, PPO, the normalisers and the checkpoints are the
@@ -40,7 +40,7 @@ from torch import Tensor
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, SELF_DIM, block_slices
-from models.maaip.config import EnvConfig, TrainConfig
+from models.maaip.config import EnvConfig, TrainerConfig
 from models.maaip.demonstrations import Demonstrations
 from models.maaip.distill import distill
 from models.maaip.env import ArenaEnv
@@ -72,7 +72,7 @@ _ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 3)
 CHECKPOINT_FORMAT = 3
 
 
-def checkpoint_policy(blob: bytes, config: TrainConfig) -> tuple[Policy, tuple[BoneLengths, ...]]:
+def checkpoint_policy(blob: bytes, config: TrainerConfig) -> tuple[Policy, tuple[BoneLengths, ...]]:
     """The policy of a `Trainer.checkpoint` made with ``config`` (a tracker's sees the
     tracker's observation), in eval mode, and the run's two humanoids."""
     state = _load(blob)
@@ -96,7 +96,7 @@ class CheckpointMismatch(ValueError):
 
 
 def training_device(name: str) -> torch.device:
-    """The torch device for `TrainConfig.device`; a clear error if 'cuda' is asked without one."""
+    """The torch device for `TrainerConfig.device`; a clear error if 'cuda' is asked without one."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
@@ -107,7 +107,7 @@ def training_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def _signature(config: TrainConfig, key: str, bones: tuple, observation_dim: int) -> dict:
+def _signature(config: TrainerConfig, key: str, bones: tuple, observation_dim: int) -> dict:
     """What a checkpoint must agree on to be resumed: the data, the humanoids and the network
     sizes (a tracker's observation, 451, tells its checkpoints from MAAIP's, 274)."""
     return {
@@ -148,12 +148,12 @@ class Rollout:
 ArenaFactory = Callable[[EnvConfig, np.random.Generator, tuple, str], ArenaEnv]
 # Builds the networks for the run's config and data from its generator.
 NetworksFactory = Callable[
-    [TrainConfig, "Demonstrations | TrackingData", torch.Generator], Networks
+    [TrainerConfig, "Demonstrations | TrackingData", torch.Generator], Networks
 ]
 
 
 def default_networks(
-    config: TrainConfig, data: Demonstrations | TrackingData, generator: torch.Generator
+    config: TrainerConfig, data: Demonstrations | TrackingData, generator: torch.Generator
 ) -> Networks:
     """MAAIP's networks (the policy starting from the dataset's guard), or a tracker's: its
     policy and value, with no priors."""
@@ -215,7 +215,7 @@ class Trainer:
 
     def __init__(
         self,
-        config: TrainConfig,
+        config: TrainerConfig,
         data: Demonstrations | TrackingData,
         *,
         arena: ArenaFactory = ArenaEnv,

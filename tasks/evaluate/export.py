@@ -25,7 +25,7 @@ from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT, action_to_joint_targets
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
 from models.maaip.arena import arena_mjcf
-from models.maaip.config import EnvConfig, TrainConfig
+from models.maaip.config import EnvConfig
 from models.maaip.networks import Policy
 from models.maaip.trainer import checkpoint_policy
 from storage.artifacts import read_bytes
@@ -34,6 +34,7 @@ from storage.records import output_metrics
 from tasks.config import build
 from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent
 from tasks.evaluate.store import resolve_run
+from tasks.train.config import TrainConfig
 from tasks.train.store import RunInfo
 
 ONNX_OPSET = 17

@@ -46,7 +46,6 @@ import torch
 
 from models.humanoid.kinematics import NUM_ACTUATED
 from models.maaip.arena import arena_mjcf
-from models.maaip.config import TrainConfig
 from models.maaip.demonstrations import ReferenceMotions
 from models.maaip.networks import Policy, make_networks
 from models.maaip.tracking import play_clips
@@ -102,6 +101,7 @@ from tasks.evaluate.two_sample import (
 )
 from tasks.media import render_bout
 from tasks.runner import StageOutput
+from tasks.train.config import TrainConfig
 from tasks.train.store import tracker_run
 from tasks.train.tracking import paired_tracking
 

@@ -22,13 +22,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from models.maaip.config import TrainConfig
 from models.maaip.trainer import Trainer, checkpoint_policy
 from storage.artifacts import artifact_path, put_bytes, read_bytes
 from storage.db import connect, transaction
 from tasks.config import build
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.runner import StageOutput
+from tasks.train.config import TrainConfig
 from tasks.train.store import (
     PolicyRow,
     RunInfo,

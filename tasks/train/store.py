@@ -9,12 +9,12 @@ from typing import Any
 
 import duckdb
 
-from models.maaip.config import TrainConfig
 from storage.db import utcnow
 from storage.records import Columns, insert_columns, worker_alive
 from tasks.config import build
 from tasks.dataset.store import training_bones
 from tasks.errors import BadInput
+from tasks.train.config import TrainConfig
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import duckdb
 
-from models.maaip.config import TrainConfig
 from storage.db import connect
 from storage.keys import code_version
 from storage.paths import DataPaths
@@ -14,6 +13,7 @@ from tasks.dataset.store import DatasetInfo, UnknownDataset, dataset_info
 from tasks.errors import BadInput
 from tasks.registry import NoInputs
 from tasks.runner import StagePlan, StageSpec
+from tasks.train.config import TrainConfig
 from tasks.train.run import STAGE, train
 from tasks.train.store import RunInfo, dataset_tracker, warm_start_source
 

@@ -19,12 +19,12 @@ from dataclasses import dataclass
 import duckdb
 
 from models.humanoid.boxer import BoneLengths
-from models.maaip.config import TrainConfig
 from models.maaip.networks import Policy
 from models.maaip.tracking import GateRow, TrackingData, gate_of, play_clips, tracking_data
 from tasks.dataset.store import FootageClip, dataset_info, footage_clips, training_bones
 from tasks.errors import BadInput
 from tasks.roles import ROLES
+from tasks.train.config import TrainConfig
 
 SPLITS = ("train", "validation")
 
