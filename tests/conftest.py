@@ -14,7 +14,9 @@ import time
 import urllib.request
 from pathlib import Path
 
-_PREFECT_HOME = tempfile.mkdtemp(prefix="ringside-test-prefect-")
+# Named as a stage's scratch folder (`storage.files.scratch_dir`: this process's pid inside), so
+# that a later session removes the home of one that was killed (`orphaned_scratch`, below).
+_PREFECT_HOME = tempfile.mkdtemp(prefix=f"ringside-tests-{os.getpid()}-")
 os.environ["PREFECT_HOME"] = _PREFECT_HOME
 os.environ["PREFECT_SERVER_ANALYTICS_ENABLED"] = "false"
 os.environ["PREFECT_LOGGING_HANDLERS_CONSOLE_LEVEL"] = "CRITICAL"
@@ -43,7 +45,11 @@ from tiny import (  # noqa: E402, F401  (tests import them from here)
 )
 
 from storage.assets import SAMPLE_VIDEO, pull  # noqa: E402
+from storage.check import orphaned_scratch  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
+
+for _orphan in orphaned_scratch():  # a killed session's Prefect home, a killed stage's scratch
+    shutil.rmtree(_orphan, ignore_errors=True)
 
 
 def pytest_sessionfinish(session, exitstatus) -> None:

@@ -104,7 +104,8 @@ def test_episode_length_is_the_mean_length_of_the_episodes_that_ended(demos):
 
 
 @pytest.mark.parametrize(
-    ("task", "stepping"), [("none", "rollout"), ("heading", "rollout"), ("none", "warp")]
+    ("task", "stepping"),
+    [("none", "rollout"), ("heading", "rollout"), ("none", "warp"), ("heading", "warp")],
 )
 def test_resumed_run_matches_the_uninterrupted_one(demos, task, stepping):
     reward = RewardConfig(w_control=0.5 if task == "heading" else 0.0, control_task=task)

@@ -814,7 +814,7 @@ class ArenaEnv:
             body=states,
         )
 
-    def _actions(self, actions) -> np.ndarray:
+    def _actions(self, actions: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
         """``actions`` (N, 2, 28), NumPy or torch, checked, in float64 where the physics runs:
         on the host, or with "warp" on its device (a torch tensor there)."""
         if self._warp is None:
