@@ -485,7 +485,7 @@ class ArenaEnv:
             from models.maaip.warp_physics import WarpPhysics, warp_device
 
             self._warp = WarpPhysics(self.model, config.num_envs, warp_device(device))
-            self._on_device = self._measure_device()
+            self._measured: tuple | None = None
 
     def close(self) -> None:
         """End the worker threads."""
@@ -521,7 +521,7 @@ class ArenaEnv:
         if self._warp is None or not self._stale:
             return
         self._warp.download(self._datas)
-        frames, head_z, stable = self._on_device
+        frames, head_z, stable = self._on_device()
         self._frames[:] = frames.cpu().numpy()
         self._head_z[:] = head_z.cpu().numpy()
         self._stable[:] = stable.cpu().numpy()
@@ -534,13 +534,16 @@ class ArenaEnv:
             self._warp.upload(np.flatnonzero(self._dirty), self._datas)
             self._dirty[:] = False
             self._warp.refresh()
+            self._measured = None
 
-    def _measure_device(self) -> tuple:
-        """With "warp", after a `refresh`: (N, nbody, 21) body frames, (N, 2) head heights and
-        (N,) stability of every world, torch tensors on the device."""
+    def _on_device(self) -> tuple:
+        """With "warp": (N, nbody, 21) body frames, (N, 2) head heights and (N,) stability of
+        every world as the device last left them, torch tensors there (read once per move)."""
         assert self._warp is not None
-        head_z = self._warp.view("geom_xpos")[:, self.index.head_geoms.tolist(), 2]
-        return self._warp.frames(), head_z, self._warp.stable()
+        if self._measured is None:
+            head_z = self._warp.view("geom_xpos")[:, self.index.head_geoms.tolist(), 2]
+            self._measured = self._warp.frames(), head_z, self._warp.stable()
+        return self._measured
 
     def state(self) -> dict:
         """Everything that decides what the environments do next, for `load_state`: each
@@ -699,9 +702,8 @@ class ArenaEnv:
             for agent, low in zip(self.index.agents, lows, strict=True):
                 warp.view("qpos")[rows, agent.qpos_start + 2] -= low.amin(dim=1)
         warp.refresh()
-        self._on_device = self._measure_device()
-        self._stale = True
-        frames = self._on_device[0][rows]
+        self._measured, self._stale = None, True
+        frames = self._on_device()[0][rows]
         return _observations(body_state_from_frames(frames, self._body_ids))
 
     def place(
@@ -786,7 +788,7 @@ class ArenaEnv:
         damage, floor = self._advance(ctrl, contacts=True, paths=paths)
         # Where the worlds are: the host's copies, or with "warp" the device's tensors.
         frames, head_z, stable = (
-            (self._frames, self._head_z, self._stable) if self._warp is None else self._on_device
+            (self._frames, self._head_z, self._stable) if self._warp is None else self._on_device()
         )
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
             states = self._states(frames)
@@ -964,8 +966,7 @@ class ArenaEnv:
         assert self._warp is not None
         self._upload_dirty()
         sensordata = self._warp.advance(ctrl, self.config.substeps)
-        self._on_device = self._measure_device()
-        self._stale = True
+        self._measured, self._stale = None, True
         if not contacts:
             n = self.num_envs
             return np.zeros((n, NUM_AGENTS)), np.zeros((n, NUM_AGENTS), dtype=bool)
