@@ -188,7 +188,9 @@ def test_the_trainer_builds_its_arena_and_networks_with_the_factories_it_is_give
     try:
         assert trainer.nets is made[0] and trainer.env is made[1]
         assert trainer.env.config.stepping == "threads"
-        assert trainer.iterate()["episodes_ended"] >= 0
+        before = made[1].state()["physics"]
+        trainer.iterate()
+        assert not np.array_equal(made[1].state()["physics"], before)  # the arena given is stepped
     finally:
         trainer.close()
 

@@ -528,13 +528,11 @@ class ArenaEnv:
         self._stale = False
 
     def _upload_dirty(self) -> None:
-        """With "warp": the environments set on the host since the device last moved go up,
-        their kinematics computed there, before the device moves again."""
+        """With "warp": the environments set on the host since the device last moved go up
+        before it moves again (a step or a start, which compute their kinematics there)."""
         if self._warp is not None and self._dirty.any():
             self._warp.upload(np.flatnonzero(self._dirty), self._datas)
             self._dirty[:] = False
-            self._warp.refresh()
-            self._measured = None
 
     def _on_device(self) -> tuple:
         """With "warp": (N, nbody, 21) body frames, (N, 2) head heights and (N,) stability of

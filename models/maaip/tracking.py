@@ -468,9 +468,9 @@ class Tracker:
             )
         result: StepResult = env.step(self.actions(corrections))
         self.flat = self._next()
-        # The rewards are computed on the host, from the host's copy of the bodies (with "warp",
-        # brought from the device: `StepResult.body` is there).
-        sim = env.body_states()
+        # The rewards are computed on the host (with "warp" the bodies come down from the device).
+        body = result.body
+        sim = BodyState(*(to_host(x) for x in (body.pos, body.rot, body.lin_vel, body.ang_vel)))
         ref = self.reference(self.flat)
         sim_com = np.stack(
             [
