@@ -1,4 +1,4 @@
-"""Speed of the two-fighter training environment (models.maaip.env) on this machine's CPUs.
+"""Speed of the two-fighter training environment (models.arena.env) on this machine's CPUs.
 
 N = 64 environments start at random frames of a synthetic interaction (DeepMimic's punch,
 retargeted to the boxer, performed by both fighters 1.2 m apart, facing each other) and are
@@ -35,11 +35,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from models.arena.config import EnvConfig  # noqa: E402
+from models.arena.env import ArenaEnv  # noqa: E402
 from models.humanoid.boxer import boxer_mjcf  # noqa: E402
 from models.humanoid.compiled import velocities  # noqa: E402
 from models.humanoid.observations import observation  # noqa: E402
 from models.maaip.demonstrations import ReferenceMotions, facing_reference  # noqa: E402
-from models.maaip.env import ArenaEnv, EnvConfig  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.deepmimic import clip_path, load_deepmimic, retarget  # noqa: E402

@@ -44,11 +44,11 @@ from opponents import spar_server, untrained_opponents  # noqa: E402
 from spar_client import spar_session, summary  # noqa: E402
 
 from flows.cli import main as ringside  # noqa: E402
+from models.arena.config import EnvConfig  # noqa: E402
 from models.humanoid.bvh import read_bvh  # noqa: E402
-from models.maaip.config import EnvConfig  # noqa: E402
 from storage.db import connect  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
-from tasks.evaluate.opponent import load_opponent  # noqa: E402
+from tasks.opponent.folder import load_opponent  # noqa: E402
 
 SECONDS = 12.0
 ORBIT_DEG_S = 10.0

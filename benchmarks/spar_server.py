@@ -149,8 +149,8 @@ def step_and_encoding_ms(opponent: Path, steps: int = 300) -> tuple[float, float
     """In this process: a commands-mode step and its state's JSON encoding, mean milliseconds,
     and the state's bytes (is JSON the limit?)."""
     from flows.spar_server import state_message
-    from tasks.evaluate.live import LiveBout
-    from tasks.evaluate.opponent import load_opponent
+    from tasks.opponent.folder import load_opponent
+    from tasks.opponent.live import LiveBout
 
     with LiveBout(load_opponent(opponent), "commands") as bout:
         bout.command(1.0, 0.5)

@@ -2,7 +2,7 @@
 
 Both fighters of a `cpu`-preset run on the DeepMimic punch clip performed by two facing
 fighters (two training iterations, so the normalisers hold real statistics; speed does not
-depend on how well they box) are exported as opponent folders; `tasks.evaluate.spar.spar`
+depend on how well they box) are exported as opponent folders; `tasks.opponent.spar.spar`
 then runs 60 simulated seconds on one core (one arena, onnxruntime on one thread), three
 times, and renders 5 simulated seconds at 640 x 360 to time the offscreen renderer.
 
@@ -25,9 +25,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
-from tasks.evaluate.export import export_opponent  # noqa: E402
-from tasks.evaluate.opponent import load_opponent  # noqa: E402
-from tasks.evaluate.spar import Partner, spar  # noqa: E402
+from tasks.opponent.export import export_opponent  # noqa: E402
+from tasks.opponent.folder import load_opponent  # noqa: E402
+from tasks.opponent.spar import spar  # noqa: E402
 from tasks.train.config import TrainConfig  # noqa: E402
 from tasks.train.data import clip_demonstrations  # noqa: E402
 
@@ -61,10 +61,10 @@ def main() -> None:
         opponent, partner = (load_opponent(f) for f in folders)
         best = None
         for _ in range(REPEATS):
-            result = spar(opponent, Partner(partner), seconds=SECONDS)
+            result = spar(opponent, partner, seconds=SECONDS)
             if best is None or result.realtime_factor > best.realtime_factor:
                 best = result
-        rendered = spar(opponent, Partner(partner), seconds=5.0, video=Path(tmp) / "bout.mp4")
+        rendered = spar(opponent, partner, seconds=5.0, video=Path(tmp) / "bout.mp4")
     spent = best.timings_s
     total = sum(spent.values())
     print(

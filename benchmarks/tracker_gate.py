@@ -2,7 +2,7 @@
 
 The synthetic adversary's clips: DeepMimic's walk and punch and the walker's forward walk and
 four turns (`tasks.deepmimic`), retargeted onto `BoneLengths()`, tracked by both fighters of
-every arena (`models.maaip.tracking`). The trainer is the project's own (`Trainer` with
+every arena (`models.tracking`). The trainer is the project's own (`Trainer` with
 objective 'track'); this script adds the tracking PPO settings below, a checkpoint every
 ``--checkpoint-every`` iterations in FOLDER (``checkpoint.pt``, and ``progress.json`` with the
 training seconds and the gate figures so far), and `track_gate` every ``--gate-every``:
@@ -35,10 +35,11 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import torch  # noqa: E402
 
+from models.arena.config import STEPPINGS  # noqa: E402
 from models.humanoid.boxer import BoneLengths  # noqa: E402
-from models.maaip.config import STEPPINGS  # noqa: E402
-from models.maaip.tracking import Gate, TrackingData, track_gate, tracking_data  # noqa: E402
 from models.maaip.trainer import Trainer  # noqa: E402
+from models.tracking.clips import TrackingData, tracking_data  # noqa: E402
+from models.tracking.gate import Gate, track_gate  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.deepmimic import WALKER_CLIPS, clip_path, load_deepmimic, retarget  # noqa: E402

@@ -9,7 +9,7 @@ The demonstrations are DeepMimic's punch clip performed by two facing fighters
   second of wall time, with the split of an iteration's time.
 Prints both and, last, ``train_vs_physics: R x`` (end to end over raw physics).
 
-``--stepping warp`` steps the arenas on MuJoCo Warp (`models.maaip.warp_physics`), on the GPU
+``--stepping warp`` steps the arenas on MuJoCo Warp (`models.arena.stepping.warp`), on the GPU
 with ``--device cuda``, and measures the default stepping's raw physics in the same run beside
 it; ``--envs`` sets the batch (1,024 to 8,192 worlds suit a GPU).
 """
@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 # As `ringside` sets it (flows/cli/environment.py).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from models.maaip.config import STEPPINGS, EnvConfig  # noqa: E402
-from models.maaip.env import ArenaEnv  # noqa: E402
+from models.arena.config import STEPPINGS, EnvConfig  # noqa: E402
+from models.arena.env import ArenaEnv  # noqa: E402
 from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402

@@ -1,7 +1,7 @@
 """A trained tracker replaying a dataset's held-out clips as filmed, on MuJoCo and on MuJoCo Warp.
 
 The same policy in the two physics (`train.env.stepping` 'rollout' and 'warp', Warp on the CPU
-here): each clip's gate figures (finished, body and root errors, `models.maaip.tracking`) and how
+here): each clip's gate figures (finished, body and root errors, `models.tracking.gate`) and how
 far apart the two replays' bodies end. Needs a data directory whose dataset has a finished
 tracker run (`ringside train --dataset KEY --train-objective track`), e.g. the synthetic
 adversary's (`ringside synthetic-adversary`).
@@ -39,17 +39,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tracker_gate  # noqa: E402  (beside this file)
 
+from models.arena.mjcf import arena_mjcf  # noqa: E402
 from models.humanoid.boxer import BoneLengths  # noqa: E402
-from models.maaip.arena import arena_mjcf  # noqa: E402
-from models.maaip.tracking import gate_of, play_clips  # noqa: E402
 from models.maaip.trainer import checkpoint_policy  # noqa: E402
+from models.tracking.gate import gate_of, play_clips  # noqa: E402
 from storage.artifacts import read_bytes  # noqa: E402
 from storage.db import connect  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.config import build  # noqa: E402
 from tasks.train.config import TrainConfig  # noqa: E402
 from tasks.train.store import finished_runs  # noqa: E402
-from tasks.train.tracking import footage_tracking  # noqa: E402
+from tasks.train.tracker import footage_tracking  # noqa: E402
 
 ROOTS = [0, 1, 2, 35, 36, 37]
 

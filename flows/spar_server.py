@@ -34,8 +34,8 @@ from websockets.http11 import Request, Response
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import BODY_NAMES, PARENTS
-from tasks.evaluate.live import MAX_TURN_RATE, MODES, BadPose, LiveBout, LiveStep, WrongMode
-from tasks.evaluate.opponent import Opponent
+from tasks.opponent.folder import Opponent
+from tasks.opponent.live import MAX_TURN_RATE, MODES, BadPose, LiveBout, LiveStep, WrongMode
 
 PROTOCOL = 1
 PATH = "/spar"

@@ -3,10 +3,10 @@ only MPEG-4 Part 2, which browsers do not, so the video goes through the H.264 e
 ffmpeg that ``imageio-ffmpeg`` ships), and MuJoCo humanoids rendered offscreen into one.
 
 `render_lift` is the lift stage's review video: both fighters' cleaned motion, each on a humanoid
-of its own bones, in the training arena (`models.maaip.arena`: the adversary is agent 0, red;
+of its own bones, in the training arena (`models.arena.mjcf`: the adversary is agent 0, red;
 the opponent agent 1, blue), seen from the side by a camera that follows them. `render_bout`
 renders a recorded arena motion from the arena's fixed "side" camera (the evaluate stage's bout
-video; `tasks.evaluate.spar` renders live bouts with `open_video` and `render_frame`).
+video; `tasks.opponent.spar` renders live bouts with `open_video` and `render_frame`).
 
 Rendering uses MuJoCo's renderer through EGL (`MUJOCO_GL=egl`, which `ringside` sets before
 MuJoCo is imported; Mesa's software EGL on a machine without a GPU).
@@ -25,10 +25,10 @@ import imageio_ffmpeg
 import mujoco
 import numpy as np
 
+from models.arena.mjcf import arena_mjcf
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ
 from models.humanoid.motion import RATE, FighterMotion, gaussian_smooth, grid_steps
-from models.maaip.arena import arena_mjcf
 from tasks.roles import ROLES
 
 VIDEO_SIZE = (640, 360)

@@ -23,39 +23,8 @@ from tasks.ingest.config import IngestConfig
 from tasks.lift.config import LiftStageConfig
 from tasks.pose.config import PoseConfig
 from tasks.runner import StagePlan
+from tasks.stage_inputs import DatasetInputs, Declared, LiftInputs, NoInputs, PoseInputs
 from tasks.train.config import TrainConfig
-
-
-@dataclass(frozen=True)
-class Declared:
-    """Ingest's inputs: who the analyst declared the adversary to be."""
-
-    adversary: str
-    adversary_colour: str | None = None
-    notes: str | None = None
-
-
-@dataclass(frozen=True)
-class PoseInputs:
-    ingest: str  # the ingest output's key
-
-
-@dataclass(frozen=True)
-class LiftInputs:
-    ingest: str
-    pose: str
-
-
-@dataclass(frozen=True)
-class DatasetInputs:
-    ingest: str
-    lift: str
-
-
-@dataclass(frozen=True)
-class NoInputs:
-    """The inputs of a stage whose subject is its only upstream output (training's dataset,
-    evaluation's run)."""
 
 
 class Subject(StrEnum):

@@ -21,11 +21,12 @@ import numpy as np
 import torch
 
 from flows.serve import stop_process
+from models.arena.config import EnvConfig
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.stance import guard_pose
-from models.maaip.config import EnvConfig, NetworkConfig
+from models.maaip.config import NetworkConfig
 from models.maaip.networks import make_networks
-from tasks.evaluate.export import export_opponent
+from tasks.opponent.export import export_opponent
 from tasks.train.config import TrainConfig
 from tasks.train.data import clip_demonstrations
 

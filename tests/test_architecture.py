@@ -90,3 +90,43 @@ def test_no_str_data_root_below_the_flows():
                     if arg.arg == "data_root" and not is_flow and node.name != "flow_inputs":
                         wrong.append(f"{path.relative_to(REPO)}:{node.lineno} {node.name}")
     assert wrong == []
+
+
+# The packages of models/, lowest first: each may import those before it, never one after it
+# (the arena knows nothing of MAAIP or the tracker, the tracker nothing of MAAIP).
+MODEL_PACKAGES = ("settings", "pose", "humanoid", "arena", "tracking", "maaip")
+
+
+def test_no_package_of_models_imports_a_higher_one():
+    wrong = []
+    for path in modules("models"):
+        own = path.relative_to(REPO / "models").parts[0].removesuffix(".py")
+        for line, module in imports(path):
+            parts = module.split(".")
+            if parts[0] != "models" or len(parts) < 2 or own not in MODEL_PACKAGES:
+                continue
+            if MODEL_PACKAGES.index(parts[1]) > MODEL_PACKAGES.index(own):
+                wrong.append(f"{path.relative_to(REPO)}:{line} imports {module}")
+    assert wrong == []
+
+
+def test_no_stage_plan_imports_the_registry():
+    """The registry imports every stage's config, so a stage's `task.py` that imported it would
+    reach up past its own stage (its inputs' types are in `tasks.stage_inputs`)."""
+    wrong = [
+        f"{path.relative_to(REPO)}:{line}"
+        for path in sorted((REPO / "tasks").glob("*/task.py"))
+        for line, module in imports(path)
+        if module == "tasks.registry"
+    ]
+    assert wrong == []
+
+
+@pytest.mark.parametrize("layer", LAYERS)
+def test_no_module_is_over_800_lines(layer):
+    long = [
+        f"{path.relative_to(REPO)}: {n} lines"
+        for path in modules(layer)
+        if (n := len(path.read_text().splitlines())) > 800
+    ]
+    assert long == []

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from models.arena.env import ArenaEnv
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NUM_ACTUATED
 from models.maaip.config import (
@@ -16,12 +17,13 @@ from models.maaip.config import (
     EnvConfig,
     NetworkConfig,
     PPOConfig,
-    TrackConfig,
 )
 from models.maaip.distill import distill
-from models.maaip.env import ArenaEnv
 from models.maaip.networks import make_networks
-from models.maaip.tracking import Tracker, TrackingData, tracking_data, tracking_networks
+from models.maaip.objectives import tracking_networks
+from models.tracking.clips import TrackingData, tracking_data
+from models.tracking.config import TrackConfig
+from models.tracking.task import Tracker
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.train.config import TrainConfig
 

@@ -127,8 +127,9 @@ def test_time_in_guard_needs_both_wrists_above_the_shoulders():
 
 def test_bouts_repeat_exactly_and_stop_at_a_fall(assets):
     from models.maaip.config import NetworkConfig
-    from tasks.evaluate.bouts import simulate, torch_actor
+    from tasks.evaluate.bouts import simulate
     from tasks.evaluate.stage import untrained_policy
+    from tasks.opponent.maaip import TorchPolicy
     from tasks.train.config import TrainConfig
     from tasks.train.data import clip_demonstrations
 
@@ -136,12 +137,16 @@ def test_bouts_repeat_exactly_and_stop_at_a_fall(assets):
     config = TrainConfig(network=NetworkConfig(hidden="16,16"))
     policy = untrained_policy(config, demos.reference)
 
-    def flail(observation: np.ndarray, task: np.ndarray | None) -> np.ndarray:
-        return np.ones((len(observation), 28))  # every joint driven to its limit: it falls
+    class Flail:
+        def reset(self, seen) -> None:
+            pass
+
+        def act(self, seen) -> np.ndarray:
+            return np.ones((len(seen.arenas), 28))  # every joint driven to its limit: it falls
 
     def run(seed: int):
         return simulate(
-            (torch_actor(policy, 0), flail),
+            (TorchPolicy(policy, 0), Flail()),
             reference=demos.reference,
             bones=demos.bones,
             env_config=config.env,
@@ -188,7 +193,8 @@ def test_bouts_start_standing_in_the_guard_and_a_still_guard_stays_up(assets):
     places them, so a fall is the policy's, never a start-up one: the guard held still stays up
     for 4 s in every episode, from frames of the punch clip that training starts mid-motion."""
     from models.humanoid.stance import guard_pose
-    from tasks.evaluate.bouts import simulate, still_actor
+    from tasks.evaluate.bouts import simulate
+    from tasks.opponent.still import StillGuard
     from tasks.train.config import TrainConfig
     from tasks.train.data import clip_demonstrations
 
@@ -198,7 +204,7 @@ def test_bouts_start_standing_in_the_guard_and_a_still_guard_stays_up(assets):
     reference = dataclasses.replace(ref, stance=guard)
     config = TrainConfig().env
     bouts = simulate(
-        (still_actor(guard[0]), still_actor(guard[1])),
+        (StillGuard(guard[0]), StillGuard(guard[1])),
         reference=reference,
         bones=demos.bones,
         env_config=config,

@@ -1,10 +1,11 @@
 """The evaluate stage on a tiny training run of the demo's dataset: the CLI fills every table,
 caches, reruns to the same numbers, stores a loadable opponent and a playable bout, and fails
-fast on a run that does not exist."""
+fast on a run that does not exist; given held-out footage, its two-sample test's known answers."""
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import math
@@ -21,13 +22,14 @@ from conftest import (
     run_cli,
 )
 
+from models.humanoid.boxer import BoneLengths
 from storage.artifacts import artifact_path, read_bytes
 from storage.db import connect
 from storage.paths import data_paths
-from tasks.dataset.store import footage_clips
+from tasks.dataset.store import FootageClip, footage_clips
 from tasks.evaluate.metrics import RATES, SHARES, STYLE_DISTRIBUTIONS
-from tasks.evaluate.opponent import load_opponent
 from tasks.evaluate.stage import NO_TRACKER, POLICIES, TWO_SAMPLE_POLICIES
+from tasks.opponent.folder import load_opponent
 
 TINY_TRAIN = [*TINY_TRAIN_FLAGS, "--train-iterations", "2"]
 REQUIRED = ("onnx_max_abs_diff", "style_score", "style_score_untrained", "falls_per_min")
@@ -247,3 +249,69 @@ def test_the_held_out_footage_is_the_validation_interaction_clips(
                 [lift_key, video_id, role, start, end],
             )
             assert np.allclose(qpos, np.array([r[0] for r in rows]))
+
+
+def _walk_seconds(walk: np.ndarray, count: int, seed: int) -> list[FootageClip]:
+    """``count`` held-out seconds of DeepMimic's walk looped, each a draw of its own (a phase,
+    a tempo within 10 %, N(0, 0.01) rad on every hinge: tests/test_two_sample.py's
+    `segments`, whose windows these give), the partner 1.5 m ahead along +x."""
+    rng = np.random.default_rng(seed)
+    period = len(walk) - 1
+    step = np.r_[walk[-1, :2] - walk[0, :2], np.zeros(walk.shape[1] - 2)]
+    loop = np.concatenate([walk[:-1] + k * step for k in range(4)])
+    found = []
+    for _ in range(count):
+        at = rng.uniform(0, period) + rng.uniform(0.9, 1.1) * np.arange(30)
+        q = np.column_stack([np.interp(at, np.arange(len(loop)), c) for c in loop.T])
+        q[:, 3:7] /= np.linalg.norm(q[:, 3:7], axis=1, keepdims=True)
+        q[:, 7:] += rng.normal(0.0, 0.01, q[:, 7:].shape)
+        other = q.copy()
+        other[:, :3] += [1.5, 0.0, 0.0]
+        found.append(FootageClip("walk", q, other, BoneLengths()))
+    return found
+
+
+def test_the_stage_on_held_out_footage_gives_known_answers(
+    sample_run, run_key, assets, monkeypatch
+):
+    """The sample holds no footage out, so the two-sample test's AUC branch runs here: the
+    stage on the sample's run, its held-out footage 60 seconds of DeepMimic's walk. The
+    adversary's windows replaced by 60 more seconds of the walk (the footage against itself)
+    score test_two_sample's walk against walk exactly, 0.59 (0.49-0.69), near 0.5; the still
+    guard's bouts, as the stage simulates them, are told apart (AUC >= 0.95)."""
+    import tasks.evaluate.stage as stage
+    from tasks import deepmimic
+    from tasks.evaluate.config import EvaluateConfig
+    from tasks.evaluate.two_sample import classifier_test, footage_windows
+
+    walk = deepmimic.retarget(deepmimic.load_deepmimic(deepmimic.clip_path(assets, "walk")))
+    heldout = tuple(_walk_seconds(walk, 60, seed=1))
+    same = footage_windows(
+        [(c.qpos, c.other_qpos, c.bones) for c in _walk_seconds(walk, 60, 2)], 30
+    )
+    bout_windows = stage.bout_windows
+    # The stage asks for the adversary's windows first (TWO_SAMPLE_POLICIES' order).
+    asked = []
+
+    def windows(model, bouts, agent):
+        asked.append(agent)
+        return same if len(asked) == 1 else bout_windows(model, bouts, agent)
+
+    assert TWO_SAMPLE_POLICIES[0] == "adversary"
+    monkeypatch.setattr(stage, "bout_windows", windows)
+    paths = data_paths(sample_run)
+    inputs = dataclasses.replace(
+        stage.load_inputs(paths.db, paths.artifacts, run_key), heldout=heldout
+    )
+    config = EvaluateConfig(episodes=4, episode_frames=60, video_seconds=0)
+    out = stage.evaluate(inputs, config)
+    rows = {r.policy: r for r in out.rows["evaluate_classifier"]}
+    itself, still = rows["adversary"], rows["still"]
+    real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], 30)
+    assert (itself.real_windows, itself.simulated_windows, still.simulated_windows) == (60, 60, 8)
+    assert itself.auc == classifier_test(real, same, seed=config.seed).auc
+    assert abs(itself.auc - 0.5) < 0.15 and itself.auc_low < 0.5 < itself.auc_high
+    assert still.auc >= 0.95 and still.auc_low >= 0.9, still
+    assert out.metrics["two_sample_auc"] == itself.auc
+    assert out.metrics["two_sample_auc_still"] == still.auc
+    assert rows["replay"].reason == NO_TRACKER and "two_sample_gap_closed" not in out.metrics

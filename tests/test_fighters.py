@@ -17,7 +17,13 @@ from tasks.pose.fighters import (
     pick_fighters,
     rank_pairs,
 )
-from tasks.pose.tracking import DESCRIPTOR_SIZE, Observation, Tracker, TrackSummary, appearance
+from tasks.pose.people_tracking import (
+    DESCRIPTOR_SIZE,
+    Observation,
+    Tracker,
+    TrackSummary,
+    appearance,
+)
 
 WIDTH, HEIGHT = 640, 360
 SKIN = (120, 160, 215)  # BGR

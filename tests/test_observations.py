@@ -6,7 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-import models.maaip.env as train_env
+import models.arena.env as train_env
+import models.arena.stepping.host as host_worlds
 import tasks.dataset.stage as dataset_stage
 from models.humanoid import compiled
 from models.humanoid import observations as obs
@@ -59,7 +60,7 @@ def test_the_training_environment_shares_the_dataset_features():
     assert dataset_stage.body_states is compiled.body_states
     assert train_env.observation is obs.observation
     assert train_env.body_state_from_frames is obs.body_state_from_frames
-    assert train_env.world_frames is obs.world_frames
+    assert host_worlds.world_frames is obs.world_frames
 
 
 def test_hand_built_standing_pose(model):

@@ -1,4 +1,4 @@
-"""The exported opponent (tasks.evaluate.export, .opponent, .spar): ONNX parity with torch on
+"""The exported opponent (tasks.opponent.export, .folder, .spar): ONNX parity with torch on
 recorded observations, the folder's contents, clear errors for bad folders, and sparring."""
 
 from __future__ import annotations
@@ -16,22 +16,19 @@ import torch
 from conftest import read_video, run_cli
 from test_standing import sample_fighters
 
+from models.arena.config import EnvConfig
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OBSERVATION_DIM
 from models.humanoid.stance import guard_pose
-from models.maaip.config import (
-    DiscriminatorConfig,
-    EnvConfig,
-    NetworkConfig,
-    PPOConfig,
-)
+from models.maaip.config import DiscriminatorConfig, NetworkConfig, PPOConfig
 from models.maaip.networks import Policy, make_networks
 from models.maaip.trainer import Trainer
 from storage.files import sha256_file
 from tasks.errors import BadInput
-from tasks.evaluate.export import export_opponent, onnx_max_abs_diff, policy_onnx
-from tasks.evaluate.opponent import load_opponent
-from tasks.evaluate.spar import Partner, spar
+from tasks.opponent.export import export_opponent, onnx_max_abs_diff, policy_onnx
+from tasks.opponent.folder import load_opponent
+from tasks.opponent.maaip import OnnxPolicy
+from tasks.opponent.spar import spar
 from tasks.train.config import TrainConfig
 from tasks.train.data import clip_demonstrations
 
@@ -76,14 +73,16 @@ def _export(tmp_path, policy, bones, agent=0):
 def test_onnx_matches_torch_on_recorded_observations(tmp_path, trained, agent):
     policy, bones, obs = trained
     opponent = load_opponent(_export(tmp_path, policy, bones, agent))
+    exported = opponent.controller
+    assert opponent.kind == "maaip" and isinstance(exported, OnnxPolicy)
     recorded = obs[:, :, agent].reshape(-1, OBSERVATION_DIM)
     assert len(recorded) == 64
     assert policy.norm.count > 0  # the normaliser is part of the export, and not the identity
-    assert onnx_max_abs_diff(policy, agent, opponent, recorded) < 1e-5
-    assert onnx_max_abs_diff(policy, agent, opponent, recorded[:1]) < 1e-5  # any batch size
+    assert onnx_max_abs_diff(policy, agent, exported, recorded) < 1e-5
+    assert onnx_max_abs_diff(policy, agent, exported, recorded[:1]) < 1e-5  # any batch size
     # The two agents' exports differ: the agent id is baked in.
     other = policy(torch.from_numpy(recorded[:4]), 1 - agent).detach().numpy()
-    assert np.abs(opponent.act(recorded[:4]) - other).max() > 1e-4
+    assert np.abs(exported.actions(recorded[:4]) - other).max() > 1e-4
     assert opponent.agent == agent and opponent.bones == bones
 
 
@@ -97,6 +96,7 @@ def test_the_folder_holds_the_models_and_a_manifest(tmp_path, trained):
         "manifest.json",
         "policy.onnx",
     ]
+    assert manifest["format"] == 2 and manifest["kind"] == "maaip"
     assert manifest["observation"]["size"] == 274 and manifest["action"]["size"] == 28
     assert manifest["run_key"] == "r" and manifest["role"] == "adversary"
     assert "<mujoco" in (folder / "humanoid.xml").read_text()
@@ -137,6 +137,31 @@ def test_bad_opponent_folders_are_refused_with_the_file_named(tmp_path, trained)
         BadInput, match=r"policy.onnx: takes observations of shape \['batch', 100\]"
     ):
         load_opponent(other)
+    # A kind this Ringside does not know.
+    unknown = broken("unknown_kind")
+    manifest = json.loads((unknown / "manifest.json").read_text())
+    manifest["kind"] = "motion_matcher"
+    (unknown / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(BadInput, match=r"manifest.json: kind 'motion_matcher' is not one this"):
+        load_opponent(unknown)
+
+
+def test_a_folder_written_before_the_kinds_loads_as_maaips(tmp_path, trained):
+    """Format 1 named no kind: it held MAAIP's policy, and still loads as that."""
+    policy, bones, obs = trained
+    folder = _export(tmp_path, policy, bones)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    del manifest["kind"]
+    manifest["format"] = 1
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    opponent = load_opponent(folder)
+    recorded = obs[:, :, 0].reshape(-1, OBSERVATION_DIM)
+    assert opponent.kind == "maaip"
+    assert onnx_max_abs_diff(policy, 0, opponent.controller, recorded) < 1e-5
+    manifest["format"] = 3
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(BadInput, match=r"manifest.json: format 3; this Ringside reads formats 1"):
+        load_opponent(folder)
 
 
 # ---------------------------------------------------------------- sparring
@@ -171,7 +196,7 @@ def test_spar_runs_a_minute_against_the_trained_partner_without_torch(pair):
 def test_spar_renders_a_bout_that_plays(tmp_path, pair):
     video = tmp_path / "bout.mp4"
     opponent = load_opponent(pair[0])
-    result = spar(opponent, Partner(None), seconds=2.0, video=video, size=(320, 180))
+    result = spar(opponent, None, seconds=2.0, video=video, size=(320, 180))
     assert result.frames_rendered == 60
     _, frames = read_video(video)
     assert len(frames) == 60 and frames[0].shape == (180, 320, 3)
@@ -204,5 +229,5 @@ def test_an_opponent_starts_in_its_guard_and_stands_against_a_still_partner(tmp_
     folder = _export(tmp_path, nets.policy.eval(), bones)
     opponent = load_opponent(folder)
     assert np.allclose(opponent.guard, stance, atol=1e-6)
-    result = spar(opponent, Partner(None), seconds=60)
+    result = spar(opponent, None, seconds=60)
     assert result.falls == (0, 0), result.falls

@@ -29,8 +29,8 @@ from tasks.pose.config import PoseConfig
 from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, merge_chunks
 from tasks.pose.overlay import BONE_INDEX
+from tasks.pose.people_tracking import _iou, count_identity_switches, hungarian
 from tasks.pose.stage import BACKENDS, Roles, assign_roles, model_files, plan_spans, process_chunk
-from tasks.pose.tracking import _iou, count_identity_switches, hungarian
 
 FPS, SAMPLE_FRAMES = 60.0, 100
 CANVAS = (128, 128, 128)  # BGR

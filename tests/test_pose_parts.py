@@ -16,8 +16,8 @@ from tasks.pose.chunk import ChunkTracks
 from tasks.pose.config import FighterConfig, PoseConfig
 from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, merge_chunks, summaries
+from tasks.pose.people_tracking import DESCRIPTOR_SIZE, appearance
 from tasks.pose.stage import BACKENDS, assign_roles, model_files, plan_spans
-from tasks.pose.tracking import DESCRIPTOR_SIZE, appearance
 
 J = 33
 

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 from conftest import query
 
+from models.arena.env import ArenaEnv
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import HINGE_NAMES, NQ, NV, joint_targets_to_action
 from models.humanoid.motion import FighterMotion
 from models.humanoid.stance import COM_AHEAD_M, guard_pose
 from models.maaip.config import EnvConfig
 from models.maaip.demonstrations import ReferenceMotions, facing_reference
-from models.maaip.env import ArenaEnv
 from storage.db import connect
 from tasks.lift.store import load_motion
 

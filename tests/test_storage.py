@@ -189,8 +189,8 @@ def test_code_version_hashes_the_stage_sources():
     assert code_version("tasks.ingest") == code_version("tasks.ingest")
     assert code_version("tasks.ingest") != code_version("storage")
     # A single module hashes that file alone, not its package.
-    assert code_version("models.maaip.arena") != code_version("models.maaip")
-    assert code_version("models.maaip.arena") == code_version("models.maaip.arena")
+    assert code_version("models.arena.mjcf") != code_version("models.arena")
+    assert code_version("models.arena.mjcf") == code_version("models.arena.mjcf")
 
 
 def test_process_killed_inside_a_transaction_leaves_the_old_output(tmp_path: Path):

@@ -1,5 +1,5 @@
-"""The two-fighter arena (models.maaip.arena) and the batched training environment
-(models.maaip.env): placement, observations, falls, damage, batched stepping, bad inputs."""
+"""The two-fighter arena (models.arena.mjcf) and the batched training environment
+(models.arena.env): placement, observations, falls, damage, batched stepping, bad inputs."""
 
 from __future__ import annotations
 
@@ -10,6 +10,11 @@ import numpy as np
 import pytest
 from array_api_compat import is_torch_array
 
+from models.arena.config import EnvConfig
+from models.arena.env import ArenaEnv, to_host
+from models.arena.mjcf import DAMAGE_BODIES, arena_index, arena_mjcf
+from models.arena.puppet import Puppet
+from models.arena.starts import ReferenceMotions, centred_pair, geom_bottoms
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.compiled import body_state, humanoid_index
 from models.humanoid.kinematics import (
@@ -19,10 +24,6 @@ from models.humanoid.kinematics import (
     joint_targets_to_action,
 )
 from models.humanoid.observations import observation, self_observation
-from models.maaip.arena import DAMAGE_BODIES, arena_index, arena_mjcf
-from models.maaip.config import EnvConfig
-from models.maaip.demonstrations import ReferenceMotions
-from models.maaip.env import ArenaEnv, Puppet, centred_pair, geom_bottoms, to_host
 
 SMALL = BoneLengths().scaled(0.9)
 

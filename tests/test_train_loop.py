@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from models.arena.env import ArenaEnv
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import heading_yaw
 from models.maaip.config import (
@@ -19,7 +20,6 @@ from models.maaip.config import (
     RewardConfig,
 )
 from models.maaip.demonstrations import Demonstrations
-from models.maaip.env import ArenaEnv
 from models.maaip.trainer import CheckpointMismatch, Trainer, TrainState, default_networks
 from tasks.train.config import TrainConfig
 from tasks.train.data import clip_demonstrations
@@ -208,6 +208,25 @@ def test_the_heading_task_rewards_moving_along_the_target(demos):
         assert np.isclose(np.cos(angle - trainer.targets[0, 0]), 1, atol=1e-5)
         metrics = trainer.iterate()
         assert 0 <= metrics["reward_control"] <= 1 and metrics["w_control"] > 0
+        # A rollout's moves replaced by moves along each agent's target at the target speed,
+        # and against it: the pelvis's velocity in the heading frame, where its target is seen
+        # after the step. Along earns eq 11's 1, against exp(-w (2 v*)^2).
+        from models.humanoid.observations import SELF_BLOCKS, block_slices
+
+        rollout = trainer.collect()
+        pelvis = block_slices(SELF_BLOCKS)["body_linear_velocities"].start
+        control = {}
+        for sign in (1.0, -1.0):
+            moved = rollout.next_obs.clone()
+            moved[..., pelvis : pelvis + 2] = sign * reward.heading_speed * rollout.next_task
+            moved[..., pelvis + 2] = 0.0
+            r = dataclasses.replace(rollout, next_obs=moved)
+            inputs = trainer.objective.discriminator_inputs(r)
+            control[sign] = trainer.objective.rewards(r, inputs, trainer.iteration)["control"]
+        against = np.exp(-reward.heading_scale * (2 * reward.heading_speed) ** 2)
+        torch.testing.assert_close(control[1.0], torch.ones_like(control[1.0]))
+        torch.testing.assert_close(control[-1.0], torch.full_like(control[-1.0], against))
+        assert against < 0.5
     finally:
         trainer.close()
 

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy.stats import mannwhitneyu, norm
 
+from models.arena.mjcf import arena_index, arena_mjcf
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import NQ, axis_angle_matrix, matrix_to_quat, quat_to_matrix
 from models.humanoid.stance import guard_pose
-from models.maaip.arena import arena_index, arena_mjcf
 from tasks import deepmimic
 from tasks.dataset.store import FootageClip
 from tasks.evaluate.bouts import Bouts

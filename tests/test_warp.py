@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.maaip.config import EnvConfig
-from models.maaip.demonstrations import ReferenceMotions
-from models.maaip.env import ArenaEnv, geom_bottoms, to_host
-from models.maaip.warp_physics import WarpPhysics
+from models.arena.config import EnvConfig
+from models.arena.env import ArenaEnv, to_host
+from models.arena.starts import ReferenceMotions, geom_bottoms
+from models.arena.stepping.warp import WarpPhysics
 
 # Feet pressed this far into the floor at the start. The arena's resets put the soles exactly on
 # it (distance 0), where MuJoCo (float64) leaves a foot's contact out of the first substep and
@@ -50,14 +50,15 @@ def test_warp_follows_mujoco_for_30_policy_steps():
     want_q, want_fell, _ = _play("threads", actions)
     got_q, got_fell, _ = _play("warp", actions)
     roots = np.r_[0:3, 35:38]
-    # Measured: 0.03 mm for the roots and 7e-5 (m or rad) for any coordinate after 30 steps.
-    assert np.abs(got_q[..., roots] - want_q[..., roots]).max() < 0.5e-3
-    assert np.abs(got_q - want_q).max() < 1e-3
+    # Measured: 0.026 mm for the roots and 6.5e-5 (m or rad) for any coordinate after 30 steps;
+    # Warp's gravity 1e-5 too strong moves them 0.17 mm and 4.3e-4.
+    assert np.abs(got_q[..., roots] - want_q[..., roots]).max() < 0.04e-3
+    assert np.abs(got_q - want_q).max() < 1e-4
     assert want_fell[:, 5, 1].any() and not want_fell[:, :5].any()
     assert np.array_equal(got_fell, want_fell)
 
 
-def test_a_jab_does_the_same_damage_within_5_percent():
+def test_a_jab_does_the_same_damage_within_3_5_percent():
     # Agent 0 lunges, glove first, at agent 1's head (tests/test_train_env.py's jab, started as
     # there: with the lunge's velocity, never standing).
     from test_train_env import _env, _jab_setup
@@ -68,10 +69,10 @@ def test_a_jab_does_the_same_damage_within_5_percent():
             reference, actions = _jab_setup(env)
             env.reset([0], reference)
             totals[stepping] = sum(to_host(env.step(actions).damage)[0] for _ in range(8))
-    # Measured: 3,751 N against 3,876 (the soles start touching the floor, as above).
+    # Measured: 3,751 N against 3,876, 3.24 % less (the soles start touching the floor, as above).
     assert totals["threads"][0] == totals["warp"][0] == 0.0
     assert totals["threads"][1] > 1000.0  # the jab lands
-    assert totals["warp"][1] == pytest.approx(totals["threads"][1], rel=0.05)
+    assert totals["warp"][1] == pytest.approx(totals["threads"][1], rel=0.035)
 
 
 def test_resets_on_the_device_start_where_mujocos_do(punch):
@@ -119,12 +120,12 @@ def test_resets_on_the_device_start_where_mujocos_do(punch):
 
 
 def test_a_world_out_of_contact_room_is_an_error_not_wrong_physics(monkeypatch):
-    import models.maaip.warp_physics as warp_physics
+    import models.arena.stepping.warp as warp_physics
 
     monkeypatch.setattr(warp_physics, "CONTACTS_PER_WORLD", 1)
     config = EnvConfig(num_envs=2, threads=1, stepping="warp", standing_share=1.0)
     with ArenaEnv(config, np.random.default_rng(0)) as env:
-        assert isinstance(env._warp, WarpPhysics)
+        assert isinstance(env._stepping.physics, WarpPhysics)
         q = env.model.qpos0
         zero = np.zeros((1, 34))
         env.reset([0, 1], ReferenceMotions(q[None, :35], zero, q[None, 35:], zero))

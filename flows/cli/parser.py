@@ -121,6 +121,12 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument(
         "--out", type=Path, help="folder to write (default: DATA/opponents/<run>-<agent>)"
     )
+    export.add_argument(
+        "--clip",
+        metavar="NAME",
+        help="a tracker run's clip to play, one of DeepMimic's (`tasks.deepmimic`: walk, punch, "
+        "...); a tracker run needs one, a MAAIP run takes none",
+    )
     export.add_argument("--json", action="store_true")
 
     motion = commands.add_parser(

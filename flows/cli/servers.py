@@ -274,7 +274,7 @@ def spar_server_command(args, paths: DataPaths) -> int:
     import signal
 
     from flows.spar_server import PATH, SparServer, needs_token, run_server, warm_up
-    from tasks.evaluate.opponent import load_opponent
+    from tasks.opponent.folder import load_opponent
 
     if not 0 <= args.port < 65536:
         raise ValueError(f"--port must be between 0 and 65535, got {args.port}")

@@ -85,9 +85,9 @@ def print_opponent(paths: DataPaths, evaluated) -> None:
     from storage.artifacts import artifact_path
     from storage.db import connect
     from storage.records import output_metrics
-    from tasks.evaluate.export import stored_opponent
-    from tasks.evaluate.opponent import MANIFEST
     from tasks.evaluate.store import evaluation_artifacts, evaluation_tables
+    from tasks.opponent.export import stored_opponent
+    from tasks.opponent.folder import MANIFEST
 
     run_key = evaluated.video_id
     with connect(paths.db, read_only=True) as con:

@@ -52,11 +52,28 @@ def curves_command(args, paths: DataPaths) -> int:
 
 
 def export_command(args, paths: DataPaths) -> int:
-    from tasks.evaluate.export import trained_policy
+    from tasks.errors import BadInput
+    from tasks.opponent.export import deepmimic_clip, trained_policy
+    from tasks.opponent.tracker import KIND as TRACKER
 
     trained = trained_policy(paths.db, paths.artifacts, args.run)
+    agent = 0 if args.agent == "adversary" else 1
+    clip = None
+    if trained.kind == TRACKER:
+        if args.clip is None:
+            raise BadInput(
+                f"--run {args.run}",
+                "is a 'track' run (train.objective), which follows clips: export it with the "
+                "clip it plays (--clip NAME, one of DeepMimic's)",
+            )
+        qpos = deepmimic_clip(
+            paths.assets, args.clip, trained.bones[agent], fps=trained.config.env.policy_hz
+        )
+        clip = (args.clip, qpos)
+    elif args.clip is not None:
+        raise BadInput(f"--clip {args.clip}", "only a tracker run plays a clip; this is MAAIP's")
     out = args.out or paths.root / "opponents" / f"{trained.run_key[:12]}-{args.agent}"
-    folder = trained.export(0 if args.agent == "adversary" else 1, out)
+    folder = trained.export(agent, out, clip)
     if args.json:
         print(
             json.dumps(
@@ -156,11 +173,11 @@ def export_motion_command(args, paths: DataPaths) -> int:
     from storage.artifacts import read_bytes
     from storage.db import connect
     from tasks.errors import BadInput
-    from tasks.evaluate.export import write_folder
     from tasks.evaluate.motion_files import BOUTS, bout_files, lifted_files
     from tasks.evaluate.store import evaluation_artifacts, newest_evaluation, resolve_run
     from tasks.ingest.store import ingested_video, load_ingest
     from tasks.lift.store import load_motion, newest_lift
+    from tasks.opponent.export import write_folder
 
     if not paths.db.exists():
         raise BadInput(str(paths.db), "no database yet: process a video first")
@@ -204,11 +221,11 @@ def export_motion_command(args, paths: DataPaths) -> int:
 def spar_command(args, _paths: DataPaths) -> int:
     from tqdm import tqdm
 
-    from tasks.evaluate.opponent import load_opponent
-    from tasks.evaluate.spar import STILL, Partner, spar
+    from tasks.opponent.folder import load_opponent
+    from tasks.opponent.spar import STILL, partner_name, spar
 
     opponent = load_opponent(args.opponent)
-    partner = Partner(None if args.partner == STILL else load_opponent(Path(args.partner)))
+    partner = None if args.partner == STILL else load_opponent(Path(args.partner))
     with tqdm(
         total=round(args.seconds),
         unit="s",
@@ -230,7 +247,8 @@ def spar_command(args, _paths: DataPaths) -> int:
         spent = result.timings_s
         total = sum(spent.values()) or 1.0
         print(
-            f"{result.simulated_s:.0f} simulated s against {partner.name} in {result.wall_s:.1f} s"
+            f"{result.simulated_s:.0f} simulated s against {partner_name(partner)} in "
+            f"{result.wall_s:.1f} s"
             f"; falls: opponent {result.falls[0]}, partner {result.falls[1]}; damage received: "
             f"opponent {result.damage_received_n[0]:.0f} N, partner "
             f"{result.damage_received_n[1]:.0f} N"

@@ -37,7 +37,7 @@ and angular velocities of all 15 bodies (45 each), which is what it says in word
 is computed here. Its opponent velocities likewise hold linear and angular (3 each).
 
 Every function takes NumPy arrays or torch tensors (on any device) alike, so the training
-arena can observe on the GPU with the very function the dataset uses (`models.maaip.warp_physics`).
+arena can observe on the GPU with the very function the dataset uses (`models.arena.stepping.warp`).
 
 Shape letters: T frames (or any leading batch shape), N = 15 bodies.
 """

@@ -13,7 +13,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields, replace
 
+from models.arena.config import EnvConfig
 from models.settings import setting
+from models.tracking.config import TrackConfig
 
 PRESETS: dict[str, tuple[int, ...]] = {
     # MAAIP §4.4: 3 hidden layers of 1024, 1024, 512 ReLU units.
@@ -51,105 +53,11 @@ CONTROL_TASKS = ("none", "damage_min", "damage_max", "heading")
 DISCRIMINATOR_LOSSES = ("gail", "lsgan")
 NUM_AGENTS = 2
 HEADING_OBSERVATION_DIM = 2
-STEPPINGS = ("rollout", "threads", "warp")
-RESET_VELOCITIES = ("zero", "clip", "reference")
 OBJECTIVES = ("maaip", "track")
 
 
 def _finite(value: float) -> bool:
     return math.isfinite(value)
-
-
-@dataclass(frozen=True)
-class EnvConfig:
-    """The training environment: rates, episode length, fall rule, batch size, stepping."""
-
-    policy_hz: int = setting(30, "Policy queries per simulated second (MAAIP §5.1: 30 Hz).")
-    substeps: int = setting(
-        4,
-        "Physics steps per policy step; the timestep is 1 / (policy_hz * substeps): 2 gives "
-        "the paper's 60 Hz physics (§5.1), 4 gives 120 Hz, the default: holding the rest pose "
-        "with action noise 0.02 (tests/test_standing.py), the default body fell in 2.2-3.3 s "
-        "at 60 Hz, where at 120 Hz it stands 30 s.",
-    )
-    episode_s: float = setting(
-        20.0,
-        "Seconds after which an episode times out (not terminal for bootstrapping); long enough "
-        "that a policy's mean episode length can show it stays up past 10 s.",
-    )
-    fall_height_m: float = setting(
-        0.8,
-        "A fighter whose head sphere's centre is below this height (m) has fallen, as has one "
-        "touching the floor with anything but its feet and shins. Standing, the default head is "
-        "at 1.67 m; a deep duck brings it to about 1.2 m.",
-    )
-    reset_velocity: str = setting(
-        "zero",
-        "Velocities an episode starts with: 'zero' (the lifted ones are noisy: joint speeds of "
-        "6 rad/s at the 95th percentile on the demo, 26 at most), 'clip' (the reference's, each "
-        "speed clipped to reset_speed_limit) or 'reference' (as lifted). On the demo's frames, "
-        "which lean (centre of mass 13-15 cm from the feet's midpoint), resting, holding the "
-        "frame or playing the clip fell in 0.74-0.84 s with any of the three.",
-    )
-    reset_speed_limit: float = setting(
-        3.0, "With reset_velocity 'clip': the largest joint and root speed kept (rad/s, m/s)."
-    )
-    standing_share: float = setting(
-        0.5,
-        "Share (0-1) of episode starts with both fighters standing still in their guard "
-        "(models.humanoid.stance) where the drawn reference frame has them (AMP's hybrid "
-        "initialisation); the rest start from the frames. The demo's frames are mid-stride and "
-        "lean: holding any of them fell in 0.8 s, so without standing starts few episodes teach "
-        "balance.",
-    )
-    num_envs: int = setting(64, "N: environments stepped together, each with both agents.")
-    threads: int = setting(2, "Worker threads that step the environments (cores to use).")
-    stepping: str = setting(
-        "rollout",
-        "How the batch is stepped: 'rollout' (mujoco.rollout, contacts from sensors; measured "
-        "faster) or 'threads' (own thread pool over the MjData, contacts from MjData.contact, "
-        "bit-identical to stepping the environments one by one) or 'warp' (MuJoCo Warp: every "
-        "environment a world of one batch, on the GPU where train.device is one, else on the "
-        "CPU, where it is slower (benchmarks/train_speed.py --stepping warp); "
-        "models/maaip/warp_physics.py).",
-    )
-
-    def __post_init__(self) -> None:
-        for name in ("policy_hz", "substeps", "num_envs", "threads"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
-                raise ValueError(f"EnvConfig.{name} must be an integer >= 1, got {value!r}")
-        for name in ("episode_s", "fall_height_m"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ValueError(f"EnvConfig.{name} must be a positive number, got {value!r}")
-        if self.reset_velocity not in RESET_VELOCITIES:
-            raise ValueError(
-                f"EnvConfig.reset_velocity must be one of {RESET_VELOCITIES}, "
-                f"got {self.reset_velocity!r}"
-            )
-        if not (math.isfinite(self.reset_speed_limit) and self.reset_speed_limit > 0):
-            raise ValueError(
-                f"EnvConfig.reset_speed_limit must be positive, got {self.reset_speed_limit!r}"
-            )
-        if not (math.isfinite(self.standing_share) and 0 <= self.standing_share <= 1):
-            raise ValueError(
-                f"EnvConfig.standing_share must be in [0, 1], got {self.standing_share!r}"
-            )
-        if self.stepping not in STEPPINGS:
-            raise ValueError(
-                f"EnvConfig.stepping must be one of {STEPPINGS}, got {self.stepping!r}"
-            )
-
-    @property
-    def timestep(self) -> float:
-        """Physics timestep in seconds."""
-        return 1.0 / (self.policy_hz * self.substeps)
-
-    @property
-    def max_steps(self) -> int:
-        """Policy steps in an episode that does not end early."""
-        return max(1, round(self.episode_s * self.policy_hz))
 
 
 @dataclass(frozen=True)
@@ -443,61 +351,6 @@ class PPOConfig:
     def batch_size(self, num_envs: int) -> int:
         """Samples per iteration: every step of every environment, for both agents."""
         return num_envs * self.horizon * NUM_AGENTS
-
-
-@dataclass(frozen=True)
-class TrackConfig:
-    """The tracking objective (`TrainerConfig.objective` 'track', `models.maaip.tracking`): each
-    agent follows a reference clip, its PD targets the clip's next frame plus the policy's
-    correction (DReCon, Bergamin et al. 2019), rewarded by DeepMimic's imitation reward (Peng et
-    al., ACM TOG 37(4), 2018: r = w_p r_p + w_v r_v + w_e r_e + w_c r_c)."""
-
-    w_pose: float = setting(0.65, "w^p of the pose term r_p = exp(-2 sum_j angle_j^2) (DeepMimic).")
-    w_velocity: float = setting(
-        0.1, "w^v of the velocity term r_v = exp(-0.1 sum_j |w_j - w^_j|^2) (DeepMimic)."
-    )
-    w_end_effector: float = setting(
-        0.15, "w^e of the end-effector term r_e = exp(-40 sum_e |p_e - p^_e|^2) (DeepMimic)."
-    )
-    w_com: float = setting(
-        0.1, "w^c of the centre-of-mass term r_c = exp(-10 |p_c - p^_c|^2) (DeepMimic)."
-    )
-    pose_scale: float = setting(2.0, "The pose term's scale, 1/rad^2 (DeepMimic: 2).")
-    velocity_scale: float = setting(0.1, "The velocity term's scale, s^2/rad^2 (DeepMimic: 0.1).")
-    end_effector_scale: float = setting(
-        40.0, "The end-effector term's scale, 1/m^2 (DeepMimic: 40)."
-    )
-    com_scale: float = setting(10.0, "The centre-of-mass term's scale, 1/m^2 (DeepMimic: 10).")
-    root_limit_m: float = setting(
-        0.5,
-        "An agent whose pelvis is further than this (m) from its reference's ends its episode, "
-        "terminally (early termination), as does a fall (EnvConfig's rule).",
-    )
-    separation_m: float = setting(
-        4.0,
-        "Each episode places agent 0's clip with its start frame's pelvis at y = -separation/2 "
-        "and agent 1's at +separation/2 (the clip's heading kept), so that the two fighters of "
-        "an arena, each tracking its own clip, never meet (the clips travel 1-2 m).",
-    )
-
-    def __post_init__(self) -> None:
-        for name in ("w_pose", "w_velocity", "w_end_effector", "w_com"):
-            value = getattr(self, name)
-            if not (_finite(value) and value >= 0):
-                raise ValueError(f"train.track.{name} must be non-negative, got {value}")
-        if self.w_pose + self.w_velocity + self.w_end_effector + self.w_com <= 0:
-            raise ValueError("train.track: the four reward weights must not all be 0")
-        for name in (
-            "pose_scale",
-            "velocity_scale",
-            "end_effector_scale",
-            "com_scale",
-            "root_limit_m",
-            "separation_m",
-        ):
-            value = getattr(self, name)
-            if not (_finite(value) and value > 0):
-                raise ValueError(f"train.track.{name} must be positive, got {value}")
 
 
 @dataclass(frozen=True)

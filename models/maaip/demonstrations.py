@@ -1,8 +1,9 @@
 """What MAAIP learns from and starts episodes in: demonstrations and reference frames.
 
-- :class:`ReferenceMotions`: interaction frames of both fighters in one world frame, to start
-  episodes from (reference state initialisation); :func:`facing_reference` makes one from a
-  single motion clip performed by two fighters facing each other.
+- :class:`ReferenceMotions` (`models.arena.starts`, where the arena starts episodes from it):
+  interaction frames of both fighters in one world frame, to start episodes from (reference
+  state initialisation); :func:`facing_reference` makes one from a single motion clip performed
+  by two fighters facing each other.
 - :class:`Demonstrations`: a dataset ready for training: the motion prior's single-actor
   transitions, each interaction prior's transitions, the reference frames and the two
   fighters' bones (`tasks.dataset.demonstrations.load_demonstrations` reads one from DuckDB;
@@ -19,11 +20,11 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from models.arena.starts import ReferenceMotions
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.compiled import body_states, humanoid_index
 from models.humanoid.kinematics import (
     NQ,
-    NUM_ACTUATED,
     NV,
     ROOT_POS,
     ROOT_QUAT,
@@ -33,67 +34,6 @@ from models.humanoid.kinematics import (
     quat_to_matrix,
 )
 from models.humanoid.observations import SELF_DIM, observation
-
-
-@dataclass(frozen=True, eq=False)
-class ReferenceMotions:
-    """Interaction frames to start episodes from (reference state initialisation).
-
-    Both fighters in one world frame, frame m of agent 0 with frame m of agent 1, as in the
-    dataset's interaction clips (`lift_motion` rows of both fighters at one step).
-
-    Attributes:
-        qpos0: (M, 35) agent 0's qpos (kinematics' layout).
-        qvel0: (M, 34) agent 0's qvel.
-        qpos1: (M, 35) agent 1's qpos.
-        qvel1: (M, 34) agent 1's qvel.
-        stance: (2, 28) the hinge angles each fighter stands in when an episode starts standing
-            (`EnvConfig.standing_share`), e.g. its guard (`models.humanoid.stance.guard_pose`);
-            None is the rest pose (every hinge at 0).
-    """
-
-    qpos0: np.ndarray
-    qvel0: np.ndarray
-    qpos1: np.ndarray
-    qvel1: np.ndarray
-    stance: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        count = None
-        for name, width in (("qpos0", NQ), ("qvel0", NV), ("qpos1", NQ), ("qvel1", NV)):
-            array = np.array(getattr(self, name), dtype=np.float64)
-            if array.ndim != 2 or array.shape[1] != width or len(array) == 0:
-                raise ValueError(
-                    f"ReferenceMotions.{name} must have shape (M, {width}) with M >= 1, "
-                    f"got {array.shape}"
-                )
-            if count is not None and len(array) != count:
-                raise ValueError(
-                    f"ReferenceMotions.{name} has {len(array)} frames, qpos0 has {count}: "
-                    "every array needs one row per frame"
-                )
-            if not np.isfinite(array).all():
-                raise ValueError(f"ReferenceMotions.{name} must be finite")
-            if name.startswith("qpos") and np.any(
-                np.linalg.norm(array[:, ROOT_QUAT], axis=1) < 1e-6
-            ):
-                raise ValueError(f"ReferenceMotions.{name} has a zero root quaternion")
-            count = len(array)
-            array.setflags(write=False)
-            object.__setattr__(self, name, array)
-        if self.stance is not None:
-            stance = np.array(self.stance, dtype=np.float64)
-            if stance.shape != (2, NUM_ACTUATED) or not np.isfinite(stance).all():
-                raise ValueError(
-                    f"ReferenceMotions.stance must be finite with shape (2, {NUM_ACTUATED}), "
-                    f"got {stance.shape}"
-                )
-            stance.setflags(write=False)
-            object.__setattr__(self, "stance", stance)
-
-    @property
-    def num_frames(self) -> int:
-        return len(self.qpos0)
 
 
 def facing_reference(

@@ -29,11 +29,12 @@ import dataclasses
 import numpy as np
 import torch
 
+from models.arena.env import ArenaEnv
 from models.humanoid.kinematics import NUM_ACTUATED
 from models.maaip.config import NUM_AGENTS, TrainerConfig
-from models.maaip.env import ArenaEnv
 from models.maaip.networks import Policy
-from models.maaip.tracking import Tracker, TrackingData
+from models.tracking.clips import TrackingData
+from models.tracking.task import Tracker
 
 
 def _fit(

@@ -11,11 +11,11 @@ MAAIP Algorithm 1 (§4.5), one iteration:
 4. GAE(lambda) advantages and TD(lambda) returns per agent; PPO epochs over minibatches of
    both agents' samples for the policy and the centralised value.
 
-With `TrainerConfig.objective` 'track' the same loop trains a tracker instead
-(`models.maaip.tracking`): the arena's actions are reference frames plus the policy's
-corrections, the reward is DeepMimic's, computed as the steps are collected, and there are no
-discriminators (steps 2-3 are skipped); GAE, PPO, the normalisers and the checkpoints are the
-same.
+Steps 2-3 are the objective's (`models.maaip.objectives`, chosen once by
+`TrainerConfig.objective`): MAAIP's priors (`MotionPriors`), or a tracker (`Tracking`,
+`models.tracking`), whose actions are reference frames plus the policy's corrections and whose
+reward is DeepMimic's, computed as the steps are collected, with no discriminators. The
+collection, GAE, PPO, the normalisers and the checkpoints are the same loop for both.
 
 Everything that decides what comes next is one :class:`TrainState` (`Trainer.state`,
 `Trainer.load`; `Trainer.checkpoint` is its bytes): networks, optimisers, normalisers, replay
@@ -29,7 +29,6 @@ stage (`tasks.train`) runs it.
 from __future__ import annotations
 
 import io
-import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -38,35 +37,17 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from models.arena.config import EnvConfig
+from models.arena.env import ArenaEnv
 from models.humanoid.boxer import BoneLengths
-from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, SELF_DIM, block_slices
-from models.maaip.config import EnvConfig, TrainerConfig
+from models.maaip.config import TrainerConfig
 from models.maaip.demonstrations import Demonstrations
 from models.maaip.distill import distill
-from models.maaip.env import ArenaEnv
-from models.maaip.losses import (
-    PPOBatch,
-    combine_rewards,
-    damage_reward,
-    discriminator_loss,
-    gae,
-    heading_reward,
-    ppo_losses,
-    reward_weights,
-    style_reward_from_config,
-)
-from models.maaip.networks import Networks, Policy, ReplayBuffer, action_stds, make_networks
-from models.maaip.tracking import (
-    REWARD_TERMS,
-    TRACK_OBSERVATION_DIM,
-    Tracker,
-    TrackingData,
-    tracking_networks,
-)
+from models.maaip.losses import PPOBatch, gae, ppo_losses
+from models.maaip.networks import Networks, Policy, action_stds
+from models.maaip.objectives import Objective, Rollout, objective_kind
+from models.tracking.clips import TrackingData
 
-HELD_OUT_ROWS = 4096
-_LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
-_ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 3)
 # 2: the policy's offset (its guard) is part of its state; 3: a `TrainState` (the arena's and
 # the replay buffers' own states). Export and warm starts read the networks of any format.
 CHECKPOINT_FORMAT = 3
@@ -79,7 +60,7 @@ def checkpoint_policy(blob: bytes, config: TrainerConfig) -> tuple[Policy, tuple
     policy = Policy(
         hidden=config.network.hidden_sizes,
         action_std=action_stds(config),
-        obs_dim=TRACK_OBSERVATION_DIM if config.objective == "track" else OBSERVATION_DIM,
+        obs_dim=objective_kind(config.objective).observation_dim,
         task_dim=config.reward.task_observation_dim,
         observation_clip=config.network.observation_clip,
     )
@@ -120,30 +101,6 @@ def _signature(config: TrainerConfig, key: str, bones: tuple, observation_dim: i
     }
 
 
-@dataclass
-class Rollout:
-    """T steps of N environments, both agents, as float32 tensors (T, N, 2, ...)."""
-
-    obs: Tensor
-    next_obs: Tensor
-    actions: Tensor
-    log_probs: Tensor
-    damage: Tensor  # received by each agent
-    terminated: Tensor  # (T, N)
-    truncated: Tensor  # (T, N)
-    fell: Tensor  # (T, N, 2)
-    unstable: Tensor  # (T, N) the simulation blew up (terminal, not a fall)
-    task: Tensor | None = None  # (T, N, 2, 2) heading targets the actions were chosen for
-    next_task: Tensor | None = None  # the same targets seen from the next state
-    # Tracking only: the reward (T, N, 2) and its terms (T, N, 2, 4), body and root errors in
-    # metres (T, N, 2, 2), and which agents' own episodes ended terminally (T, N, 2): the other
-    # agent of an environment that ended times out.
-    reward: Tensor | None = None
-    reward_terms: Tensor | None = None
-    errors: Tensor | None = None
-    terminal: Tensor | None = None
-
-
 # Builds the arena: (EnvConfig, its generator, the two humanoids, the torch device's name).
 ArenaFactory = Callable[[EnvConfig, np.random.Generator, tuple, str], ArenaEnv]
 # Builds the networks for the run's config and data from its generator.
@@ -155,12 +112,9 @@ NetworksFactory = Callable[
 def default_networks(
     config: TrainerConfig, data: Demonstrations | TrackingData, generator: torch.Generator
 ) -> Networks:
-    """MAAIP's networks (the policy starting from the dataset's guard), or a tracker's: its
-    policy and value, with no priors."""
-    if isinstance(data, TrackingData):
-        policy, value = tracking_networks(config, generator=generator)
-        return Networks(policy, value, motion=None, interaction=())  # type: ignore[arg-type]
-    return make_networks(config, generator=generator, stance=data.reference.stance)
+    """The networks of ``config``'s objective: MAAIP's (the policy starting from the dataset's
+    guard), or a tracker's: its policy and value, with no priors."""
+    return objective_kind(config.objective).networks(config, data, generator)
 
 
 @dataclass
@@ -222,48 +176,29 @@ class Trainer:
         networks: NetworksFactory | None = None,
     ):
         torch.manual_seed(config.seed)
-        track = config.objective == "track"
-        if track != isinstance(data, TrackingData):
-            want = "TrackingData" if track else "Demonstrations"
+        kind = objective_kind(config.objective)
+        if not isinstance(data, kind.data_type):
             raise ValueError(
-                f"train.objective {config.objective!r} trains on {want}, got {type(data).__name__}"
+                f"train.objective {config.objective!r} trains on {kind.data_type.__name__}, "
+                f"got {type(data).__name__}"
             )
         self.config = config
         self.device = training_device(config.device)
         # One CPU generator draws every random number (then moved), so a seed means the same
         # run on either device up to floating point.
         self.generator = torch.Generator().manual_seed(config.seed)
-        ppo, disc = config.ppo, config.discriminator
-        self.tracker: Tracker | None = None
         self.nets = (networks or default_networks)(config, data, self.generator)
-        if isinstance(data, TrackingData):
-            self.demos = None
-            self.tracker = Tracker(data, config.track, config.env)
-            self.discriminators: tuple = ()
-            key, bones = data.key, data.bones
-        else:
-            self.demos = data
-            self.discriminators = (self.nets.motion, *self.nets.interaction)
-            key, bones = data.dataset_key, data.bones
-        for net in (self.nets.policy, self.nets.value, *self.discriminators):
+        for net in (self.nets.policy, self.nets.value):
             net.to(self.device)
         self.optimiser = torch.optim.Adam(
-            [*self.nets.policy.parameters(), *self.nets.value.parameters()], lr=ppo.learning_rate
+            [*self.nets.policy.parameters(), *self.nets.value.parameters()],
+            lr=config.ppo.learning_rate,
         )
-        self.d_optimisers = [
-            torch.optim.Adam(d.parameters(), lr=disc.learning_rate) for d in self.discriminators
-        ]
-        self.buffers = [
-            ReplayBuffer(disc.replay_size, d.input_dim, device=self.device)
-            for d in self.discriminators
-        ]
-        demos = self.demos
-        real = () if demos is None else (demos.motion, *demos.interaction)
-        self.real = [torch.from_numpy(x).to(self.device) for x in real]
-        # Held-out demonstrations (the validation split), to judge each discriminator on what it
-        # never learned from; the first HELD_OUT_ROWS of each, so the check costs little.
-        held = () if demos is None else demos.held_out
-        self.held_out = [torch.from_numpy(x[:HELD_OUT_ROWS]).to(self.device) for x in held]
+        # What the objective adds: its discriminators, their optimisers and buffers, or a tracker.
+        self.objective: Objective = kind(
+            config, data, self.nets, generator=self.generator, device=self.device
+        )
+        key, bones = self.objective.key, self.objective.bones
         self.env = arena(config.env, np.random.default_rng(config.seed), bones, str(self.device))
         # The heading task (§5.4): each agent's target direction on the floor, a world yaw drawn
         # anew at every episode start.
@@ -276,17 +211,18 @@ class Trainer:
         self.iteration = 0
         self.signature = _signature(config, key, bones, self.nets.policy.obs_dim)
 
+    @property
+    def discriminators(self) -> tuple:
+        """The networks the objective trains beside the policy and value (none for a tracker)."""
+        return self.objective.discriminators
+
     def close(self) -> None:
         self.env.close()
 
-    def _reset(self, ids: np.ndarray) -> np.ndarray:
-        if self.tracker is not None:
-            # Reference state initialisation from the task's generator (checkpointed).
-            return self.tracker.reset(self.env, ids, self.task_rng)
+    def _reset(self, ids: np.ndarray) -> np.ndarray | Tensor:
         if self.heading:
             self.targets[ids] = self.task_rng.uniform(-np.pi, np.pi, (len(ids), 2))
-        assert self.demos is not None
-        return self.env.reset(ids, self.demos.reference)
+        return self.objective.reset(self.env, ids, self.task_rng)
 
     def task_observation(self) -> Tensor | None:
         """(N, 2, 2) each agent's target direction in its own heading frame, or None."""
@@ -319,17 +255,9 @@ class Trainer:
                 task=None if task is None else task.reshape(2 * n, -1),
                 generator=self.generator,
             )
-            chosen = actions.reshape(n, 2, -1)
-            if self.tracker is None:
-                # To the arena as they are: the host's, or Warp's device, takes them.
-                result = self.env.step(chosen)
-            else:
-                result = self.tracker.step(self.env, chosen.cpu().double().numpy())
-                parts["reward"].append(self._tensor(result.reward))
-                parts["reward_terms"].append(self._tensor(result.terms))
-                errors = np.stack([result.body_error, result.root_error], -1)
-                parts["errors"].append(self._tensor(errors))
-                parts["terminal"].append(self._tensor(result.terminal))
+            result, recorded = self.objective.step(self.env, actions.reshape(n, 2, -1))
+            for name, value in recorded.items():
+                parts[name].append(self._tensor(value))
             parts["obs"].append(obs)
             # Where the arena observed on a device (Warp), from there: no trip through the host.
             # (A tracker's observations are its own, made on the host.)
@@ -354,123 +282,6 @@ class Trainer:
                 self.obs[done.tolist()] = self._tensor(self._reset(done))
         self.finished_steps = np.concatenate(finished) if finished else np.zeros(0, dtype=int)
         return Rollout(**{k: torch.stack(v) if v else None for k, v in parts.items()})
-
-    # ------------------------------------------------------------------ rewards
-
-    def discriminator_inputs(self, r: Rollout) -> list[Tensor]:
-        """The rollout's transitions as each discriminator takes them: D^M's
-        [o^self_t, o^self_t+1] of both agents (T*N*2, 446), then D^I_i's [o_t, o^self_t+1] of
-        agent i (T*N, 497)."""
-        next_self = r.next_obs[..., :SELF_DIM]
-        inputs = [torch.cat([r.obs[..., :SELF_DIM], next_self], -1).reshape(-1, 2 * SELF_DIM)]
-        for agent in range(2):
-            pair = torch.cat([r.obs[:, :, agent], next_self[:, :, agent]], -1)
-            inputs.append(pair.reshape(-1, pair.shape[-1]))
-        return inputs
-
-    def rewards(self, r: Rollout, inputs: list[Tensor]) -> dict[str, Tensor]:
-        """Each reward term (T, N, 2) and their scheduled sum (eq 4); ``inputs`` are
-        `discriminator_inputs`."""
-        disc = self.config.discriminator
-        with torch.no_grad():
-            motion = style_reward_from_config(self.nets.motion(inputs[0]), disc)
-            interaction = torch.stack(
-                [
-                    style_reward_from_config(d(x), disc).reshape(r.log_probs.shape[:2])
-                    for d, x in zip(self.nets.interaction, inputs[1:], strict=True)
-                ],
-                dim=-1,
-            )
-        terms = {"motion": motion.reshape(r.log_probs.shape), "interaction": interaction}
-        task = self.config.reward.control_task
-        control = None
-        if task in ("damage_min", "damage_max"):
-            # eq 9 on the damage an agent receives, eq 10 on what it deals (the other's).
-            force = r.damage if task == "damage_min" else r.damage.flip(-1)
-            control = damage_reward(
-                force, scale=self.config.reward.damage_scale, maximize=task == "damage_max"
-            )
-            terms["control"] = control
-        elif task == "heading":
-            # The root's velocity and the target, both in the agent's heading frame after the
-            # step (o^self's first velocity row is the pelvis's).
-            velocity = r.next_obs[..., _ROOT_VELOCITY]
-            control = heading_reward(
-                r.next_task.reshape(-1, 2),
-                velocity[..., :2].reshape(-1, 2),
-                target_speed=self.config.reward.heading_speed,
-                scale=self.config.reward.heading_scale,
-            ).reshape(r.log_probs.shape)
-            terms["control"] = control
-        terms["total"] = combine_rewards(
-            terms["motion"],
-            terms["interaction"],
-            control,
-            config=self.config.reward,
-            iteration=self.iteration,
-        )
-        return terms
-
-    # ------------------------------------------------------------------ discriminators
-
-    def update_discriminators(self, fakes: list[Tensor]) -> dict[str, float]:
-        """Replay the policy's transitions (`discriminator_inputs`) and train D^M and each D^I
-        (Algorithm 1, 17-20)."""
-        disc = self.config.discriminator
-        stats: dict[str, float] = {}
-        names = ("motion", "interaction0", "interaction1")
-        for index, (name, d, opt, buffer, real, fake) in enumerate(
-            zip(
-                names,
-                self.discriminators,
-                self.d_optimisers,
-                self.buffers,
-                self.real,
-                fakes,
-                strict=True,
-            )
-        ):
-            buffer.add(fake)
-            pick = torch.randint(len(real), (len(fake),), generator=self.generator)
-            d.norm.update(torch.cat([real[pick], fake]))
-            for _ in range(disc.updates_per_iteration):
-                k = disc.samples_per_update
-                real_k = real[torch.randint(len(real), (k,), generator=self.generator)]
-                loss, s = discriminator_loss(
-                    d,
-                    real_k,
-                    buffer.sample(k, generator=self.generator),
-                    config=disc,
-                    generator=self.generator,
-                )
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-            stats[f"{name}_accuracy_real"] = s.accuracy_real
-            stats[f"{name}_accuracy_fake"] = s.accuracy_fake
-            stats[f"{name}_gradient_penalty"] = s.gradient_penalty
-            stats.update(self._judged(name, d, fake, index))
-        return stats
-
-    def _judged(self, name: str, d, fresh: Tensor, index: int) -> dict[str, float]:
-        """Discriminator ``d`` after its update, on what it did not train on: this iteration's
-        fresh policy samples (the updates drew theirs from the replay) and the held-out
-        demonstrations, where there are any. Accuracy as in training (logit < 0 for the
-        policy's, > 0 for the demonstrations'), and the mean D = sigmoid(logit), the
-        probability it gives of "real". No random number is drawn: a run's course is the same
-        with or without these."""
-        with torch.no_grad():
-            logits = d(fresh)
-            out = {
-                f"{name}_fresh_accuracy_fake": (logits < 0).float().mean().item(),
-                f"{name}_fresh_d": torch.sigmoid(logits).mean().item(),
-            }
-            held = self.held_out[index] if index < len(self.held_out) else None
-            if held is not None and len(held):
-                logits = d(held)
-                out[f"{name}_held_out_accuracy_real"] = (logits > 0).float().mean().item()
-                out[f"{name}_held_out_d"] = torch.sigmoid(logits).mean().item()
-        return out
 
     # ------------------------------------------------------------------ PPO
 
@@ -557,17 +368,8 @@ class Trainer:
         torch.set_num_threads(1)
         rollout = timed("collect_s", self.collect)
         torch.set_num_threads(self.env.config.threads)
-        if self.tracker is None:
-            inputs = self.discriminator_inputs(rollout)
-            terms = timed("rewards_s", self.rewards, rollout, inputs)
-            d_stats = timed("discriminators_s", self.update_discriminators, inputs)
-            w_m, w_i, w_c = reward_weights(self.config.reward, self.iteration)
-            objective = {"w_motion": w_m, "w_interaction": w_i, "w_control": w_c}
-        else:
-            assert rollout.reward is not None and rollout.reward_terms is not None
-            terms = {k: rollout.reward_terms[..., i] for i, k in enumerate(REWARD_TERMS)}
-            terms["total"] = rollout.reward
-            d_stats, objective = {}, self._tracking_metrics(rollout)
+        learned = self.objective.learn(rollout, self.iteration, timed)
+        terms = learned.rewards
         p_stats = timed("ppo_s", self.update_policy, rollout, terms["total"])
         steps = rollout.terminated.numel()  # environment steps (both agents move in each)
         seconds = sum(timings.values())
@@ -581,7 +383,7 @@ class Trainer:
         metrics = {
             **finished,
             **{f"reward_{k}": float(v.mean()) for k, v in terms.items()},
-            **d_stats,
+            **learned.stats,
             **p_stats,
             **timings,
             "env_steps_per_s": steps / seconds,
@@ -590,24 +392,10 @@ class Trainer:
             "episodes_ended": float((rollout.terminated | rollout.truncated).sum()),
             "episode_age_s": float(self.env.elapsed.mean()) / hz,
             "damage_received_n": float(rollout.damage.mean()),
-            **objective,
+            **learned.metrics,
         }
         self.iteration += 1
         return metrics
-
-    def _tracking_metrics(self, r: Rollout) -> dict[str, float]:
-        """A tracking rollout's mean body and root errors (cm, over its stable steps) and its
-        drift terminations (an agent's episode ended terminally without a fall) per minute."""
-        assert r.errors is not None and r.terminal is not None
-        errors = r.errors.reshape(-1, 2)
-        errors = errors[torch.isfinite(errors).all(-1)]
-        drifts = r.terminal & ~r.fell & ~r.unstable[..., None]
-        minutes = r.terminated.numel() / self.env.config.policy_hz / 60
-        return {
-            "body_error_cm": 100 * float(errors[:, 0].mean()) if len(errors) else math.nan,
-            "root_error_cm": 100 * float(errors[:, 1].mean()) if len(errors) else math.nan,
-            "drifts_per_min": float(drifts.sum()) / minutes,
-        }
 
     # ------------------------------------------------------------------ checkpoints
 
@@ -622,15 +410,13 @@ class Trainer:
                 "discriminators": [d.state_dict() for d in self.discriminators],
             },
             optimiser=self.optimiser.state_dict(),
-            d_optimisers=[o.state_dict() for o in self.d_optimisers],
-            buffers=[b.state() for b in self.buffers],
             torch_generator=self.generator.get_state(),
             torch_rng=torch.get_rng_state(),
             task_rng=self.task_rng.bit_generator.state,
             targets=self.targets.copy(),
             obs=self.obs.cpu().numpy().copy(),
             arena=self.env.state(),
-            tracker=None if self.tracker is None else self.tracker.state(),
+            **self.objective.state(),  # d_optimisers, buffers, tracker
         )
 
     def checkpoint(self) -> bytes:
@@ -695,15 +481,10 @@ class Trainer:
         for d, s in zip(self.discriminators, state.networks["discriminators"], strict=True):
             d.load_state_dict(s)
         self.optimiser.load_state_dict(state.optimiser)
-        for o, s in zip(self.d_optimisers, state.d_optimisers, strict=True):
-            o.load_state_dict(s)
-        for b, s in zip(self.buffers, state.buffers, strict=True):
-            b.load_state(s)
+        self.objective.load_state(vars(state))
         self.generator.set_state(state.torch_generator)
         torch.set_rng_state(state.torch_rng)
         self.task_rng.bit_generator.state = state.task_rng
         self.targets = state.targets.copy()
         self.env.load_state(state.arena)
         self.obs = self._tensor(state.obs)
-        if self.tracker is not None:
-            self.tracker.load_state(state.tracker)

@@ -33,8 +33,8 @@ from tasks.dataset.store import (
 from tasks.errors import BadInput
 from tasks.ingest.store import load_ingest
 from tasks.lift.store import load_motion
-from tasks.registry import DatasetInputs
 from tasks.runner import StagePlan
+from tasks.stage_inputs import DatasetInputs
 
 
 def dataset_plan(

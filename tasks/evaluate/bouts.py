@@ -1,4 +1,4 @@
-"""Evaluation bouts: a pair of policies acting on their mean in a batch of arenas, recorded.
+"""Evaluation bouts: a pair of controllers in a batch of arenas, recorded.
 
 MAAIP §5.3 evaluates over 32 randomly initialised episodes of 1200 frames; `simulate` runs such
 a batch in one `ArenaEnv` (the training environment, its physics, observations, damage and fall
@@ -8,8 +8,10 @@ interaction clips drawn with the seed, and runs `frames` policy steps unless a f
 blown-up simulation) ends it; an ended arena is left out of everything after. Training also
 starts from mid-motion frames with their velocities (reference state initialisation); an
 evaluation from those counted a frame the physics cannot hold (a lifted foot in the air, a
-lean) as the policy's fall, even for a fighter standing still in its guard. The actions are each
-policy's mean (no exploration noise), so a seed gives the same bouts every time.
+lean) as the policy's fall, even for a fighter standing still in its guard. Each fighter is any
+controller (`tasks.opponent.controller`: a trained policy acting on its mean, with no exploration
+noise, `tasks.opponent.maaip.TorchPolicy`; the still guard; a tracker playing a clip), reset at
+its arena's start, so a seed gives the same bouts every time.
 
 Shape letters: E episodes, T = frames, 2 agents, Q the arena's qpos size (both fighters).
 """
@@ -17,23 +19,19 @@ Shape letters: E episodes, T = frames, 2 agents, Q the arena's qpos size (both f
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
+from models.arena.config import EnvConfig
+from models.arena.env import ArenaEnv
+from models.arena.starts import ReferenceMotions
 from models.humanoid.boxer import BoneLengths
-from models.humanoid.kinematics import NUM_ACTUATED, joint_targets_to_action
-from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, block_slices
-from models.maaip.config import EnvConfig
-from models.maaip.demonstrations import ReferenceMotions
-from models.maaip.env import ArenaEnv
+from models.humanoid.kinematics import NUM_ACTUATED
+from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, BodyState, block_slices
 from models.maaip.losses import heading_reward
-from models.maaip.networks import Policy
-
-# An agent's policy: (B, 274) observations [and (B, 2) heading task inputs, or None] -> (B, 28).
-Actor = Callable[[np.ndarray, np.ndarray | None], np.ndarray]
+from tasks.opponent.controller import Controller, Seen
 
 _LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
 _ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 2)  # the pelvis's, on the floor
@@ -103,47 +101,31 @@ class Bouts:
         return self.qpos[episode, : self.frames[episode]]
 
 
-def torch_actor(policy: Policy, agent: int) -> Actor:
-    """Agent ``agent``'s deterministic policy: the mean action, from float32 inputs as in
-    training."""
-    if agent not in (0, 1):
-        raise ValueError(f"agent must be 0 or 1, got {agent!r}")
-
-    def act(observation: np.ndarray, task: np.ndarray | None) -> np.ndarray:
-        obs = torch.from_numpy(np.asarray(observation, dtype=np.float32))
-        given = None if task is None else torch.from_numpy(np.asarray(task, dtype=np.float32))
-        with torch.no_grad():
-            return policy(obs, agent, given).double().numpy()
-
-    return act
-
-
-def still_actor(hinges: np.ndarray) -> Actor:
-    """A fighter holding a pose and standing still, the baseline a trained policy must beat to
-    show it moves like the adversary rather than merely stays up: the PD targets of ``hinges``
-    (28,), e.g. its guard (`ReferenceMotions.stance`, a pose it holds unaided), whatever it
-    observes."""
-    hinges = np.asarray(hinges, dtype=np.float64)
-    if hinges.shape != (NUM_ACTUATED,) or not np.isfinite(hinges).all():
-        raise ValueError(f"hinges must be finite with shape ({NUM_ACTUATED},), got {hinges.shape}")
-    action = joint_targets_to_action(hinges)
-
-    def act(observation: np.ndarray, task: np.ndarray | None) -> np.ndarray:
-        return np.broadcast_to(action, (len(observation), NUM_ACTUATED)).copy()
-
-    return act
-
-
 def mujoco_stepping(env_config: EnvConfig) -> EnvConfig:
     """``env_config`` stepped by MuJoCo: a run trained on MuJoCo Warp is judged in the physics
-    its exported opponent spars in (`tasks.evaluate.spar`), with the default stepping."""
+    its exported opponent spars in (`tasks.opponent.spar`), with the default stepping."""
     if env_config.stepping != "warp":
         return env_config
     return replace(env_config, stepping=EnvConfig().stepping)
 
 
+def _seen(
+    live: np.ndarray, agent: int, bodies: BodyState, obs: np.ndarray, task: np.ndarray | None
+) -> Seen:
+    """What agent ``agent`` sees in arenas ``live`` of the batch's ``bodies`` (E, 2) and
+    observations ``obs`` (E, 2, 274)."""
+    return Seen(
+        arenas=live,
+        slot=agent,
+        bodies=bodies[live],
+        observation=obs[live, agent],
+        partner_observation=obs[live, 1 - agent],
+        task=task,
+    )
+
+
 def simulate(
-    actors: tuple[Actor, Actor],
+    controllers: tuple[Controller, Controller],
     *,
     reference: ReferenceMotions,
     bones: tuple[BoneLengths, BoneLengths],
@@ -156,7 +138,10 @@ def simulate(
     """Run ``episodes`` evaluation episodes of at most ``frames`` steps; see the module docstring.
 
     Args:
-        actors: agent 0's and agent 1's policies (e.g. `torch_actor`, an opponent's `act`).
+        controllers: agent 0's and agent 1's (e.g. `tasks.opponent.maaip.TorchPolicy`, an
+            opponent folder's `controller`, `tasks.opponent.still.StillGuard`), each reset at
+            the start; one that keeps something per episode (a tracker) must be a controller
+            of its own for each agent (`fresh`).
         reference: interaction frames whose placement the fighters start from, standing in
             their guard (`Demonstrations.reference`).
         bones: both fighters' bones, as trained.
@@ -191,17 +176,20 @@ def simulate(
         task_return = np.zeros((episodes, 2)) if heading is not None else None
         kept_obs, kept_tasks = [], []
         obs = env.reset(np.arange(episodes), reference, frames=starts)
+        bodies = env.body_states()
         for i, data in enumerate(env.datas):
             qpos[i, 0] = data.qpos
         length[:] = 1
         alive = np.ones(episodes, dtype=bool)
+        for agent, controller in enumerate(controllers):
+            controller.reset(_seen(np.arange(episodes), agent, bodies, obs, None))
         for t in range(frames):
             live = np.flatnonzero(alive)
             task = None if targets is None else env.heading_inputs(targets)
             actions = np.zeros((episodes, 2, NUM_ACTUATED))
-            for agent, actor in enumerate(actors):
+            for agent, controller in enumerate(controllers):
                 given = None if task is None else task[live, agent]
-                actions[live, agent] = actor(obs[live, agent], given)
+                actions[live, agent] = controller.act(_seen(live, agent, bodies, obs, given))
             if t % stride == 0:
                 kept_obs.append(obs[live].astype(np.float32))
                 if task is not None:
@@ -227,7 +215,7 @@ def simulate(
             fell[ended] = result.fell[ended]
             unstable[ended] = result.unstable[ended]
             alive[ended] = False
-            obs = result.observation
+            obs, bodies = result.observation, result.body
             if not alive.any():
                 break
     observations = np.concatenate(kept_obs) if kept_obs else np.zeros((0, 2, OBSERVATION_DIM))

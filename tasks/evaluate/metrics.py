@@ -53,9 +53,9 @@ import mujoco
 import numpy as np
 from scipy.stats import wasserstein_distance
 
+from models.arena.mjcf import DEFAULT_PREFIXES, arena_index
 from models.humanoid.boxer import DEFAULT_STATURE, BoneLengths
 from models.humanoid.compiled import keypoint_positions
-from models.maaip.arena import DEFAULT_PREFIXES, arena_index
 from models.pose.types import BLAZEPOSE_33
 from tasks.dataset.config import PunchConfig
 from tasks.dataset.labels import HANDS, KINDS, Punch, Step, label_punches, label_steps

@@ -17,7 +17,7 @@ same tables:
 4. Style and boxing metrics (`tasks.evaluate.metrics`) of four simulated fighters: the
    trained adversary ('adversary'), the untrained policy's agent 0 ('untrained'), the
    trained partner ('opponent') and agent 0 holding its guard pose, standing still
-   ('still', `still_actor`: the number a policy that only stays up would score), each
+   ('still', `StillGuard`: the number a policy that only stays up would score), each
    against the adversary's real statistics.
 5. The held-out two-sample classifier test (`tasks.evaluate.two_sample`), the headline "moves
    like the footage" figure: the AUC, with its bootstrap interval, of a fresh classifier telling
@@ -44,11 +44,11 @@ import mujoco
 import numpy as np
 import torch
 
+from models.arena.mjcf import arena_mjcf
+from models.arena.starts import ReferenceMotions
 from models.humanoid.kinematics import NUM_ACTUATED
-from models.maaip.arena import arena_mjcf
-from models.maaip.demonstrations import ReferenceMotions
 from models.maaip.networks import Policy, make_networks
-from models.maaip.tracking import play_clips
+from models.tracking.gate import play_clips
 from storage.artifacts import artifact_name
 from storage.db import connect
 from storage.files import scratch_dir
@@ -58,24 +58,10 @@ from tasks.dataset.config import DatasetConfig, PunchConfig
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import FootageClip, dataset_info, footage_clips
-from tasks.evaluate.bouts import (
-    Actor,
-    Bouts,
-    HeadingTask,
-    mujoco_stepping,
-    simulate,
-    still_actor,
-    torch_actor,
-)
+from tasks.evaluate.bouts import Bouts, HeadingTask, mujoco_stepping, simulate
 from tasks.evaluate.config import EvaluateConfig
-from tasks.evaluate.export import (
-    TrainedPolicy,
-    load_trained,
-    onnx_max_abs_diff,
-)
 from tasks.evaluate.metrics import boxing_metrics, label_fighter, style_rows, style_score
 from tasks.evaluate.motion_files import BOUTS, bouts_npz
-from tasks.evaluate.opponent import FILES, MANIFEST, load_opponent
 from tasks.evaluate.store import (
     DAMAGE_TASKS,
     STAGE,
@@ -100,10 +86,15 @@ from tasks.evaluate.two_sample import (
     telltales,
 )
 from tasks.media import render_bout
+from tasks.opponent.controller import Controller
+from tasks.opponent.export import TrainedPolicy, load_trained, onnx_max_abs_diff
+from tasks.opponent.folder import KINDS, MANIFEST, load_opponent
+from tasks.opponent.maaip import KIND, OnnxPolicy, TorchPolicy
+from tasks.opponent.still import StillGuard
 from tasks.runner import StageOutput
 from tasks.train.config import TrainConfig
 from tasks.train.store import tracker_run
-from tasks.train.tracking import paired_tracking
+from tasks.train.tracker import paired_tracking
 
 __all__ = ["STAGE", "EvaluateInputs", "evaluate", "load_inputs"]
 
@@ -199,20 +190,20 @@ def heading_task(config: TrainConfig) -> HeadingTask | None:
     return HeadingTask(target_speed=reward.heading_speed, scale=reward.heading_scale)
 
 
-def _agents(policy: Policy) -> tuple[Actor, Actor]:
+def _agents(policy: Policy) -> tuple[Controller, Controller]:
     """Both agents of ``policy``, acting with their mean actions."""
-    return torch_actor(policy, 0), torch_actor(policy, 1)
+    return TorchPolicy(policy, 0), TorchPolicy(policy, 1)
 
 
-def _still_pair(reference: ReferenceMotions) -> tuple[Actor, Actor]:
-    """Both fighters holding their stance, standing still (`still_actor`)."""
+def _still_pair(reference: ReferenceMotions) -> tuple[Controller, Controller]:
+    """Both fighters holding their stance, standing still (`StillGuard`)."""
     if reference.stance is None:
-        return still_actor(np.zeros(NUM_ACTUATED)), still_actor(np.zeros(NUM_ACTUATED))
-    return still_actor(reference.stance[0]), still_actor(reference.stance[1])
+        return StillGuard(np.zeros(NUM_ACTUATED)), StillGuard(np.zeros(NUM_ACTUATED))
+    return StillGuard(reference.stance[0]), StillGuard(reference.stance[1])
 
 
 def _bouts(
-    actors: tuple[Actor, Actor],
+    controllers: tuple[Controller, Controller],
     run: TrainedPolicy,
     reference: ReferenceMotions,
     *,
@@ -221,7 +212,7 @@ def _bouts(
     seed: int,
 ) -> Bouts:
     return simulate(
-        actors,
+        controllers,
         reference=reference,
         bones=run.bones,
         env_config=run.config.env,
@@ -251,10 +242,12 @@ def _export(run: TrainedPolicy, bouts: Bouts, folder: Path) -> tuple[float, dict
     """Export the adversary, check onnxruntime against torch on the bouts' observations of
     agent 0; (max abs difference, {name in the opponent folder: bytes})."""
     out = run.export(0, folder)
-    opponent = load_opponent(out)
+    exported = load_opponent(out).controller
+    assert isinstance(exported, OnnxPolicy)  # a MAAIP run exports MAAIP's kind
     tasks = None if bouts.tasks is None else bouts.tasks[:, 0]
-    diff = onnx_max_abs_diff(run.policy, 0, opponent, bouts.observations[:, 0], tasks)
-    return diff, {f"opponent/{name}": (out / name).read_bytes() for name in (*FILES, MANIFEST)}
+    diff = onnx_max_abs_diff(run.policy, 0, exported, bouts.observations[:, 0], tasks)
+    files = (*KINDS[KIND].files, MANIFEST)
+    return diff, {f"opponent/{name}": (out / name).read_bytes() for name in files}
 
 
 def _video(

@@ -20,19 +20,22 @@ from tasks.evaluate.store import (
     evaluation_tables,
     resolve_run,
 )
-from tasks.registry import NoInputs
 from tasks.runner import StagePlan, StageSpec
+from tasks.stage_inputs import NoInputs
 from tasks.train.store import RunInfo, dataset_tracker
 
 
 def evaluate_code() -> str:
     return code_version(
         "tasks.evaluate",
+        "tasks.opponent",  # the controllers its bouts run and the export
         "tasks.dataset",
         "tasks.train",  # its checkpoints' policies and its runs' SQL
         "tasks.media",
         "models.humanoid",
+        "models.arena",
         "models.maaip",
+        "models.tracking",
     )
 
 

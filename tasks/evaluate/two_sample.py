@@ -70,6 +70,7 @@ from scipy.optimize import minimize
 from scipy.signal import butter, sosfiltfilt
 from scipy.stats import rankdata
 
+from models.arena.mjcf import DEFAULT_PREFIXES
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.compiled import forward_kinematics_batch, humanoid_index
 from models.humanoid.kinematics import (
@@ -81,8 +82,7 @@ from models.humanoid.kinematics import (
     local_body_positions,
     to_heading_frame,
 )
-from models.maaip.arena import DEFAULT_PREFIXES
-from models.maaip.tracking import Played
+from models.tracking.gate import Played
 from tasks.evaluate.bouts import Bouts
 
 WINDOW_S = 1.0  # a window's length, and the stride between windows (no overlap)

@@ -13,8 +13,8 @@ from storage.records import register_video
 from tasks.ingest.config import IngestConfig, declare
 from tasks.ingest.probe import VideoFile, identify
 from tasks.ingest.stage import ingest_spec, ingest_video
-from tasks.registry import Declared
 from tasks.runner import StagePlan
+from tasks.stage_inputs import Declared
 
 
 @task(name="identify-video", cache_policy=NO_CACHE)

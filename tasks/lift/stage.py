@@ -62,7 +62,7 @@ STAGE = "lift"
 
 
 def lift_code() -> str:
-    return code_version("tasks.lift", "tasks.media", "models.humanoid", "models.maaip.arena")
+    return code_version("tasks.lift", "tasks.media", "models.humanoid", "models.arena.mjcf")
 
 
 def lift_spec(

@@ -14,8 +14,8 @@ from tasks.ingest.store import load_ingest
 from tasks.lift.config import LiftStageConfig
 from tasks.lift.stage import fighter_tracks, lift_output, lift_spec, lift_video
 from tasks.pose.store import fighter_keypoints
-from tasks.registry import LiftInputs
 from tasks.runner import StagePlan
+from tasks.stage_inputs import LiftInputs
 
 
 def lift_plan(

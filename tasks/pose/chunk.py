@@ -30,7 +30,7 @@ from scipy.optimize import linear_sum_assignment
 from models.pose.boxes import box_iou
 from models.pose.types import Detection, Detector, Pose, PoseEstimator
 from tasks.pose.config import PoseConfig
-from tasks.pose.tracking import DESCRIPTOR_SIZE, Observation, Tracker, appearance, one_body
+from tasks.pose.people_tracking import DESCRIPTOR_SIZE, Observation, Tracker, appearance, one_body
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,8 +1,8 @@
 """Choosing the two fighters among the tracks, joining a fighter's fragments, and telling which
 fighter is the adversary from the colour the analyst declared.
 
-All functions take the :class:`~tasks.pose.tracking.TrackSummary` list a tracker produced for one
-shot (or any span of frames) and are pure.
+All functions take the :class:`~tasks.pose.people_tracking.TrackSummary` list a tracker
+produced for one shot (or any span of frames) and are pure.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from tasks.pose.config import FighterConfig
-from tasks.pose.tracking import (
+from tasks.pose.people_tracking import (
     DESCRIPTOR_SIZE,
     HUE_BINS,
     MIN_SATURATION,
@@ -210,8 +210,8 @@ def link_fragments(
     widening linearly to ``far_distance`` at a gap of ``max_gap_frames``: someone unseen for a
     while may have gone further (jumped down from a box, run behind the others), where no
     velocity from before says. Among such candidates, ends are paired with starts by
-    :func:`~tasks.pose.tracking.hungarian` on ``alpha * distance / reach + (1 - alpha) * colour
-    distance``; chains of pieces become one track with the first piece's id.
+    :func:`~tasks.pose.people_tracking.hungarian` on ``alpha * distance / reach + (1 - alpha) *
+    colour distance``; chains of pieces become one track with the first piece's id.
 
     Returns:
         The tracks after joining, by id, and a mapping from every input id to its id after.

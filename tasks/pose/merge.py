@@ -13,7 +13,7 @@ import numpy as np
 
 from models.pose.boxes import box_iou
 from tasks.pose.chunk import ChunkTracks
-from tasks.pose.tracking import TrackSummary, box_to_cxcywh, hungarian
+from tasks.pose.people_tracking import TrackSummary, box_to_cxcywh, hungarian
 
 # Two tracks are one person if their boxes overlap this much, on average, in the shared frames.
 JOIN_IOU = 0.5

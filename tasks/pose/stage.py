@@ -35,9 +35,9 @@ from tasks.pose.fighters import (
 from tasks.pose.frames import read_frames
 from tasks.pose.merge import ChunkSpan, VideoTracks, merge_chunks, summaries
 from tasks.pose.overlay import draw_people, overlay_size
+from tasks.pose.people_tracking import colour_distance
 from tasks.pose.refine import flip_bones, flip_groups, flip_permutation, refine
 from tasks.pose.store import MediaRow, TrackRow
-from tasks.pose.tracking import colour_distance
 from tasks.roles import ROLES
 from tasks.runner import StageOutput, StageSpec
 

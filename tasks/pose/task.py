@@ -19,8 +19,8 @@ from tasks.pose.config import PoseConfig
 from tasks.pose.merge import ChunkSpan
 from tasks.pose.stage import assemble, chunk_key, model_files, plan_spans, pose_spec, process_chunk
 from tasks.pose.store import newest_pick
-from tasks.registry import PoseInputs
 from tasks.runner import StagePlan
+from tasks.stage_inputs import PoseInputs
 
 
 @task(

@@ -37,7 +37,7 @@ from tasks.train.store import (
     newest_checkpoint,
     record_checkpoint,
 )
-from tasks.train.tracking import clip_tracking, footage_tracking
+from tasks.train.tracker import clip_tracking, footage_tracking
 
 STAGE = "train"
 
@@ -114,7 +114,7 @@ def train(
 
     A tracker (objective 'track') trains on the dataset's footage clips and, once trained,
     tracks every clip of both splits: its ``train_tracking`` rows and ``track_*`` metrics
-    (`tasks.train.tracking`).
+    (`tasks.train.tracker`).
 
     A run with no checkpoint of its own starts from ``warm``'s networks when given
     (`tasks.train.store.warm_start_source`), or from tracker run ``teacher`` distilled into its

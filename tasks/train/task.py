@@ -11,8 +11,8 @@ from storage.keys import code_version
 from storage.paths import DataPaths
 from tasks.dataset.store import DatasetInfo, UnknownDataset, dataset_info
 from tasks.errors import BadInput
-from tasks.registry import NoInputs
 from tasks.runner import StagePlan, StageSpec
+from tasks.stage_inputs import NoInputs
 from tasks.train.config import TrainConfig
 from tasks.train.run import STAGE, train
 from tasks.train.store import RunInfo, dataset_tracker, warm_start_source
@@ -20,7 +20,13 @@ from tasks.train.store import RunInfo, dataset_tracker, warm_start_source
 
 def train_code() -> str:
     return code_version(
-        "tasks.train", "tasks.dataset", "tasks.deepmimic", "models.humanoid", "models.maaip"
+        "tasks.train",
+        "tasks.dataset",
+        "tasks.deepmimic",
+        "models.humanoid",
+        "models.arena",
+        "models.maaip",
+        "models.tracking",
     )
 
 

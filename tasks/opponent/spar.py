@@ -1,16 +1,19 @@
 """Sparring: an exported opponent against a second fighter in MuJoCo, with onnxruntime only.
 
-`spar` steps one arena of the training environment (`models.maaip.env.ArenaEnv`, the same
+`spar` steps one arena of the training environment (`models.arena.env.ArenaEnv`, the same
 physics, observations and fall rule the policy was trained with, read from the opponent's
-manifest) with the opponent in its own slot and the partner in the other. Both start standing
+manifest) with the opponent in its own slot and the partner in the other, each driven by its
+controller (`tasks.opponent.controller`: any kind of opponent folder), which is reset at every
+start. Both start standing
 in their guard (the manifest's `guard`, the pose the policy was trained to start from), 1.2 m
 apart and facing each other; a fall (or a blown-up simulation) restarts the bout from there and
 is counted. No torch is imported on this path, so an engine
 with numpy, MuJoCo and onnxruntime can run it.
 
-Partners (`Partner`): another opponent folder (e.g. the opponent's trained partner,
-`ringside export --agent opponent`), or "still", a boxer that holds its guard (the opponent's
-trained partner's, on its bones: every PD target at that pose), the simplest scripted boxer.
+Partners: another opponent folder of any kind (e.g. the opponent's trained partner, `ringside
+export --agent opponent`), or None, "still", a boxer that holds its guard (the opponent's
+trained partner's, on its bones: every PD target at that pose, `tasks.opponent.still`), the
+simplest scripted boxer.
 
 Offscreen rendering (`tasks.media`: MuJoCo's renderer through EGL, into an H.264 MP4 that
 browsers play) shows the bout from the arena's "side" camera.
@@ -25,31 +28,51 @@ from pathlib import Path
 
 import numpy as np
 
-from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV, joint_targets_to_action
-from models.maaip.config import EnvConfig
-from models.maaip.demonstrations import ReferenceMotions
-from models.maaip.env import ArenaEnv, standing_like
-from tasks.evaluate.opponent import Opponent
+from models.arena.config import EnvConfig
+from models.arena.env import ArenaEnv
+from models.arena.starts import ReferenceMotions, standing_like
+from models.humanoid.boxer import BoneLengths
+from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV
+from models.humanoid.observations import BodyState
 from tasks.media import open_video, render_frame
+from tasks.opponent.controller import Controller, Seen
+from tasks.opponent.folder import Opponent
+from tasks.opponent.still import StillGuard
 
 STILL = "still"
 
 
-@dataclass(frozen=True)
-class Partner:
-    """The second fighter: an opponent folder's policy, or None for the still boxer."""
+def partner_name(partner: Opponent | None) -> str:
+    """The partner as the reports name it: its folder, or "still"."""
+    return STILL if partner is None else str(partner.folder)
 
-    opponent: Opponent | None = None
 
-    @property
-    def name(self) -> str:
-        return STILL if self.opponent is None else str(self.opponent.folder)
+def seen(obs: np.ndarray, bodies: BodyState, slot: int) -> Seen:
+    """What the fighter in ``slot`` of a single arena sees of its observations ``obs``
+    (1, 2, 274) and bodies (1, 2)."""
+    return Seen(
+        arenas=np.zeros(1, dtype=int),
+        slot=slot,
+        bodies=bodies,
+        observation=obs[:, slot],
+        partner_observation=obs[:, 1 - slot],
+    )
 
-    def act(self, observation: np.ndarray, guard: np.ndarray) -> np.ndarray:
-        """Its actions; the still boxer holds ``guard`` (28,) hinge angles."""
-        if self.opponent is None:
-            return np.broadcast_to(joint_targets_to_action(guard), (len(observation), NUM_ACTUATED))
-        return self.opponent.act(observation)
+
+def fighters(
+    opponent: Opponent, partner: Opponent | None
+) -> tuple[tuple[Controller, Controller], list[BoneLengths], np.ndarray]:
+    """The controllers in the opponent's slot and the other, both fighters' bones by slot and
+    their guards (2, 28) by slot: the partner's from its own folder, the still boxer's the
+    opponent's trained partner's."""
+    slot = opponent.agent
+    bones = list(opponent.bones)
+    guards = opponent.guard.copy()
+    if partner is not None:
+        bones[1 - slot] = partner.bones[partner.agent]
+        guards[1 - slot] = partner.guard[partner.agent]
+    other = StillGuard(guards[1 - slot]) if partner is None else partner.controller.fresh()
+    return (opponent.controller.fresh(), other), bones, guards
 
 
 @dataclass(frozen=True)
@@ -98,7 +121,7 @@ def standing_start(env: ArenaEnv, guards: np.ndarray) -> ReferenceMotions:
 
 def spar(
     opponent: Opponent,
-    partner: Partner,
+    partner: Opponent | None,
     *,
     seconds: float = 60.0,
     video: Path | None = None,
@@ -110,7 +133,8 @@ def spar(
 
     Args:
         opponent: the exported fighter, in its own slot (its manifest's agent).
-        partner: the fighter in the other slot.
+        partner: the fighter in the other slot: an opponent folder, or None for the still
+            boxer.
         seconds: simulated length of the bout.
         video: an MP4 to render the bout to (30 frames per simulated second), or None.
         size: the video's width and height in pixels.
@@ -121,11 +145,7 @@ def spar(
         raise ValueError(f"seconds must be positive, got {seconds!r}")
     config = env_config(opponent)
     slot = opponent.agent
-    bones = list(opponent.bones)
-    guards = opponent.guard.copy()
-    if partner.opponent is not None:
-        bones[1 - slot] = partner.opponent.bones[partner.opponent.agent]
-        guards[1 - slot] = partner.opponent.guard[partner.opponent.agent]
+    (mine, theirs), bones, guards = fighters(opponent, partner)
     env = ArenaEnv(config, np.random.default_rng(0), (bones[0], bones[1]))
     start_pose = standing_start(env, guards)
     steps = max(1, round(seconds * config.policy_hz))
@@ -136,13 +156,21 @@ def spar(
     spent = {"policy": 0.0, "physics": 0.0, "render": 0.0}
     frames = 0
     begin = time.perf_counter()
-    try:
+
+    def start() -> tuple[np.ndarray, BodyState]:
         obs = env.reset([0], start_pose)
+        bodies = env.body_states(np.zeros(1, dtype=int))
+        mine.reset(seen(obs, bodies, slot))
+        theirs.reset(seen(obs, bodies, 1 - slot))
+        return obs, bodies
+
+    try:
+        obs, bodies = start()
         for step in range(steps):
             tick = time.perf_counter()
             actions = np.empty((1, 2, NUM_ACTUATED))
-            actions[0, slot] = opponent.act(obs[:, slot])[0]
-            actions[0, 1 - slot] = partner.act(obs[:, 1 - slot], guards[1 - slot])[0]
+            actions[0, slot] = mine.act(seen(obs, bodies, slot))[0]
+            actions[0, 1 - slot] = theirs.act(seen(obs, bodies, 1 - slot))[0]
             spent["policy"] += time.perf_counter() - tick
             tick = time.perf_counter()
             result = env.step(actions)
@@ -153,13 +181,13 @@ def spar(
                 render_frame(renderer, writer, env.datas[0])
                 frames += 1
                 spent["render"] += time.perf_counter() - tick
-            obs = result.observation
+            obs, bodies = result.observation, result.body
             if result.done[0]:
                 fell = result.fell[0]
                 falls[0] += int(fell[slot])
                 falls[1] += int(fell[1 - slot])
                 unstable += int(result.unstable[0])
-                obs = env.reset([0], start_pose)
+                obs, bodies = start()
             if progress is not None:
                 progress((step + 1) / config.policy_hz)
             if pace:

@@ -1,4 +1,6 @@
-"""Export a trained fighter as an opponent folder (`tasks.evaluate.opponent` says what is in it).
+"""Export a trained fighter as an opponent folder of its kind (`tasks.opponent.folder` says what
+is in it): MAAIP's policy (`export_opponent`) or the motion tracker's with the clip it plays
+(`export_tracker`).
 
 The policy goes to ONNX with torch's TorchScript-based exporter (`dynamo=False`: the newer
 exporter needs the onnxscript package, which nothing else here uses), as the normaliser and
@@ -21,21 +23,25 @@ import numpy as np
 import torch
 from torch import nn
 
+from models.arena.config import EnvConfig
+from models.arena.mjcf import arena_mjcf
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
-from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT, action_to_joint_targets
+from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT, NQ, action_to_joint_targets
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
-from models.maaip.arena import arena_mjcf
-from models.maaip.config import EnvConfig
 from models.maaip.networks import Policy
 from models.maaip.trainer import checkpoint_policy
+from models.tracking.task import TRACK_OBSERVATION_DIM
 from storage.artifacts import read_bytes
 from storage.db import connect
 from storage.records import output_metrics
 from tasks.config import build
-from tasks.evaluate.opponent import FILES, FORMAT, MANIFEST, Opponent
-from tasks.evaluate.store import resolve_run
+from tasks.deepmimic import CLIPS, WALKER_CLIPS, clip_path, load_deepmimic, retarget
+from tasks.errors import BadInput
+from tasks.opponent import maaip, tracker
+from tasks.opponent.folder import FORMAT, KINDS, MANIFEST
+from tasks.opponent.maaip import OnnxPolicy
 from tasks.train.config import TrainConfig
-from tasks.train.store import RunInfo
+from tasks.train.store import RunInfo, finished_runs
 
 ONNX_OPSET = 17
 
@@ -52,15 +58,36 @@ class TrainedPolicy:
     bones: tuple[BoneLengths, BoneLengths]
     metrics: dict[str, float]
 
-    def export(self, agent: int, out: Path) -> Path:
-        """One of its fighters as an opponent folder (`export_opponent`), the manifest naming
-        the dataset, the run, its iteration and metrics."""
+    @property
+    def kind(self) -> str:
+        """The kind of opponent folder it exports as."""
+        return tracker.KIND if self.config.objective == "track" else maaip.KIND
+
+    def export(self, agent: int, out: Path, clip: tuple[str, np.ndarray] | None = None) -> Path:
+        """One of its fighters as an opponent folder, the manifest naming the dataset, the run,
+        its iteration and metrics: MAAIP's (`export_opponent`), or a tracker's playing
+        ``clip`` (its name and qpos (T, 35) on that fighter's bones at the policy's rate,
+        `export_tracker`)."""
         facts = {
             "dataset_key": self.dataset_key,
             "run_key": self.run_key,
             "iteration": self.iteration,
             "metrics": self.metrics,
         }
+        if self.kind == tracker.KIND:
+            if clip is None:
+                raise ValueError(f"run {self.run_key[:12]} is a tracker: give the clip it plays")
+            return export_tracker(
+                out,
+                policy=self.policy,
+                agent=agent,
+                bones=self.bones,
+                env=self.config.env,
+                clip=clip,
+                facts=facts,
+            )
+        if clip is not None:
+            raise ValueError(f"run {self.run_key[:12]} is MAAIP's: it plays no clip")
         return export_opponent(
             out,
             policy=self.policy,
@@ -72,17 +99,22 @@ class TrainedPolicy:
 
 
 def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
-    """The policy a finished training run committed (`train_policies`); ``run`` may be a
-    prefix of the run key. BadInput if it matches no finished run or several."""
+    """The policy a finished training run (MAAIP's or a tracker's) committed
+    (`train_policies`); ``run`` may be a prefix of the run key. BadInput if it matches no
+    finished run or several."""
     with connect(db, read_only=True) as con:
-        info = resolve_run(con, run)
+        found = finished_runs(con, "p.key LIKE ? || '%'", [run])
+        if len(found) != 1:
+            problem = "matches no finished training run" if not found else "matches several runs"
+            raise BadInput(f"--run {run}", f"{problem}; see `ringside metrics --stage train`")
+        info = found[0]
         metrics = output_metrics(con, "train", info.dataset_key, info.run_key)
     return load_trained(artifacts, info, metrics)
 
 
 def load_trained(artifacts: Path, info: RunInfo, metrics: dict[str, float]) -> TrainedPolicy:
     """The policy of run ``info`` from its artifact, in eval mode (a tracker's sees the
-    tracker's observation, `models.maaip.tracking`)."""
+    tracker's observation, `models.tracking.task`)."""
     config = build(TrainConfig, info.config, section="train")
     policy, bones = checkpoint_policy(read_bytes(artifacts, info.artifact), config)
     return TrainedPolicy(
@@ -149,6 +181,8 @@ def export_opponent(
     """
     if agent not in (0, 1):
         raise ValueError(f"agent must be 0 or 1, got {agent!r}")
+    if policy.obs_dim != OBSERVATION_DIM:
+        raise ValueError(f"policy: MAAIP's takes {OBSERVATION_DIM} inputs, got {policy.obs_dim}")
     files = {
         "policy.onnx": policy_onnx(policy, agent),
         "humanoid.xml": boxer_mjcf(bones[agent]).encode(),
@@ -156,6 +190,7 @@ def export_opponent(
     }
     manifest = {
         "format": FORMAT,
+        "kind": maaip.KIND,
         "agent": agent,
         "role": "adversary" if agent == 0 else "opponent",
         **facts,
@@ -171,13 +206,101 @@ def export_opponent(
             "opponent_blocks": [list(b) for b in OPPONENT_BLOCKS],
             "frame": "the agent's heading frame (MAAIP §4.2); see models/humanoid/observations.py",
         },
-        "action": {
-            "size": len(HINGE_NAMES),
-            "joints": [{"name": j.name, "dofs": j.dofs} for j in JOINT_LAYOUT],
-            "meaning": "PD targets: exponential maps for 3-DoF joints, angles for hinges",
-            "actuators": list(HINGE_NAMES),
+        "action": _action_layout(),
+        "files": _digests(files, maaip.KIND),
+    }
+    files[MANIFEST] = (json.dumps(manifest, indent=2) + "\n").encode()
+    return write_folder(Path(out), files)
+
+
+def _digests(files: Mapping[str, bytes], kind: str) -> dict[str, str]:
+    return {name: hashlib.sha256(files[name]).hexdigest() for name in KINDS[kind].files}
+
+
+def _action_layout() -> dict:
+    return {
+        "size": len(HINGE_NAMES),
+        "joints": [{"name": j.name, "dofs": j.dofs} for j in JOINT_LAYOUT],
+        "meaning": "PD targets: exponential maps for 3-DoF joints, angles for hinges",
+        "actuators": list(HINGE_NAMES),
+    }
+
+
+def deepmimic_clip(assets: Path, name: str, bones: BoneLengths, *, fps: float) -> np.ndarray:
+    """DeepMimic's clip ``name`` (`tasks.deepmimic`: CLIPS or WALKER_CLIPS) retargeted onto
+    ``bones`` at ``fps``: the qpos (T, 35) a tracker folder plays (`ringside export --clip`)."""
+    if name not in (*CLIPS, *WALKER_CLIPS):
+        raise BadInput(f"--clip {name}", f"not one of DeepMimic's clips {CLIPS + WALKER_CLIPS}")
+    return retarget(load_deepmimic(clip_path(assets, name)), bones, fps=fps)
+
+
+def export_tracker(
+    out: Path,
+    *,
+    policy: Policy,
+    agent: int,
+    bones: tuple[BoneLengths, BoneLengths],
+    env: EnvConfig,
+    clip: tuple[str, np.ndarray],
+    facts: dict,
+    guard: np.ndarray | None = None,
+) -> Path:
+    """Write the tracker's opponent folder ``out`` (replacing one that is there) and return it:
+    its policy playing ``clip`` (`tasks.opponent.tracker`).
+
+    Args:
+        out: the folder to write.
+        policy: the trained tracker's policy (451 inputs, `models.tracking.task`).
+        agent: which of its agents to export (its arena slot).
+        bones: both fighters' bones (agent 0's, agent 1's).
+        env: the environment it was trained in (rates, fall rule); the clip is at its rate.
+        clip: the clip's name and qpos (T, 35), on ``bones[agent]``, at ``env.policy_hz``.
+        facts: extra manifest entries (keys of the dataset and run, metrics).
+        guard: (2, 28) where a bout starts each fighter; by default the clip's first frame's
+            hinges for the tracker (its replay starts there) and the rest pose for its partner.
+    """
+    if agent not in (0, 1):
+        raise ValueError(f"agent must be 0 or 1, got {agent!r}")
+    if policy.obs_dim != TRACK_OBSERVATION_DIM or policy.task_dim:
+        raise ValueError(
+            f"policy: a tracker's takes {TRACK_OBSERVATION_DIM} inputs and no task, got "
+            f"{policy.obs_dim} and {policy.task_dim}"
+        )
+    name, qpos = clip
+    qpos = np.asarray(qpos, dtype=np.float64)
+    if qpos.ndim != 2 or qpos.shape[1] != NQ or len(qpos) < 2 or not np.isfinite(qpos).all():
+        raise ValueError(f"clip {name!r}: qpos must be finite, (T >= 2, {NQ}), got {qpos.shape}")
+    if guard is None:
+        guard = np.zeros((2, len(HINGE_NAMES)))
+        guard[agent] = qpos[0, 7:]
+    clip_bytes = io.BytesIO()
+    np.savez(clip_bytes, **tracker.clip_file(name, qpos, env.policy_hz))
+    files = {
+        "policy.onnx": policy_onnx(policy, agent),
+        tracker.CLIP: clip_bytes.getvalue(),
+        "humanoid.xml": boxer_mjcf(bones[agent]).encode(),
+        "arena.xml": arena_mjcf(bones, timestep=env.timestep).encode(),
+    }
+    manifest = {
+        "format": FORMAT,
+        "kind": tracker.KIND,
+        "agent": agent,
+        "role": "adversary" if agent == 0 else "opponent",
+        **facts,
+        "bones": [asdict(b) for b in bones],
+        "guard": np.asarray(guard, dtype=np.float64).tolist(),
+        "env": asdict(env),
+        "observation": {
+            "size": TRACK_OBSERVATION_DIM,
+            "frame": "o^self, then the next clip frame's (tracking_input); see "
+            "models/tracking/task.py",
         },
-        "files": {name: hashlib.sha256(files[name]).hexdigest() for name in FILES},
+        "action": {
+            **_action_layout(),
+            "meaning": "a correction added to the clip's next frame's PD targets (DReCon)",
+        },
+        "clip": {"name": name, "frames": len(qpos), "fps": env.policy_hz, "file": tracker.CLIP},
+        "files": _digests(files, tracker.KIND),
     }
     files[MANIFEST] = (json.dumps(manifest, indent=2) + "\n").encode()
     return write_folder(Path(out), files)
@@ -207,7 +330,7 @@ def stored_opponent(artifacts: Path, stored: Mapping[str, str], out: Path) -> Pa
         for name, artifact in stored.items()
         if name.startswith(prefix)
     }
-    missing = sorted(set((*FILES, MANIFEST)) - set(files))
+    missing = sorted(set((*KINDS[maaip.KIND].files, MANIFEST)) - set(files))
     if missing:
         raise ValueError(f"the evaluation stored no {', '.join(missing)} of its opponent")
     return write_folder(out, files)
@@ -216,16 +339,17 @@ def stored_opponent(artifacts: Path, stored: Mapping[str, str], out: Path) -> Pa
 def onnx_max_abs_diff(
     policy: Policy,
     agent: int,
-    opponent: Opponent,
+    exported: OnnxPolicy,
     observations: np.ndarray,
     task: np.ndarray | None = None,
 ) -> float:
     """The largest difference between torch's and onnxruntime's actions on observations
-    (B, 274) of the agent [and its heading inputs (B, 2)] (the export's parity check)."""
+    (B, 274) of the agent [and its heading inputs (B, 2)] (the export's parity check of an
+    exported MAAIP policy, ``exported``)."""
     obs = np.asarray(observations, dtype=np.float32)
     given = None if task is None else np.asarray(task, dtype=np.float32)
     with torch.no_grad():
         expected = _Acting(policy, agent)(
             torch.from_numpy(obs), None if given is None else torch.from_numpy(given)
         ).numpy()
-    return float(np.abs(opponent.act(obs, given) - expected).max())
+    return float(np.abs(exported.actions(obs, given) - expected).max())

@@ -1,4 +1,4 @@
-"""The train stage's tracker (train.objective 'track', `models.maaip.tracking`): a dataset's
+"""The train stage's tracker (train.objective 'track', `models.tracking`): a dataset's
 footage as the clips to track, and what the trained tracker makes of each clip.
 
 Agent 0 tracks the adversary's footage, agent 1 the opponent's at the same steps
@@ -20,7 +20,8 @@ import duckdb
 
 from models.humanoid.boxer import BoneLengths
 from models.maaip.networks import Policy
-from models.maaip.tracking import GateRow, TrackingData, gate_of, play_clips, tracking_data
+from models.tracking.clips import TrackingData, tracking_data
+from models.tracking.gate import GateRow, gate_of, play_clips
 from tasks.dataset.store import FootageClip, dataset_info, footage_clips, training_bones
 from tasks.errors import BadInput
 from tasks.roles import ROLES

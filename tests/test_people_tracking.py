@@ -1,4 +1,4 @@
-"""Tests for tasks.pose.tracking: assignment against brute force, the box Kalman filter, the
+"""Tests for tasks.pose.people_tracking: assignment against brute force, the box Kalman filter, the
 clothing-colour descriptor, and the tracker on synthetic scenes drawn with OpenCV (so colour is
 measured from real pixels) whose true identities are known."""
 
@@ -13,7 +13,7 @@ import pytest
 
 from tasks.pose.config import TrackerConfig
 from tasks.pose.fighters import link_fragments
-from tasks.pose.tracking import (
+from tasks.pose.people_tracking import (
     DESCRIPTOR_SIZE,
     BoxKalman,
     Observation,

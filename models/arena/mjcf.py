@@ -2,8 +2,8 @@
 
 `arena_mjcf` puts two `boxer_mjcf` fighters, agent 0 and agent 1, on a floor under a light,
 facing each other across the origin, with two cameras for rendering. `arena_index` finds what
-the training environment needs in the compiled model: each fighter's `HumanoidIndex`, its
-actuators, its damage targets and its strikers.
+the training environment (`models.arena.env`) needs in the compiled model: each fighter's
+`HumanoidIndex`, its actuators, its damage targets and its strikers.
 
 Design decisions:
 - Collision bits as `models.humanoid.boxer` prescribes: agent 0's geoms have contype 1 and

@@ -1,4 +1,5 @@
-"""The arena's physics on MuJoCo Warp: every environment a world of one batched simulation.
+"""Stepping "warp": the arena's physics on MuJoCo Warp, every environment a world of one batched
+simulation.
 
 `EnvConfig.stepping = "warp"`. MuJoCo Warp (`mujoco-warp`, Google DeepMind and NVIDIA) reads the
 same MJCF as MuJoCo and steps thousands of worlds in one batch on an NVIDIA GPU; it also runs on
@@ -23,15 +24,30 @@ goes up before the device moves again.
 Contacts come from the arena's contact sensors (`arena_mjcf(contact_sensors=True)`), as with
 "rollout". MuJoCo's automatic reset is not in Warp; Warp never resets a world on its own, so an
 unstable world is caught by the arena's own finiteness test as before.
+
+`WarpPhysics` is the device layer (the worlds on Warp's arrays, as torch views); `WarpStepping`
+is the arena's stepping on it, which keeps the host's copies (`HostWorlds`) in step with the
+device: what the host set since the device last moved goes up before it moves again, and the
+MjData and the host's bodies come down only when read (`sync`).
 """
 
 from __future__ import annotations
 
 import copy
 import functools
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
+from array_api_compat import array_namespace
+
+from models.arena.config import EnvConfig
+from models.arena.contacts import sensor_contacts
+from models.arena.mjcf import NUM_AGENTS
+from models.arena.puppet import NEEDS_THREADS, Puppet, PuppetPaths
+from models.arena.starts import bottoms
+from models.arena.stepping.host import HostWorlds
+from models.humanoid.kinematics import ROOT_QUAT
 
 # The state that decides the next step, as `mujoco.mj_step` reads it (mjSTATE_INTEGRATION less
 # what the arena never sets: applied forces, mocap, equality switches).
@@ -132,7 +148,7 @@ class WarpPhysics:
 
     def refresh(self, *, velocities: bool = True) -> None:
         """Every world's kinematics at its positions (and, with ``velocities``, the bodies'
-        velocities too), as the arena's `_refresh` computes them on the CPU."""
+        velocities too), as `models.arena.stepping.host.refresh` computes them on the CPU."""
         wp, mjw = _warp()
         with wp.ScopedDevice(self.device):
             mjw.kinematics(self._model, self._data)
@@ -165,7 +181,7 @@ class WarpPhysics:
             raise WarpOverflow(
                 f"MuJoCo Warp ran out of room in world {world} "
                 f"({self._names(int(overflow[world])).name}): raise CONTACTS_PER_WORLD or "
-                f"ROWS_PER_WORLD in models/maaip/warp_physics.py"
+                f"ROWS_PER_WORLD in models/arena/stepping/warp.py"
             )
         return torch.stack(sensors, dim=1)
 
@@ -205,3 +221,117 @@ class WarpPhysics:
             ],
             dim=-1,
         )
+
+
+class WarpStepping:
+    """The arena's worlds on MuJoCo Warp (`models.arena.stepping.Stepping`; module docstring).
+
+    Attributes:
+        physics: the worlds on the device.
+        worlds: the host's copies: the MjData, and the bodies the observations read.
+    """
+
+    def __init__(self, worlds: HostWorlds, config: EnvConfig, device: str = "cpu"):
+        self.worlds = worlds
+        self.model = worlds.model
+        self.config = config
+        # The device holds the truth and the host a copy: the environments set on the host
+        # since the device last moved (to go up before it moves again), and whether the MjData
+        # and the host's frames, head heights and stability are behind it.
+        self._dirty = np.ones(config.num_envs, dtype=bool)
+        self._stale = False
+        self.physics = WarpPhysics(self.model, config.num_envs, warp_device(device))
+        self._measured: tuple | None = None
+
+    def close(self) -> None:
+        pass
+
+    def sync(self) -> None:
+        """The worlds' state into the MjData, and what the observations and the fall rule read
+        into the host's frames, head heights and stability."""
+        if not self._stale:
+            return
+        worlds = self.worlds
+        self.physics.download(worlds.datas)
+        frames, head_z, stable = self.measured()
+        worlds.frames[:] = frames.cpu().numpy()
+        worlds.head_z[:] = head_z.cpu().numpy()
+        worlds.stable[:] = stable.cpu().numpy()
+        self._stale = False
+
+    def written(self, ids: np.ndarray | slice) -> None:
+        self._dirty[ids] = True
+        self._stale = False
+
+    def _upload_dirty(self) -> None:
+        """The environments set on the host since the device last moved go up before it moves
+        again (a step or a start, which compute their kinematics there)."""
+        if self._dirty.any():
+            self.physics.upload(np.flatnonzero(self._dirty), self.worlds.datas)
+            self._dirty[:] = False
+
+    def measured(self) -> tuple:
+        """(N, nbody, 21) body frames, (N, 2) head heights and (N,) stability of every world as
+        the device last left them, torch tensors there (read once per move)."""
+        if self._measured is None:
+            head_z = self.physics.view("geom_xpos")[:, self.worlds.index.head_geoms.tolist(), 2]
+            self._measured = self.physics.frames(), head_z, self.physics.stable()
+        return self._measured
+
+    def physics_array(self, actions):
+        import torch
+
+        return torch.as_tensor(actions).to(self.physics.torch_device, torch.float64)
+
+    def root_quats(self):
+        self._upload_dirty()
+        qpos = self.physics.view("qpos").double()
+        rows = [qpos[:, a.qpos][:, ROOT_QUAT] for a in self.worlds.index.agents]
+        return array_namespace(qpos).stack(rows, axis=1)
+
+    def puppet_paths(self, puppet: Puppet) -> PuppetPaths:
+        raise ValueError(NEEDS_THREADS)
+
+    def start(
+        self,
+        ids: np.ndarray,
+        qpos: np.ndarray,
+        qvel: np.ndarray,
+        ground: Sequence[np.ndarray] | None,
+    ):
+        """The starts go up as they are and are grounded there (``ground``: each agent's geoms,
+        or None); the started worlds' frames (n, nbody, 21), on the device."""
+        warp, model, agents = self.physics, self.model, self.worlds.index.agents
+        self._upload_dirty()
+        full_q = np.tile(model.qpos0, (len(ids), 1))
+        full_v = np.zeros((len(ids), model.nv))
+        for a, agent in enumerate(agents):
+            full_q[:, agent.qpos] = qpos[:, a]
+            full_v[:, agent.qvel] = qvel[:, a]
+        import torch
+
+        rows = torch.as_tensor(ids, device=warp.torch_device)
+        warp.start(rows, *(torch.as_tensor(x, device=rows.device) for x in (full_q, full_v)))
+        if ground:
+            warp.refresh(velocities=False)
+            xpos, xmat = warp.view("geom_xpos")[rows], warp.view("geom_xmat")[rows]
+            lows = [
+                bottoms(model, geoms, xpos[:, geoms.tolist()], xmat[:, geoms.tolist()])
+                for geoms in ground
+            ]
+            for agent, low in zip(agents, lows, strict=True):
+                warp.view("qpos")[rows, agent.qpos_start + 2] -= low.amin(dim=1)
+        warp.refresh()
+        self._measured, self._stale = None, True
+        return self.measured()[0][rows]
+
+    def advance(self, ctrl, *, contacts: bool, paths: PuppetPaths | None = None):
+        self._upload_dirty()
+        sensordata = self.physics.advance(ctrl, self.config.substeps)
+        self._measured, self._stale = None, True
+        if not contacts:
+            n = self.config.num_envs
+            return np.zeros((n, NUM_AGENTS)), np.zeros((n, NUM_AGENTS), dtype=bool)
+        sensors = self.worlds.index.sensors
+        assert sensors is not None
+        return sensor_contacts(sensordata, sensors)

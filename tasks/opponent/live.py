@@ -1,13 +1,14 @@
 """A live bout: an exported opponent against a partner the client moves, one policy step at a time.
 
-`LiveBout` is one arena of the opponent's training environment (as `tasks.evaluate.spar`), with
-the opponent driven by its ONNX policy and the partner a puppet (`models.maaip.env.Puppet`)
-moved by the client, two ways (docs/spar-protocol.md):
+`LiveBout` is one arena of the opponent's training environment (as `tasks.opponent.spar`), with
+the opponent driven by its controller (`tasks.opponent.controller`: any kind of opponent folder,
+given the bodies and observations each step and reset at each of its starts) and the partner a
+puppet (`models.arena.puppet.Puppet`) moved by the client, two ways (docs/spar-protocol.md):
 - "commands": the partner's pelvis follows a heading and a speed: it turns towards the heading
   at most `MAX_TURN_RATE` and glides at the speed, its height and tilt as it started. Its limbs
   hold its guard, or, given a partner policy (another opponent folder, e.g. the run's other
-  fighter), are driven by that policy through the actuators as in training, with the commanded
-  heading as its task input where it was trained for MAAIP's heading task (§5.4).
+  fighter), are driven by that folder's controller through the actuators as in training, with
+  the commanded heading as its task input where it was trained for MAAIP's heading task (§5.4).
 - "poses": the partner takes each pose (the humanoid's qpos) the client sends, moving to it over
   one step; a pose further than `TELEPORT_M` from the last is a jump, taken with zero velocity.
 
@@ -32,6 +33,8 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from models.arena.env import ArenaEnv
+from models.arena.puppet import Puppet
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths
 from models.humanoid.kinematics import (
     BODY_NAMES,
@@ -42,9 +45,10 @@ from models.humanoid.kinematics import (
     heading_yaw,
     wrap_angle,
 )
-from models.maaip.env import ArenaEnv, Puppet
-from tasks.evaluate.opponent import Opponent
-from tasks.evaluate.spar import env_config, standing_start
+from models.humanoid.observations import BodyState
+from tasks.opponent.controller import Seen
+from tasks.opponent.folder import Opponent
+from tasks.opponent.spar import env_config, standing_start
 
 MODES = ("commands", "poses")
 MAX_SPEED = 2.0  # m/s: a boxer's footwork; faster is running, not sparring
@@ -102,11 +106,14 @@ class LiveBout:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         self.opponent = opponent
+        # Its own controllers: what one keeps of its episodes is this bout's alone.
+        self.controller = opponent.controller.fresh()
         self.mode = mode
         self.slot = opponent.agent
         self.partner_slot = 1 - self.slot
         # The partner's policy drives its limbs in commands mode only: poses set all of it.
         self.partner = partner if mode == "commands" else None
+        self.partner_controller = None if self.partner is None else self.partner.controller.fresh()
         bones = list(opponent.bones)
         guards = opponent.guard.copy()
         if partner is not None:
@@ -200,6 +207,8 @@ class LiveBout:
     def _restart(self) -> None:
         """The bout's start: both standing in their guards, 1.2 m apart."""
         self._obs = self.env.reset([0], self.start)
+        self._bodies = self._body_states()
+        self._reset_controllers(both=True)
         data = self.env.datas[0]
         self._start_opponent = data.qpos[self.env.index.agents[self.slot].qpos].copy()
         self._start_partner = self._partner_qpos()
@@ -225,6 +234,29 @@ class LiveBout:
             scalar_first=True
         )
         self._obs = self.env.place(0, self.slot, q)[None]
+        self._bodies = self._body_states()
+        self._reset_controllers(both=False)
+
+    def _body_states(self) -> BodyState:
+        return self.env.body_states(np.zeros(1, dtype=int))
+
+    def _seen(self, slot: int, task: np.ndarray | None = None) -> Seen:
+        """What the fighter in ``slot`` sees now."""
+        return Seen(
+            arenas=np.zeros(1, dtype=int),
+            slot=slot,
+            bodies=self._bodies,
+            observation=self._obs[:, slot],
+            partner_observation=self._obs[:, 1 - slot],
+            task=task,
+        )
+
+    def _reset_controllers(self, *, both: bool) -> None:
+        """The opponent's controller (and, at the bout's start, the partner's) starts an
+        episode: the opponent was just put in its start."""
+        self.controller.reset(self._seen(self.slot))
+        if both and self.partner_controller is not None:
+            self.partner_controller.reset(self._seen(self.partner_slot))
 
     def _steered(self, dt: float) -> np.ndarray:
         """The partner's next pose in commands mode."""
@@ -254,19 +286,18 @@ class LiveBout:
             self.env.place(0, self.partner_slot, target, ground=False)
             self._restart_opponent()
         actions = np.zeros((1, 2, NUM_ACTUATED))
-        actions[0, self.slot] = self.opponent.act(self._obs[:, self.slot])[0]
-        if self.partner is not None:
+        actions[0, self.slot] = self.controller.act(self._seen(self.slot))[0]
+        if self.partner is not None and self.partner_controller is not None:
             task = None
             if self.partner.task_dim:
                 targets = np.full((1, 2), self._heading_target)
                 task = self.env.heading_inputs(targets)[:, self.partner_slot]
-            actions[0, self.partner_slot] = self.partner.act(self._obs[:, self.partner_slot], task)[
-                0
-            ]
+            seen = self._seen(self.partner_slot, task)
+            actions[0, self.partner_slot] = self.partner_controller.act(seen)[0]
         puppet = Puppet(self.partner_slot, target[None], root_only=self.partner is not None)
         result = self.env.step(actions, puppet)
         self._partner = self._partner_qpos()
-        self._obs = result.observation
+        self._obs, self._bodies = result.observation, result.body
         self.steps += 1
         fell = result.fell[0]
         for slot in (0, 1):
