@@ -51,7 +51,7 @@ test: $(STAMP) browser postgres lint
 	$(BIN)/python -m pytest -n 2 --dist loadfile
 
 # The tests too long for `make test` and CI: SIGKILL at 20 random moments of a pipeline run
-# (tests/test_kills.py, about 16 minutes) and two pipeline workers (tests/test_workers.py).
+# (tests/test_kills.py) and two pipeline workers (tests/test_workers.py).
 test-slow: $(STAMP) postgres
 	$(BIN)/ringside assets pull --dev
 	$(BIN)/python -m pytest -m slow -s

@@ -1,7 +1,7 @@
 """SIGKILL at 20 random moments of `ringside process`, each time in a fresh data directory; then
 see what is left (tests/kill_rounds.py says what must hold: among others, no process below it
-alive 30 s after the kill). About 20 minutes on 2 cores, so it is marked ``slow``: `make test`
-leaves it out (it would take CI's whole budget) and `make test-slow` runs it;
+alive 30 s after the kill). Too long for `make test` and CI, it is marked ``slow``: `make test`
+leaves it out and `make test-slow` runs it;
 `benchmarks/kill_runs.py` runs the same rounds and SIGTERM ones too, and reports them.
 """
 

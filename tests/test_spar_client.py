@@ -152,8 +152,11 @@ def test_the_sample_partner_streamed_live_and_the_answer_read_back(
     assert facts["answer_bones_from"] == "welcome"
     assert facts["round_trip_ms"]["n"] >= frames - 2
     assert 0 < facts["round_trip_ms"]["p50"] < 200
-    assert 0 <= facts["late_share"] <= 1
-    assert facts["falls"]["opponent"] >= 0 and facts["facing"]["states"] == facts["states_received"]
+    assert facts["late_share"] == round(facts["late_states"] / facts["states_received"], 4)
+    assert facts["facing"]["states"] == facts["states_received"]
+    # Each fall of the opponent restarts it (a state marked `reset`); the partner, a puppet on
+    # its footage, never touches the floor. Measured: no fall, no restart.
+    assert facts["falls"]["partner"] == 0 and facts["falls"]["opponent"] <= facts["resets"]
     # By default the motion starts where the server put the partner, facing the opponent.
     assert np.hypot(*facts["placement"]["offset"]) > 0.3
     assert str(done.stdout).startswith(f"{facts['states_received']} states")

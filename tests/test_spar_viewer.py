@@ -75,6 +75,41 @@ def _bodies(state: dict, role: str) -> np.ndarray:
     return np.array([pose[:3] for pose in fighter["bodies"].values()])
 
 
+# The viewer's camera (flows/spar_viewer/viewer.js): a 45-degree vertical field of view from
+# CAMERA_OFFSET (three.js's y-up frame, metres) off the point 0.3 m above the fighters' pelvis
+# midpoint, looking at it; the page moves it with that point and nothing else moves it here.
+CAMERA_FOV_DEG = 45.0
+CAMERA_OFFSET = np.array([1.6, 1.4, 4.6])
+
+
+def _pixel(point: np.ndarray, pelvises: np.ndarray, size: tuple[int, int]) -> tuple[int, int]:
+    """Where the viewer draws MuJoCo's world point ``point`` (3,) with the pelvises (2, 3) as
+    they are, on a canvas ``size`` (width, height): (column, row)."""
+
+    def three(p: np.ndarray) -> np.ndarray:  # MuJoCo's z-up to three.js's y-up
+        return np.array([p[0], p[2], -p[1]])
+
+    target = three(pelvises.mean(axis=0)) + [0.0, 0.3, 0.0]
+    eye = target + CAMERA_OFFSET
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    seen = three(point) - eye
+    width, height = size
+    half = math.tan(math.radians(CAMERA_FOV_DEG) / 2) * (seen @ forward)
+    x, y = (seen @ right) / (half * width / height), (seen @ up) / half
+    return round((x + 1) / 2 * width), round((1 - y) / 2 * height)
+
+
+def _share(pixels: np.ndarray, colour: tuple[float, ...]) -> float:
+    """The share of ``pixels`` (n, 3 RGB) whose strongest channel is ``colour``'s (RGB), 1.5
+    times any other (the background, the floor and the skin are greys and a pale pink)."""
+    strongest = int(np.argmax(colour))
+    others = np.delete(pixels, strongest, axis=1).max(axis=1)
+    return float(np.mean(pixels[:, strongest] > 1.5 * others))
+
+
 def drive_viewer(url: str, screenshot: Path) -> dict[str, float]:
     """Open the viewer at ``url`` (its ``?token=`` included), check it draws and steers;
     what it measured."""
@@ -186,9 +221,27 @@ def drive_viewer(url: str, screenshot: Path) -> dict[str, float]:
             assert abs(_wrap(settled - heading + TURN)) < HEADING_TOLERANCE, "turned by 90 deg"
 
             screenshot.parent.mkdir(parents=True, exist_ok=True)
+            shown = page.evaluate("() => window.spar.last")
             png = page.screenshot(path=str(screenshot))
-            picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
-            assert picture.std() > 10, "the screenshot is one flat colour: nothing was drawn"
+            picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+            # Each fighter's colour (its trunks', its pelvis's geoms') round where its pelvis
+            # projects, and none of the other's: in the 15 x 15 pixels there, measured 32 % for
+            # the opponent, its forearm across its trunks, and 100 % for the partner.
+            welcome = page.evaluate("() => window.spar.welcome")
+            pelvis = welcome["bodies"].index("pelvis")
+            colours = {
+                f["role"]: {tuple(g["rgba"][:3]) for g in f["geoms"] if g["body"] == pelvis}.pop()
+                for f in welcome["fighters"]
+            }
+            assert len({int(np.argmax(c)) for c in colours.values()}) == 2, colours
+            at = {f["role"]: np.array(f["bodies"]["pelvis"][:3]) for f in shown["fighters"]}
+            for role, point in at.items():
+                column, row = _pixel(point, np.stack(list(at.values())), picture.shape[1::-1])
+                patch = picture[row - 7 : row + 8, column - 7 : column + 8].reshape(-1, 3)
+                share = {who: _share(patch, colour) for who, colour in colours.items()}
+                measured[f"{role}_colour_share"] = share[role]
+                others = [s for who, s in share.items() if who != role]
+                assert share[role] > 0.2 and max(others) == 0, (role, column, row, share)
 
             status = page.inner_text("#status")
             assert status.startswith("connected"), status

@@ -341,3 +341,12 @@ def test_the_evaluation_replays_the_held_out_clips_with_the_datasets_tracker(mad
         assert reason is None and 0.0 <= auc <= 1.0
     else:
         assert auc is None and reason.startswith(f"the replay gives {simulated} window")
+    # The still guard told apart from the held-out footage (walks and punches) by the stage:
+    # measured AUC 1.0 (its interval 1.0-1.0), the footage's 5 windows against its 8.
+    (still,) = query(
+        data,
+        "SELECT auc, auc_low, real_windows, simulated_windows FROM evaluate_classifier "
+        "WHERE key = ? AND policy = 'still'",
+        [after["key"]],
+    )
+    assert still[0] >= 0.95 and still[1] >= 0.95 and still[2:] == (held_out, 8), still
