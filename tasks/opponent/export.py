@@ -183,34 +183,65 @@ def export_opponent(
         raise ValueError(f"agent must be 0 or 1, got {agent!r}")
     if policy.obs_dim != OBSERVATION_DIM:
         raise ValueError(f"policy: MAAIP's takes {OBSERVATION_DIM} inputs, got {policy.obs_dim}")
-    files = {
-        "policy.onnx": policy_onnx(policy, agent),
-        "humanoid.xml": boxer_mjcf(bones[agent]).encode(),
-        "arena.xml": arena_mjcf(bones, timestep=env.timestep).encode(),
-    }
-    manifest = {
-        "format": FORMAT,
-        "kind": maaip.KIND,
-        "agent": agent,
-        "role": "adversary" if agent == 0 else "opponent",
-        **facts,
-        "bones": [asdict(b) for b in bones],
+    return _write_folder(
+        Path(out),
+        maaip.KIND,
+        policy=policy,
+        agent=agent,
+        bones=bones,
+        env=env,
+        facts=facts,
         # The pose each fighter's mean starts from (`Policy.offset`): where a bout starts.
-        "guard": action_to_joint_targets(
-            policy.offset[:, : len(HINGE_NAMES)].double().numpy()
-        ).tolist(),
-        "env": asdict(env),
-        "observation": {
+        guard=action_to_joint_targets(policy.offset[:, : len(HINGE_NAMES)].double().numpy()),
+        observation={
             "size": OBSERVATION_DIM,
             "self_blocks": [list(b) for b in SELF_BLOCKS],
             "opponent_blocks": [list(b) for b in OPPONENT_BLOCKS],
             "frame": "the agent's heading frame (MAAIP §4.2); see models/humanoid/observations.py",
         },
-        "action": _action_layout(),
-        "files": _digests(files, maaip.KIND),
+        action=_action_layout(),
+    )
+
+
+def _write_folder(
+    out: Path,
+    kind: str,
+    *,
+    policy: Policy,
+    agent: int,
+    bones: tuple[BoneLengths, BoneLengths],
+    env: EnvConfig,
+    facts: dict,
+    guard: np.ndarray,
+    observation: dict,
+    action: dict,
+    extra_files: Mapping[str, bytes] | None = None,
+    extra: Mapping[str, object] | None = None,
+) -> Path:
+    """The folder of one fighter of ``kind``: its policy, the kind's ``extra_files``, the
+    humanoid, the arena and the manifest (``extra`` entries before its digests)."""
+    files = {
+        "policy.onnx": policy_onnx(policy, agent),
+        **(extra_files or {}),
+        "humanoid.xml": boxer_mjcf(bones[agent]).encode(),
+        "arena.xml": arena_mjcf(bones, timestep=env.timestep).encode(),
+    }
+    manifest = {
+        "format": FORMAT,
+        "kind": kind,
+        "agent": agent,
+        "role": "adversary" if agent == 0 else "opponent",
+        **facts,
+        "bones": [asdict(b) for b in bones],
+        "guard": np.asarray(guard, dtype=np.float64).tolist(),
+        "env": asdict(env),
+        "observation": observation,
+        "action": action,
+        **(extra or {}),
+        "files": _digests(files, kind),
     }
     files[MANIFEST] = (json.dumps(manifest, indent=2) + "\n").encode()
-    return write_folder(Path(out), files)
+    return write_folder(out, files)
 
 
 def _digests(files: Mapping[str, bytes], kind: str) -> dict[str, str]:
@@ -275,35 +306,29 @@ def export_tracker(
         guard[agent] = qpos[0, 7:]
     clip_bytes = io.BytesIO()
     np.savez(clip_bytes, **tracker.clip_file(name, qpos, env.policy_hz))
-    files = {
-        "policy.onnx": policy_onnx(policy, agent),
-        tracker.CLIP: clip_bytes.getvalue(),
-        "humanoid.xml": boxer_mjcf(bones[agent]).encode(),
-        "arena.xml": arena_mjcf(bones, timestep=env.timestep).encode(),
-    }
-    manifest = {
-        "format": FORMAT,
-        "kind": tracker.KIND,
-        "agent": agent,
-        "role": "adversary" if agent == 0 else "opponent",
-        **facts,
-        "bones": [asdict(b) for b in bones],
-        "guard": np.asarray(guard, dtype=np.float64).tolist(),
-        "env": asdict(env),
-        "observation": {
+    return _write_folder(
+        Path(out),
+        tracker.KIND,
+        policy=policy,
+        agent=agent,
+        bones=bones,
+        env=env,
+        facts=facts,
+        guard=guard,
+        observation={
             "size": TRACK_OBSERVATION_DIM,
             "frame": "o^self, then the next clip frame's (tracking_input); see "
             "models/tracking/task.py",
         },
-        "action": {
+        action={
             **_action_layout(),
             "meaning": "a correction added to the clip's next frame's PD targets (DReCon)",
         },
-        "clip": {"name": name, "frames": len(qpos), "fps": env.policy_hz, "file": tracker.CLIP},
-        "files": _digests(files, tracker.KIND),
-    }
-    files[MANIFEST] = (json.dumps(manifest, indent=2) + "\n").encode()
-    return write_folder(Path(out), files)
+        extra_files={tracker.CLIP: clip_bytes.getvalue()},
+        extra={
+            "clip": {"name": name, "frames": len(qpos), "fps": env.policy_hz, "file": tracker.CLIP}
+        },
+    )
 
 
 def write_folder(out: Path, files: Mapping[str, bytes]) -> Path:
