@@ -271,14 +271,12 @@ def _walk_seconds(walk: np.ndarray, count: int, seed: int) -> list[FootageClip]:
     return found
 
 
-def test_the_stage_on_held_out_footage_gives_known_answers(
-    sample_run, run_key, assets, monkeypatch
-):
+def test_the_stage_on_held_out_footage_gives_known_answers(sample_run, run_key, assets):
     """The sample holds no footage out, so the two-sample test's AUC branch runs here: the
-    stage on the sample's run, its held-out footage 60 seconds of DeepMimic's walk. The
-    adversary's windows replaced by 60 more seconds of the walk (the footage against itself)
-    score test_two_sample's walk against walk exactly, 0.59 (0.49-0.69), near 0.5; the still
-    guard's bouts, as the stage simulates them, are told apart (AUC >= 0.95)."""
+    stage on the sample's run, its held-out footage 60 seconds of DeepMimic's walk. The still
+    guard's bouts, as the stage simulates them, are told apart (AUC >= 0.95); the stage's own
+    two-sample step given 60 more seconds of the walk (the footage against itself) scores
+    test_two_sample's walk against walk exactly, 0.59 (0.49-0.69), near 0.5."""
     import tasks.evaluate.stage as stage
     from tasks import deepmimic
     from tasks.evaluate.config import EvaluateConfig
@@ -286,19 +284,6 @@ def test_the_stage_on_held_out_footage_gives_known_answers(
 
     walk = deepmimic.retarget(deepmimic.load_deepmimic(deepmimic.clip_path(assets, "walk")))
     heldout = tuple(_walk_seconds(walk, 60, seed=1))
-    same = footage_windows(
-        [(c.qpos, c.other_qpos, c.bones) for c in _walk_seconds(walk, 60, 2)], 30
-    )
-    bout_windows = stage.bout_windows
-    # The stage asks for the adversary's windows first (TWO_SAMPLE_POLICIES' order).
-    asked = []
-
-    def windows(model, bouts, agent):
-        asked.append(agent)
-        return same if len(asked) == 1 else bout_windows(model, bouts, agent)
-
-    assert TWO_SAMPLE_POLICIES[0] == "adversary"
-    monkeypatch.setattr(stage, "bout_windows", windows)
     paths = data_paths(sample_run)
     inputs = dataclasses.replace(
         stage.load_inputs(paths.db, paths.artifacts, run_key), heldout=heldout
@@ -306,12 +291,21 @@ def test_the_stage_on_held_out_footage_gives_known_answers(
     config = EvaluateConfig(episodes=4, episode_frames=60, video_seconds=0)
     out = stage.evaluate(inputs, config)
     rows = {r.policy: r for r in out.rows["evaluate_classifier"]}
-    itself, still = rows["adversary"], rows["still"]
+    still = rows["still"]
+    assert (still.real_windows, still.simulated_windows) == (60, 8)
+    assert still.auc >= 0.95 and still.auc_low >= 0.9, still
+    assert out.metrics["two_sample_auc_still"] == still.auc
+    assert out.metrics["two_sample_auc"] == rows["adversary"].auc
+    assert rows["replay"].reason == NO_TRACKER and "two_sample_gap_closed" not in out.metrics
+
     real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], 30)
-    assert (itself.real_windows, itself.simulated_windows, still.simulated_windows) == (60, 60, 8)
+    same = footage_windows(
+        [(c.qpos, c.other_qpos, c.bones) for c in _walk_seconds(walk, 60, 2)], 30
+    )
+    (itself,), metrics = stage.two_sample_rows(
+        heldout, {"adversary": same}, fps=30.0, seed=config.seed
+    )
+    assert (itself.real_windows, itself.simulated_windows) == (60, 60)
     assert itself.auc == classifier_test(real, same, seed=config.seed).auc
     assert abs(itself.auc - 0.5) < 0.15 and itself.auc_low < 0.5 < itself.auc_high
-    assert still.auc >= 0.95 and still.auc_low >= 0.9, still
-    assert out.metrics["two_sample_auc"] == itself.auc
-    assert out.metrics["two_sample_auc_still"] == still.auc
-    assert rows["replay"].reason == NO_TRACKER and "two_sample_gap_closed" not in out.metrics
+    assert metrics["two_sample_auc"] == itself.auc

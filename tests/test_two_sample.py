@@ -18,7 +18,7 @@ from models.humanoid.stance import guard_pose
 from tasks import deepmimic
 from tasks.dataset.store import FootageClip
 from tasks.evaluate.bouts import Bouts
-from tasks.evaluate.stage import NO_TRACKER, TWO_SAMPLE_POLICIES, _two_sample
+from tasks.evaluate.stage import NO_TRACKER, TWO_SAMPLE_POLICIES, two_sample_rows
 from tasks.evaluate.two_sample import (
     FEATURES,
     FOLDS,
@@ -313,7 +313,7 @@ def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
         "still": np.zeros((20, 120)),
         "replay": NO_TRACKER,
     }
-    rows, metrics = _two_sample(heldout, simulated, fps=FPS, seed=0)
+    rows, metrics = two_sample_rows(heldout, simulated, fps=FPS, seed=0)
     by_policy = {row.policy: row for row in rows}
     assert list(by_policy) == [*TWO_SAMPLE_POLICIES, "replay"]
     adversary = by_policy["adversary"]
@@ -341,7 +341,7 @@ def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
     real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], FPS)
     close = np.concatenate([real] * 4) * rng.normal(1.0, 0.01, size=(20, real.shape[1]))
     replayed = {**simulated, "replay": close}
-    rows, metrics = _two_sample(heldout, replayed, fps=FPS, seed=0)
+    rows, metrics = two_sample_rows(heldout, replayed, fps=FPS, seed=0)
     replay = {row.policy: row for row in rows}["replay"]
     assert replay.reason is None and replay.simulated_windows == 20
     assert metrics["two_sample_auc_replay"] == replay.auc
@@ -350,12 +350,12 @@ def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
         gap_closed(metrics["two_sample_auc"], metrics["two_sample_auc_still"], replay.auc)
     )
     few = {**simulated, "replay": np.zeros((4, 120))}
-    rows, _ = _two_sample(heldout, few, fps=FPS, seed=0)
+    rows, _ = two_sample_rows(heldout, few, fps=FPS, seed=0)
     assert rows[-1].reason == "the replay gives 4 windows of 1 s; the test needs 5"
 
-    rows, metrics = _two_sample((), simulated, fps=FPS, seed=0)
+    rows, metrics = two_sample_rows((), simulated, fps=FPS, seed=0)
     assert metrics == {} and all(row.auc is None for row in rows)
     assert rows[0].reason.startswith("no held-out footage")
     short = (FootageClip("video", walk, np.tile(walk[0], (len(walk), 1)), BONES),)
-    rows, _ = _two_sample(short, simulated, fps=FPS, seed=0)
+    rows, _ = two_sample_rows(short, simulated, fps=FPS, seed=0)
     assert rows[0].reason == "the held-out footage gives 1 window of 1 s; the test needs 5"

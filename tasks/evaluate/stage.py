@@ -282,7 +282,7 @@ def _replay(tracker: TrainedPolicy, heldout: tuple[FootageClip, ...]) -> np.ndar
     return replay_windows(played, hz)
 
 
-def _two_sample(
+def two_sample_rows(
     heldout: tuple[FootageClip, ...],
     simulated: dict[str, np.ndarray | str],
     *,
@@ -383,7 +383,7 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
     simulated["replay"] = (
         NO_TRACKER if inputs.tracker is None else _replay(inputs.tracker, inputs.heldout)
     )
-    two_sample, two_sample_metrics = _two_sample(
+    two_sample, two_sample_metrics = two_sample_rows(
         inputs.heldout, simulated, fps=bouts["trained"].policy_hz, seed=config.seed
     )
     notes = []
