@@ -156,15 +156,17 @@ def test_poses_move_the_partner_into_contact_with_the_opponent(server):
     assert sum(bool(s["contacts"]) for s in seen) > 0
     # A step's damage is the contact force on the opponent's head, torso and pelvis summed over
     # its substeps: at least what the last substep's contacts there carry (a state's
-    # `contacts`, to 0.1 N), and nothing where neither it nor the step before touched them.
+    # `contacts`, to 0.1 N). (No upper bound from the states: a contact may start and end
+    # between two of them, within a step's first substeps, and carry damage no state shows.)
     # Measured: hands and thighs touched for 7 steps without damage, then the opponent's head
     # met the partner's forearm (1,003 N over 3 steps).
     targets = ("head", "torso", "pelvis")
-    for before, now in zip(seen[:-1], seen[1:], strict=True):
+    struck = [s for s in seen if any(c[0] in targets for c in s["contacts"])]
+    assert struck, "the partner never touched the opponent's head, torso or pelvis"
+    for now in seen:
         damage = now["fighters"][0]["damage_n"]
         assert damage >= sum(f for mine, _, f in now["contacts"] if mine in targets) - 0.1, now
-        if not any(c[0] in targets for c in before["contacts"] + now["contacts"]):
-            assert damage == 0, (before, now)
+    assert sum(s["fighters"][0]["damage_n"] for s in struck) > 0
 
 
 @pytest.mark.parametrize(
