@@ -63,6 +63,8 @@ def main() -> None:
         ]
     )
     st.sidebar.caption(f"Data: `{paths.root}`")
+    if paths.lake is not None:
+        st.sidebar.caption(f"Results: `{paths.lake}`")
     # Pages read the database on each render; the button is one without touching a widget.
     st.sidebar.button("Reload", help="Read the database again")
     page.run()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,5 +84,13 @@ def load_config(path: Path | None = None, overrides: list[str] | None = None) ->
 def flow_inputs(data_root: str, config: dict | None) -> tuple[DataPaths, PipelineConfig]:
     """A flow's parameters turned back into what the code below takes: the data directory's
     paths and the checked settings. Prefect's parameters are JSON, so a flow is given the
-    directory as a string and the settings as tables; every flow crosses back here, once."""
-    return data_paths(data_root), from_tables(config or {})
+    directory as a string and the settings as tables; every flow crosses back here, once.
+
+    With the results in a lake, a run on a worker of another machine keeps that machine's own
+    data directory (its claims, temporary files, Prefect home: `RINGSIDE_DATA` of the process,
+    which `ringside worker --data DIR` sets), not the scheduler's path, which may not exist
+    there; what the machines share is the lake and its shared folder."""
+    paths = data_paths(data_root)
+    if paths.lake is not None and os.environ.get("RINGSIDE_DATA"):
+        paths = data_paths(os.environ["RINGSIDE_DATA"])
+    return paths, from_tables(config or {})

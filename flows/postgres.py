@@ -17,14 +17,17 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from flows.serve import port_free
+from storage.paths import LAKE_PREFIX
 from storage.records import process_alive
 
 # Not 5432, the port of a system PostgreSQL (Debian's own cluster) where there is one.
 DEFAULT_PORT = 5433
 
-# The cluster's superuser, and the database Prefect's server keeps its runs in.
+# The cluster's superuser, the database Prefect's server keeps its runs in, and the one that
+# holds Ringside's DuckLake catalog (`--results`).
 USER = "ringside"
 DATABASE = "prefect"
+CATALOG = "ringside"
 
 # UTF-8 with the C locale: valid whatever this machine's locale (a locale's own encoding must
 # match the cluster's); Prefect needs no language's sort order.
@@ -43,6 +46,11 @@ def connection_url(port: int) -> str:
     return f"postgresql+asyncpg://{USER}@127.0.0.1:{port}/{DATABASE}"
 
 
+def results_setting(port: int) -> str:
+    """The ``--results`` of the DuckLake catalog in the cluster on ``port``."""
+    return f"{LAKE_PREFIX}dbname={CATALOG} host=127.0.0.1 port={port} user={USER}"
+
+
 def running_port(folder: Path) -> int | None:
     """The port of the cluster in ``folder`` while its server runs, else None."""
     try:
@@ -56,9 +64,9 @@ def running_port(folder: Path) -> int | None:
 
 
 def start(folder: Path, port: int = DEFAULT_PORT) -> tuple[int, bool]:
-    """Start the cluster in ``folder`` on 127.0.0.1:``port``, made the first time, with an empty
-    database `prefect`; (the port it runs on, whether it was running already: then it is left
-    on the port it has)."""
+    """Start the cluster in ``folder`` on 127.0.0.1:``port``, made the first time, with empty
+    databases `prefect` and `ringside`; (the port it runs on, whether it was running already:
+    then it is left on the port it has)."""
     if not 0 < port < 65536:
         raise ValueError(f"--port must be between 1 and 65535, got {port}")
     running = running_port(folder)
@@ -145,11 +153,12 @@ def _make_folder(folder: Path, run_as: list[str]) -> None:
 
 
 def _create_database(programs: Path, port: int) -> None:
-    """The database `prefect`, unless a start before this one made it."""
+    """The databases `prefect` and `ringside` (the catalog), unless a start before made them."""
     where = ["-h", "127.0.0.1", "-p", str(port), "-U", USER]
-    query = f"SELECT 1 FROM pg_database WHERE datname = '{DATABASE}'"
-    if not _run(programs / "psql", "-X", *where, "-d", "postgres", "-Atc", query).strip():
-        _run(programs / "createdb", *where, DATABASE)
+    for name in (DATABASE, CATALOG):
+        query = f"SELECT 1 FROM pg_database WHERE datname = '{name}'"
+        if not _run(programs / "psql", "-X", *where, "-d", "postgres", "-Atc", query).strip():
+            _run(programs / "createdb", *where, name)
 
 
 def _run(program: Path, *args: str | Path, run_as: Sequence[str] = ()) -> str:

@@ -12,7 +12,7 @@ from prefect import get_run_logger
 from prefect.artifacts import create_table_artifact
 from prefect.runtime import flow_run
 
-from storage.claims import claimed
+from storage.claims import output_claimed
 from storage.db import connect
 from storage.paths import DataPaths
 from storage.records import record_run, stale_runs
@@ -73,7 +73,7 @@ def reuse_or_run(paths: DataPaths, plan: StagePlan, force: bool) -> tuple[StageR
             f"{holder}: waiting for it"
         )
 
-    with claimed(paths.claims, spec.stage, spec.subject, key, waiting) as waited:
+    with output_claimed(paths, spec.stage, spec.subject, key, waiting) as waited:
         if waited:
             result = committed(paths.db, spec.stage, spec.subject, key)
         if result is None:

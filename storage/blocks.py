@@ -5,7 +5,8 @@ reads (free blocks, metadata not loaded) goes unseen by reading the tables. This
 block instead.
 
 The layout, as DuckDB's `SingleFileBlockManager` writes it (storage versions 64-68, those of
-1.0 to 1.5, and 999, duckdb 2.0.0's own; each checked on a file duckdb 2.0.0 wrote with it):
+1.0 to 1.5, and 999, duckdb 2.0.0's own; checked on files of duckdb 1.4.4, which Ringside
+pins and which writes 64, and of 2.0.0, which it pinned before):
 
 - bytes 0-4095: the main header: an 8-byte checksum of its other 4088 bytes, "DUCK", the
   storage version (uint64), 4 flags (uint64; bit 0 of the first: encrypted), ...;
@@ -37,7 +38,7 @@ HEADERS = 3  # the main header, then the two database headers
 CHECKSUM_FACTOR = np.uint64(0xBF58476D1CE4E5B9)
 CHECKSUM_SEED = np.uint64(5381)
 MAGIC = b"DUCK"
-# The storage versions whose layout is the one above; 999 is what duckdb 2.0.0 writes.
+# The storage versions whose layout is the one above; 1.4.4 writes 64, 2.0.0 999.
 KNOWN_VERSIONS = frozenset({64, 65, 66, 67, 68, 999})
 ENCRYPTED_FLAG = 1
 DEFAULT_BLOCK_SIZE = 262144

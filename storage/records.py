@@ -15,7 +15,7 @@ from typing import Any
 import duckdb
 import numpy as np
 
-from storage.db import transaction, utcnow
+from storage.db import transact, utcnow
 from storage.keys import stable_json
 
 RUN_STATES = ("running", "done", "cached", "failed")
@@ -38,11 +38,20 @@ class OutputRecord:
 def register_video(con: duckdb.DuckDBPyConnection, video_id: str, size_bytes: int, path: str):
     """Record a video and the path it came from; registering it again changes nothing."""
     now = utcnow()
+    # Not ON CONFLICT: a lake's tables have no primary key to conflict on.
+    transact(con, lambda con: _register(con, video_id, size_bytes, path, now))
+
+
+def _register(con: duckdb.DuckDBPyConnection, video_id: str, size_bytes: int, path: str, now):
     con.execute(
-        "INSERT INTO videos VALUES (?, ?, ?) ON CONFLICT DO NOTHING", [video_id, size_bytes, now]
+        "INSERT INTO videos SELECT $1, $2, $3 "
+        "WHERE NOT EXISTS (SELECT 1 FROM videos WHERE video_id = $1)",
+        [video_id, size_bytes, now],
     )
     con.execute(
-        "INSERT INTO video_files VALUES (?, ?, ?) ON CONFLICT DO NOTHING", [video_id, path, now]
+        "INSERT INTO video_files SELECT $1, $2, $3 "
+        "WHERE NOT EXISTS (SELECT 1 FROM video_files WHERE video_id = $1 AND path = $2)",
+        [video_id, path, now],
     )
 
 
@@ -68,11 +77,25 @@ def insert_records(
     """Insert one row per record (a dataclass instance), each field into the column of its
     name, with ``key`` and ``video_id`` filled in."""
     names = [f.name for f in dataclasses.fields(records[0])]
-    marks = ", ".join("?" * (len(names) + 2))
-    con.executemany(
-        f"INSERT INTO {table} (key, video_id, {', '.join(names)}) VALUES ({marks})",
+    insert_rows(
+        con,
+        f"INSERT INTO {table} (key, video_id, {', '.join(names)})",
         [[key, video_id, *(getattr(r, n) for n in names)] for r in records],
     )
+
+
+# Rows per INSERT statement of `insert_rows`.
+ROWS_PER_INSERT = 500
+
+
+def insert_rows(con: duckdb.DuckDBPyConnection, insert: str, rows: Sequence[Sequence[Any]]) -> None:
+    """``insert`` (``INSERT INTO t (a, b)``) of ``rows``, many rows per statement: a lake writes
+    a Parquet file per statement, and ``executemany`` is a statement per row (30 metrics made 30
+    files of one row each)."""
+    for start in range(0, len(rows), ROWS_PER_INSERT):
+        part = rows[start : start + ROWS_PER_INSERT]
+        marks = ", ".join(["(" + ", ".join("?" * len(part[0])) + ")"] * len(part))
+        con.execute(f"{insert} VALUES {marks}", [v for row in part for v in row])
 
 
 def insert_columns(
@@ -91,7 +114,9 @@ def insert_columns(
         return
     types = dict(
         con.execute(
-            "SELECT column_name, data_type FROM duckdb_columns() WHERE table_name = ?", [table]
+            "SELECT column_name, data_type FROM duckdb_columns() "
+            "WHERE table_name = ? AND database_name = current_database()",
+            [table],
         ).fetchall()
     )
     unknown = sorted(set(columns) - set(types))
@@ -146,7 +171,8 @@ def write_output(
         raise ValueError(f"{record.stage}: metrics must be finite numbers, got {bad}")
     now = utcnow()
     where = [record.key, record.video_id]
-    with transaction(con):
+
+    def replace(con: duckdb.DuckDBPyConnection) -> None:
         for table, table_rows in rows.items():
             con.execute(f"DELETE FROM {table} WHERE key = ? AND video_id = ?", where)
             if isinstance(table_rows, Mapping):
@@ -177,14 +203,17 @@ def write_output(
             [record.stage, record.video_id, record.key],
         )
         if metrics:
-            con.executemany(
-                "INSERT INTO stage_metrics VALUES (?, ?, ?, ?, ?, ?, ?)",
+            insert_rows(
+                con,
+                "INSERT INTO stage_metrics",
                 [
                     [record.run_id, record.video_id, record.stage, record.key, name, float(v), now]
                     for name, v in metrics.items()
                 ],
             )
         record_run(con, record.run_id, record.video_id, record.stage, record.key, "done")
+
+    transact(con, replace)
 
 
 def record_run(

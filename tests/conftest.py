@@ -34,6 +34,7 @@ os.environ.setdefault(
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from lakes import new_lake, start_cluster, stop_cluster  # noqa: E402
 from outputs import stage_contents  # noqa: E402, F401  (tests import it from here)
 from tiny import (  # noqa: E402, F401  (tests import them from here)
     TINY_EVALUATE,
@@ -332,3 +333,20 @@ def wait_for(what: str, check, timeout_s: float = WAIT_S, log: Path | None = Non
         time.sleep(1.0)
     tail = log.read_text(errors="replace")[-3000:] if log and log.exists() else ""
     raise AssertionError(f"timed out after {timeout_s:.0f} s waiting for {what}\n{tail}")
+
+
+@pytest.fixture(scope="session")
+def postgres_port(tmp_path_factory) -> int:
+    """A PostgreSQL cluster for the lake backend's tests, stopped at the end of the session."""
+    folder = Path(tempfile.mkdtemp(prefix="ringside-lakes-"))
+    try:
+        yield start_cluster(folder)
+    finally:
+        stop_cluster(folder)
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+@pytest.fixture
+def lake(postgres_port: int, tmp_path: Path):
+    """A fresh lake: its own catalog database, ``tmp_path/shared`` its shared folder."""
+    return new_lake(postgres_port, tmp_path / "shared")

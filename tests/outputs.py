@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from storage.db import connect
-from storage.paths import data_paths
+from storage.paths import Lake, data_paths
 
 # The per-stage tables whose rows a rerun must give back identically, and the metrics that are
 # timings (they differ from run to run).
@@ -15,14 +15,16 @@ PER_VIDEO = ("ingest", "pose", "lift", "dataset")
 TIMINGS = {("ingest", "decode_fps"), ("pose", "fps")}
 
 
-def stage_contents(data: Path) -> dict:
-    """What the per-video stages computed: output keys, content rows (hashed), metrics (timings
-    left out); what a resumed or repaired run must give back identically."""
-    db = data_paths(data).db
+def stage_contents(data: Path | Lake) -> dict:
+    """What the per-video stages computed (in data directory ``data``'s DuckDB file, or the lake
+    ``data``): output keys, content rows (hashed), metrics (timings left out); what a resumed or
+    repaired run must give back identically, and either backend alike (rows are hashed as
+    text: a lake's lists and a file's fixed-size arrays of the same values read the same)."""
+    db = data if isinstance(data, Lake) else data_paths(data).db
     with connect(db, read_only=True) as con:
         found = {
             table: con.execute(
-                f"SELECT video_id, key, count(*), bit_xor(hash(t)) FROM {table} t "
+                f"SELECT video_id, key, count(*), bit_xor(hash(t::VARCHAR)) FROM {table} t "
                 "GROUP BY ALL ORDER BY ALL"
             ).fetchall()
             for table in CONTENT

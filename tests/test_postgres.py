@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import pwd
 import re
 import shutil
 import signal
@@ -20,12 +19,14 @@ from pathlib import Path
 
 import pytest
 from conftest import WAIT_S, api_post, flow_runs, wait_for
+from lakes import skip_without_postgresql
 
 import flows.postgres
 from flows.cli import main
 from flows.launch import run_progress, served_api
-from flows.postgres import PostgresError, running_port, server_programs
+from flows.postgres import running_port, server_programs
 from flows.serve import free_port
+from storage.db import connect, is_lake
 from storage.paths import data_paths
 
 REPO = Path(__file__).resolve().parent.parent
@@ -38,18 +39,6 @@ def readme_commands(port: int) -> list[str]:
     block = re.search(r"## Prefect on PostgreSQL\n.*?```sh\n(.*?)```", readme, re.S).group(1)
     lines = [re.sub(r"\s+#.*", "", line) for line in block.splitlines()]
     return [line.replace("5433", str(port)) for line in lines if line]
-
-
-def skip_without_postgresql() -> None:
-    try:
-        server_programs()
-    except PostgresError as error:
-        pytest.skip(f"{error} (`make test` installs it when run as root)")
-    if os.geteuid() == 0:
-        try:
-            pwd.getpwnam("postgres")
-        except KeyError:
-            pytest.skip("running as root and there is no `postgres` user to run PostgreSQL as")
 
 
 @dataclass(frozen=True)
@@ -137,6 +126,21 @@ def test_the_readme_commands_keep_prefects_tables_in_postgresql(served):
     assert again.returncode == 0, again.stderr
     assert "already running" in again.stderr
     assert again.stdout == served.printed
+
+
+def test_the_cluster_holds_a_ducklake_catalog_for_the_results(served, tmp_path):
+    # docs/scaling.md's first step: `ringside postgres --lake` prints the setting of the
+    # catalog database `ringside` made beside Prefect's, and a lake opens on it.
+    port = running_port(served.data / "postgres")
+    printed = shell(served.start_line.replace("postgres", "postgres --lake", 1), served.env)
+    assert printed.returncode == 0, printed.stderr
+    name, _, setting = printed.stdout.strip().partition("=")
+    assert name == "RINGSIDE_RESULTS"
+    assert setting == f"ducklake:postgres:dbname=ringside host=127.0.0.1 port={port} user=ringside"
+    lake = data_paths(tmp_path / "data", setting, tmp_path / "shared").lake
+    with connect(lake) as con:
+        assert is_lake(con)
+        assert con.execute("SELECT count(*) FROM schema_migrations").fetchone()[0] > 0
 
 
 def test_serve_on_postgresql_runs_scheduled_and_cli_runs(served, sample_video):

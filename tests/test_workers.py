@@ -48,6 +48,37 @@ def _overlap(a: dict, b: dict) -> float:
     return (end - start).total_seconds()
 
 
+def scheduled_runs(
+    capsys, paths, api: str, videos: list[Path], until: str, log: Path, env: dict | None = None
+) -> list[dict]:
+    """`ringside schedule VIDEO --until UNTIL` for each of ``videos`` on ``paths``' served
+    server (with ``env`` set), waited for: each run succeeded; their flow runs, as the API has
+    them."""
+    scheduled = []
+    # Scheduled together (in this process: a `schedule` command each took seconds to start).
+    with mock.patch.dict(os.environ, env or {}):
+        for video in videos:
+            code, out, err = run_cli(
+                capsys, "--data", str(paths.root), "schedule", str(video), "--adversary", "A",
+                "--until", until, "--json",
+            )  # fmt: skip
+            assert code == 0, err
+            scheduled.append(json.loads(out)["flow_run_id"])
+    for run_id in scheduled:
+        progress = wait_for(
+            "the scheduled runs to finish",
+            lambda run_id=run_id: (p := run_progress(paths, run_id)).finished and p,
+            log=log,
+        )
+        assert progress.succeeded, progress.message
+    return [r for r in flow_runs(api, "video_to_opponent") if r["id"] in scheduled]
+
+
+def overlapped(runs: list[dict]) -> bool:
+    """Whether some two of the finished flow ``runs`` ran at the same time."""
+    return max(_overlap(a, b) for a, b in itertools.combinations(runs, 2)) > 0
+
+
 # A minute long: with it CI's suite came near its 20 minutes, so `make test-slow` runs it.
 @pytest.mark.slow
 def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video):
@@ -71,28 +102,11 @@ def test_two_workers_take_four_runs_two_at_a_time(tmp_path, capsys, sample_video
         )  # fmt: skip
         # Both workers take runs before any is scheduled (on a busy machine one came late).
         wait_for("two workers online on the pool", lambda: online_workers(api) >= 2)
-        # Scheduled together (in this process: a `schedule` command each took seconds to start).
-        scheduled = []
-        with mock.patch.dict(os.environ):
-            for video in videos:
-                code, out, err = run_cli(
-                    capsys, "--data", str(data), "schedule", str(video), "--adversary", "A",
-                    "--until", "ingest", "--json",
-                )  # fmt: skip
-                assert code == 0, err
-                scheduled.append(json.loads(out)["flow_run_id"])
-        for run_id in scheduled:
-            progress = wait_for(
-                "the scheduled runs to finish",
-                lambda run_id=run_id: (p := run_progress(paths, run_id)).finished and p,
-                log=tmp_path / "serve.log",
-            )
-            assert progress.succeeded, progress.message
-        runs = [r for r in flow_runs(api, "video_to_opponent") if r["id"] in scheduled]
+        runs = scheduled_runs(capsys, paths, api, videos, "ingest", tmp_path / "serve.log")
         assert len(runs) == 4
         assert {r["work_pool_name"] for r in runs} == {WORK_POOL}
         # Two processes took them, two at a time: some pair of runs overlapped.
-        assert max(_overlap(a, b) for a, b in itertools.combinations(runs, 2)) > 0
+        assert overlapped(runs)
         below = psutil.Process(serve.pid).children(recursive=True)
         below += psutil.Process(worker.pid).children(recursive=True)
     finally:

@@ -111,11 +111,17 @@ def _command(raw: list[str]) -> int:
     # Settings must be in the environment before the parser's imports reach Prefect.
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--data", type=Path)
+    pre.add_argument("--results")
+    pre.add_argument("--shared", type=Path)
     pre.add_argument("--verbose", action="store_true")
     known, _ = pre.parse_known_args(raw)
     from storage.paths import data_paths
 
-    paths = data_paths(known.data)
+    try:
+        paths = data_paths(known.data, known.results, known.shared)
+    except ValueError as error:
+        print(f"ringside: error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     prepare_environment(paths, verbose=known.verbose)
     with prefect_settings_of_this_command():
         return _dispatch(raw, paths)
@@ -128,7 +134,7 @@ def _dispatch(raw: list[str], paths: DataPaths) -> int:
 
     from flows.serve import ServerError
     from storage.assets import AssetError
-    from storage.db import DatabaseBusy, damaged_database, error_line
+    from storage.db import CatalogUnreachable, DatabaseBusy, damaged_database, error_line
     from tasks.errors import BadInput
 
     try:
@@ -136,7 +142,7 @@ def _dispatch(raw: list[str], paths: DataPaths) -> int:
     except (BadInput, ValueError, FileNotFoundError) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except (AssetError, DatabaseBusy, ServerError) as error:
+    except (AssetError, CatalogUnreachable, DatabaseBusy, ServerError) as error:
         print(f"ringside: error: {error}", file=sys.stderr)
         return EXIT_FAILED
     except duckdb.Error as error:

@@ -20,6 +20,10 @@ def prepare_environment(paths: DataPaths, *, verbose: bool) -> None:
     """Prefect settings Ringside needs, unless the user has set them: its home (ephemeral
     server database, cached results) inside the data directory, no telemetry, a quiet console."""
     os.environ["RINGSIDE_DATA"] = str(paths.root)
+    # Workers and the runs they start inherit where the results are.
+    if paths.lake is not None:
+        os.environ["RINGSIDE_RESULTS"] = str(paths.lake)
+        os.environ["RINGSIDE_SHARED"] = str(paths.lake.shared)
     os.environ.setdefault("PREFECT_HOME", str(paths.prefect_home))
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")

@@ -50,6 +50,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--data", type=Path, help="data directory (default: $RINGSIDE_DATA or ./data)"
     )
+    parser.add_argument(
+        "--results",
+        metavar="URL",
+        help="where the results are: ducklake:postgres:dbname=NAME host=HOST port=PORT "
+        "user=USER for a DuckLake catalog several machines write at once (with --shared; "
+        "`ringside postgres --lake` prints one); default $RINGSIDE_RESULTS, else the data "
+        "directory's DuckDB file",
+    )
+    parser.add_argument(
+        "--shared",
+        type=Path,
+        metavar="DIR",
+        help="with a DuckLake --results: the folder every machine reaches at this path, for "
+        "the lake's data files and the artifacts (default $RINGSIDE_SHARED)",
+    )
     parser.add_argument("--verbose", action="store_true", help="show Prefect's logs too")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -324,6 +339,12 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"the cluster's port (default {DEFAULT_PORT})",
     )
     postgres.add_argument("--stop", action="store_true", help="stop the cluster (stop serve first)")
+    postgres.add_argument(
+        "--lake",
+        action="store_true",
+        help="print the --results setting of the cluster's DuckLake catalog (the database "
+        "`ringside`) instead of Prefect's",
+    )
 
     worker = commands.add_parser(
         "worker",

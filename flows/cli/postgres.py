@@ -12,7 +12,7 @@ from storage.paths import DataPaths
 def postgres_command(args: argparse.Namespace, paths: DataPaths) -> int:
     """Start the cluster (made the first time) and print the setting `ringside serve` needs, on
     stdout alone (`export "$(ringside postgres)"` works); or stop it (--stop)."""
-    from flows.postgres import PostgresError, connection_url, start, stop
+    from flows.postgres import PostgresError, connection_url, results_setting, start, stop
 
     folder = paths.root / "postgres"
     try:
@@ -25,6 +25,10 @@ def postgres_command(args: argparse.Namespace, paths: DataPaths) -> int:
         print(f"ringside: error: {error}", file=sys.stderr)
         return EXIT_FAILED
     how = "was already running" if was_running else "started"
+    if args.lake:
+        print(f"PostgreSQL in {folder} {how} on 127.0.0.1:{port}; for --results:", file=sys.stderr)
+        print(f"RINGSIDE_RESULTS={results_setting(port)}")
+        return 0
     print(
         f"PostgreSQL in {folder} {how} on 127.0.0.1:{port}; for `ringside serve`:", file=sys.stderr
     )

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from flows.cli.environment import EXIT_FAILED
 from flows.cli.tables import print_problems
-from storage.paths import DataPaths
+from storage.paths import DataPaths, Lake
 
 
 def check_command(args, paths: DataPaths) -> int:
@@ -21,6 +21,8 @@ def check_command(args, paths: DataPaths) -> int:
     from storage.db import error_line
 
     prefect_db = prefect_database()
+    # A lake has no file of blocks nor write-ahead log: its Parquet files are what is checked.
+    lake = isinstance(paths.db, Lake)
     with tqdm(desc="check", unit=" tables", disable=args.json or not sys.stderr.isatty()) as bar:
         problems = scan(paths.db, paths.artifacts, lambda _: bar.update(1), prefect_db)
     done = []
@@ -45,10 +47,15 @@ def check_command(args, paths: DataPaths) -> int:
         )
     elif not paths.db.exists() and not problems:
         print(f"{paths.db}: no database yet; nothing to check")
+    elif lake and not problems:
+        print(
+            "no damage found: every table reads back, every Parquet file the lake's catalog "
+            "names is there and reads, and every file of the artifact store matches its name"
+        )
     else:
         print_problems(problems)
-        wal = paths.db.with_name(paths.db.name + ".wal")
-        if wal.exists():
+        wal = None if lake else paths.db.with_name(paths.db.name + ".wal")
+        if wal is not None and wal.exists():
             print(
                 f"not verified block by block: {wal.name}, the log of the last writes; DuckDB "
                 "reads it whole as it opens the database, which opened"
@@ -73,8 +80,10 @@ def backup_command(args, paths: DataPaths) -> int:
         raise FileNotFoundError(f"{db}: no database yet; nothing to back up")
     manifest = backup(db, args.folder)
     rows = sum(manifest["rows"].values())
+    # A lake's backup is one of its snapshots, named so that time travel reaches it too.
+    at = f" at snapshot {manifest['snapshot']}" if isinstance(db, Lake) else ""
     print(
-        f"backed up {db} ({manifest['bytes'] / 1e6:.1f} MB, {rows} rows in "
+        f"backed up {db}{at} ({manifest['bytes'] / 1e6:.1f} MB, {rows} rows in "
         f"{len(manifest['rows'])} tables) to {args.folder / DATABASE}; the artifacts stay in "
         f"{paths.artifacts}"
     )
@@ -85,7 +94,14 @@ def restore_command(args, paths: DataPaths) -> int:
     from storage.backup import restore
 
     aside, problems = restore(paths.db, paths.artifacts, args.folder)
-    kept = f"; the database it replaced is kept as {aside}" if aside else ""
+    # A lake keeps what it replaced as a snapshot, not a file.
+    if isinstance(paths.db, Lake):
+        kept = (
+            f"; the lake as it was is its snapshot {aside}, readable by time travel "
+            f"(SELECT ... FROM TABLE AT (VERSION => {aside}))"
+        )
+    else:
+        kept = f"; the database it replaced is kept as {aside}" if aside else ""
     print(f"restored {paths.db} from {args.folder}{kept}")
     if problems:
         print_problems(problems)

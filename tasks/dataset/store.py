@@ -17,8 +17,9 @@ import numpy as np
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OPPONENT_DIM, SELF_DIM
-from storage.db import transaction, utcnow
+from storage.db import transact, utcnow
 from storage.keys import digest, stable_json
+from storage.records import insert_rows
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.statistics import FighterStatistics, combine_videos
 from tasks.dataset.verdict import unusable_reason
@@ -155,19 +156,23 @@ def record_dataset(
     if not members:
         raise ValueError(f"no dataset outputs to assemble for adversary {adversary!r}")
     key = assembled_key(adversary, config, members)
-    with transaction(con):
+
+    def record(con: duckdb.DuckDBPyConnection) -> bool:
         exists = con.execute("SELECT 1 FROM datasets WHERE dataset_key = ?", [key]).fetchone()
         if exists:
-            return key, False
+            return False
         con.execute(
             "INSERT INTO datasets VALUES (?, ?, ?, ?)",
             [key, adversary, stable_json(config), utcnow()],
         )
-        con.executemany(
-            "INSERT INTO dataset_members VALUES (?, ?, ?)",
+        insert_rows(
+            con,
+            "INSERT INTO dataset_members",
             [[key, video_id, output] for video_id, output in members],
         )
-    return key, True
+        return True
+
+    return key, transact(con, record)
 
 
 @dataclass(frozen=True)

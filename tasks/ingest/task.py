@@ -7,6 +7,7 @@ from pathlib import Path
 from prefect import task
 from prefect.cache_policies import NO_CACHE
 
+from storage.claims import output_claimed
 from storage.db import connect
 from storage.paths import DataPaths
 from storage.records import register_video
@@ -31,8 +32,11 @@ def ingest_plan(paths: DataPaths, config: IngestConfig, video: str, inputs: Decl
     spec = ingest_spec(config, file.video_id, declaration)
 
     def register() -> None:
-        # Whether computed or reused: the same bytes may come from a new path.
-        with connect(paths.db) as con:
+        # Whether computed or reused: the same bytes may come from a new path. Under a claim:
+        # a lake's tables have no key to refuse a second row, and two machines may register
+        # one video at the same moment.
+        claim = output_claimed(paths, "register", file.video_id, file.path)
+        with claim, connect(paths.db) as con:
             register_video(con, file.video_id, file.size_bytes, file.path)
 
     return StagePlan(

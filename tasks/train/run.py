@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 from models.maaip.trainer import Trainer, checkpoint_policy
 from storage.artifacts import artifact_path, put_bytes, read_bytes
-from storage.db import connect, transaction
+from storage.db import connect, transact
 from tasks.config import build
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.runner import StageOutput
@@ -72,8 +72,10 @@ def _save(
         "name": np.array([n for _, metrics in pending for n in metrics], dtype=object),
         "value": np.array([float(v) for _, metrics in pending for v in metrics.values()]),
     }
-    with connect(db) as con, transaction(con):
-        unused = record_checkpoint(con, key, dataset_key, trainer.iteration, name, metrics)
+    with connect(db) as con:
+        unused = transact(
+            con, lambda c: record_checkpoint(c, key, dataset_key, trainer.iteration, name, metrics)
+        )
     for artifact in unused:
         artifact_path(artifacts, artifact).unlink(missing_ok=True)
     return name
@@ -151,8 +153,10 @@ def train(
             )
         if found is not None:
             trainer.restore(read_bytes(artifacts, found[1]))
-            with connect(db) as con, transaction(con):
-                drop_iterations(con, key, dataset_key, since=trainer.iteration)
+            with connect(db) as con:
+                transact(
+                    con, lambda c: drop_iterations(c, key, dataset_key, since=trainer.iteration)
+                )
         total = config.iterations
         bar = tqdm(
             total=total,

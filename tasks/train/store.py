@@ -183,8 +183,13 @@ def record_checkpoint(
     checkpoints; the artifacts of those that nothing refers to any more (to delete). Run it in
     a transaction."""
     insert_columns(con, "train_iterations", key, dataset_key, metrics)
+    # A DELETE and an INSERT, not INSERT OR REPLACE: a lake's tables have no primary key.
     con.execute(
-        "INSERT OR REPLACE INTO train_checkpoints VALUES (?, ?, ?, ?, ?)",
+        "DELETE FROM train_checkpoints WHERE key = ? AND video_id = ? AND iteration = ?",
+        [key, dataset_key, iteration],
+    )
+    con.execute(
+        "INSERT INTO train_checkpoints VALUES (?, ?, ?, ?, ?)",
         [key, dataset_key, iteration, artifact, utcnow()],
     )
     old = con.execute(
