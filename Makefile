@@ -51,7 +51,8 @@ test: $(STAMP) browser postgres lint
 	$(BIN)/python -m pytest -n 2 --dist loadfile
 
 # The tests too long for `make test` and CI: SIGKILL at 20 random moments of a pipeline run
-# (tests/test_kills.py) and two pipeline workers (tests/test_workers.py).
+# (tests/test_kills.py), two pipeline workers (tests/test_workers.py) and a run killed on a
+# DuckLake catalog (tests/test_lake_workers.py).
 test-slow: $(STAMP) postgres
 	$(BIN)/ringside assets pull --dev
 	$(BIN)/python -m pytest -m slow -s

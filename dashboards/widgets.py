@@ -18,7 +18,14 @@ import streamlit as st
 
 from dashboards import queries
 from storage.artifacts import NotAnArtifact, artifact_path, hashes_to_name
-from storage.db import DatabaseBusy, connect, damaged_database, error_line, utcnow
+from storage.db import (
+    CatalogUnreachable,
+    DatabaseBusy,
+    connect,
+    damaged_database,
+    error_line,
+    utcnow,
+)
 from storage.paths import DataPaths
 from tasks import registry
 from tasks.errors import BadInput
@@ -75,11 +82,15 @@ def read(read_with: Callable[[duckdb.DuckDBPyConnection], T]) -> T | None:
     after telling the analyst why there is nothing to read."""
     db = data().db
     if not db.exists():
-        st.info(f"No database yet in `{db.parent}`: {PROCESS_HINT}.")
+        where = db.parent if isinstance(db, Path) else db
+        st.info(f"No database yet in `{where}`: {PROCESS_HINT}.")
         return None
     try:
         with connect(db, read_only=True, wait_s=LOCK_WAIT_S) as con:
             return read_with(con)
+    except CatalogUnreachable as error:
+        st.warning(f"{error}; press Reload once PostgreSQL is back.")
+        return None
     except DatabaseBusy:
         st.warning(
             f"The pipeline has held the database for over {LOCK_WAIT_S:.0f} s; "

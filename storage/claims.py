@@ -31,6 +31,7 @@ from pathlib import Path
 
 import asyncpg
 
+from storage.db import LOCK_WAIT_S, CatalogUnreachable
 from storage.paths import DataPaths, Lake
 from storage.records import this_worker
 
@@ -98,7 +99,11 @@ class _Session:
 
     def close(self) -> None:
         try:
-            self.run(self._con.close())
+            self.run(self._con.close(timeout=5))
+        except (OSError, asyncpg.PostgresError, asyncpg.InterfaceError, TimeoutError):
+            # PostgreSQL went away meanwhile (a restart) and the lock with it: nothing is left
+            # to let go of, and the computation the claim covered is not to fail for it.
+            self._loop.call_soon_threadsafe(self._con.terminate)
         finally:
             self._stop()
 
@@ -106,6 +111,21 @@ class _Session:
         self._loop.call_soon_threadsafe(self._loop.stop)
         self._thread.join()
         self._loop.close()
+
+
+def _session(lake: Lake, wait_s: float = LOCK_WAIT_S) -> _Session:
+    """A session on the lake's catalog database; PostgreSQL not answering (a restart) is waited
+    for up to ``wait_s``, as `storage.db.connect` waits, then raised in one line."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return _Session(lake.catalog)
+        except (OSError, asyncpg.CannotConnectNowError) as error:
+            if time.monotonic() > deadline:
+                raise CatalogUnreachable(
+                    f"{lake}: PostgreSQL did not answer for {wait_s:.0f} s ({error})"
+                ) from error
+            time.sleep(1.0)
 
 
 _HOLDER = (
@@ -125,7 +145,7 @@ def lake_claimed(
 ) -> Iterator[bool]:
     """`claimed` for a lake: the output's advisory lock in the catalog's database."""
     first, second = lock_keys(stage, video_id, key)
-    session = _Session(lake.catalog)
+    session = _session(lake)
     try:
         waited = False
         while not session.run(session._con.fetchval(

@@ -8,13 +8,17 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from unittest import mock
 
-from conftest import render_page, run_cli, stage_contents, wait_for
+import pytest
+from conftest import WAIT_S, render_page, run_cli, stage_contents, wait_for
+from kill_rounds import GONE_WITHIN_S, descendants, survivors
 from lakes import lake_env
 from test_workers import online_workers, overlapped, scheduled_runs
 
@@ -95,3 +99,61 @@ def test_two_machines_compute_every_output_once_into_one_lake(tmp_path, capsys, 
     )  # fmt: skip
     assert code == 0, err
     assert stage_contents(lake) == stage_contents(serial)
+
+
+# A minute long, and `tests/test_lake.py` kills writers mid-commit in `make test` already: the
+# whole command killed on a lake runs in `make test-slow`.
+@pytest.mark.slow
+def test_a_run_killed_on_a_lake_leaves_nothing_partial_and_its_rerun_takes_its_claim(
+    tmp_path, capsys, sample_video, lake
+):
+    # SIGKILL to the command alone while pose computes (its claim held in PostgreSQL), at a
+    # random moment of it: what it started ends by itself, no partial output is visible, the
+    # claim is free at once (the rerun does not wait), and the rerun completes.
+    data = tmp_path / "data"
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_HOME", "PREFECT_API_URL")}
+    argv = ["--data", str(data), "process", str(sample_video), "--adversary", "A"]
+    victim = subprocess.Popen(
+        [sys.executable, "-m", "flows.cli", *argv, "--until", "pose"],
+        cwd=REPO, env={**env, **lake_env(lake)}, stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL, start_new_session=True,
+    )  # fmt: skip
+    try:
+        wait_for("pose to be computing", lambda: _computing(lake, "pose"))
+        time.sleep(random.uniform(0.0, 4.0))
+    finally:
+        tree = descendants(victim.pid)
+        victim.kill()
+        victim.wait()
+    wait_for("what the command started to end", lambda: not survivors(tree), GONE_WITHIN_S)
+    with connect(lake, read_only=True) as con:
+        poses = con.execute(
+            "SELECT video_id, key FROM stage_outputs WHERE stage = 'pose'"
+        ).fetchall()
+        for video_id, key in poses:  # committed just before the kill: whole
+            (rows,) = con.execute(
+                "SELECT count(*) FROM pose_keypoints WHERE video_id = ? AND key = ?",
+                [video_id, key],
+            ).fetchone()
+            assert rows > 0
+    with mock.patch.dict(os.environ, lake_env(lake)):
+        started = time.monotonic()
+        code, out, err = run_cli(capsys, *argv, "--until", "pose", "--json")
+        took = time.monotonic() - started
+        assert code == 0, err
+        assert "waiting for it" not in out + err
+        assert {r["stage"]: r["state"] for r in json.loads(out)}["pose"] in (
+            ("cached",) if poses else ("done",)
+        )
+    assert scan(lake, lake.shared / "artifacts") == []
+    assert took < WAIT_S
+
+
+def _computing(lake, stage: str) -> bool:
+    if not lake.exists():
+        return False
+    with connect(lake, read_only=True) as con:
+        (n,) = con.execute(
+            "SELECT count(*) FROM stage_runs WHERE stage = ? AND state = 'running'", [stage]
+        ).fetchone()
+    return n > 0

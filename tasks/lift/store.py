@@ -161,7 +161,7 @@ def newest_lift(con: duckdb.DuckDBPyConnection, video_id: str) -> tuple[str, str
         SELECT l.key, p.upstream->>'ingest'
         FROM stage_outputs l
         JOIN stage_outputs p
-          ON p.stage = 'pose' AND p.video_id = l.video_id AND p.key = l.upstream->>'pose'
+          ON p.stage = 'pose' AND p.video_id = l.video_id AND p.key = (l.upstream->>'pose')
         WHERE l.stage = 'lift' AND l.video_id = ?
         ORDER BY l.created_at DESC
         LIMIT 1
