@@ -43,6 +43,11 @@ class DatabaseBusy(RuntimeError):
     """Another process held the database's lock for longer than we were willing to wait."""
 
 
+class DatabaseTooNew(ValueError):
+    """The file was written by a DuckDB whose storage version this one cannot read (Ringside
+    pinned 2.0.0 before it pinned 1.4.4 for DuckLake)."""
+
+
 class Interrupted(BaseException):
     """A signal arrived while DuckDB ran a query. DuckDB stops the query and raises
     ``RuntimeError("Query interrupted")`` in place of what the signal's handler raised (Prefect's
@@ -82,6 +87,13 @@ def _open(path: Path, *, read_only: bool, wait_s: float) -> duckdb.DuckDBPyConne
         try:
             return duckdb.connect(str(path), read_only=read_only)
         except duckdb.IOException as error:
+            found = re.search(r"version number (\d+), but we can only read versions", str(error))
+            if found:
+                raise DatabaseTooNew(
+                    f"{path} was written by a newer DuckDB (storage version {found.group(1)}) "
+                    f"than this Ringside's {duckdb.__version__}: export it with the DuckDB that "
+                    "wrote it (EXPORT DATABASE) and import it with this one (IMPORT DATABASE)"
+                ) from None
             if not _is_lock_error(error) or time.monotonic() > deadline:
                 if _is_lock_error(error):
                     raise DatabaseBusy(

@@ -265,3 +265,25 @@ def test_insert_columns_keeps_nan_and_null_apart(tmp_path):
     assert rows[0][0] == "k" and math.isnan(rows[0][2]) and rows[1][2] == 2.5
     assert rows[0][3][0] == 1 and math.isnan(rows[0][3][1]) and rows[1][3] == (4, 5, 6)
     assert rows[0][4] is None and rows[1][4] == (1, 2)
+
+
+def test_a_file_of_a_newer_duckdb_is_refused_in_one_line(tmp_path: Path, capsys):
+    # A data directory of the Ringside that pinned DuckDB 2.0 (storage version 999): made here
+    # by stamping 999 into a 1.4.4 file's main header, its checksum made again.
+    from conftest import run_cli
+
+    from storage.blocks import checksums
+
+    data = tmp_path / "data"
+    db = data / "ringside.duckdb"
+    with connect(db):
+        pass
+    header = bytearray(db.read_bytes()[:4096])
+    header[12:20] = (999).to_bytes(8, "little")
+    words = np.frombuffer(bytes(header[8:]), dtype="<u8").reshape(1, -1)
+    header[:8] = int(checksums(words)[0]).to_bytes(8, "little")
+    with db.open("r+b") as out:
+        out.write(header)
+    code, _, err = run_cli(capsys, "--data", str(data), "status")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "written by a newer DuckDB (storage version 999)" in err and "EXPORT DATABASE" in err
