@@ -97,6 +97,10 @@ class _Session:
     def run(self, coroutine):
         return asyncio.run_coroutine_threadsafe(coroutine, self._loop).result()
 
+    def fetchval(self, sql: str, *args):
+        """The first value of ``sql``'s first row."""
+        return self.run(self._con.fetchval(sql, *args))
+
     def close(self) -> None:
         try:
             self.run(self._con.close(timeout=5))
@@ -148,11 +152,9 @@ def lake_claimed(
     session = _session(lake)
     try:
         waited = False
-        while not session.run(session._con.fetchval(
-            "SELECT pg_try_advisory_lock($1, $2)", first, second
-        )):  # fmt: skip
+        while not session.fetchval("SELECT pg_try_advisory_lock($1, $2)", first, second):
             if not waited:
-                holder = session.run(session._con.fetchval(_HOLDER, first, second))
+                holder = session.fetchval(_HOLDER, first, second)
                 waiting(holder or "another run")
                 waited = True
             time.sleep(LAKE_POLL_S)
