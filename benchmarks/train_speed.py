@@ -1,12 +1,15 @@
 """Training throughput against raw physics, in one run, with the default `cpu` preset.
 
-The demonstrations are DeepMimic's punch clip performed by two facing fighters
-(`facing_reference`), so the benchmark needs no processed footage. Measured, best of 3 each:
+``--objective maaip`` (the default): the demonstrations are DeepMimic's punch clip performed by
+two facing fighters (`facing_reference`), so the benchmark needs no processed footage.
+``--objective track``: the tracker on the synthetic adversary's seven clips with
+`benchmarks/tracker_gate.py`'s settings (its defaults, both cores). Measured, best of 3 each:
 - raw physics: `ArenaEnv.step_physics` with zero actions (N environments x the default
   substeps of both fighters, no observations, no learning);
 - end to end: `Trainer.iterate` (policy inference, environment steps with observations,
-  rewards from the discriminators, discriminator and PPO updates), environment steps per
-  second of wall time, with the split of an iteration's time.
+  rewards, discriminator and PPO updates), environment steps per second of wall time, with
+  the split of an iteration's time; "other collection" is the collection's time beyond the raw
+  physics (observations, contacts, references and, for the tracker, its rewards).
 Prints both and, last, ``train_vs_physics: R x`` (end to end over raw physics).
 
 ``--stepping warp`` steps the arenas on MuJoCo Warp (`models.arena.stepping.warp`), on the GPU
@@ -32,11 +35,16 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from models.arena.config import STEPPINGS, EnvConfig  # noqa: E402
 from models.arena.env import ArenaEnv  # noqa: E402
+from models.humanoid.boxer import BoneLengths  # noqa: E402
+from models.maaip.config import OBJECTIVES  # noqa: E402
 from models.maaip.trainer import Trainer  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.train.config import TrainConfig  # noqa: E402
 from tasks.train.data import clip_demonstrations  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import tracker_gate  # noqa: E402  (beside this file)
 
 REPEATS = 3
 PHYSICS_STEPS = 100
@@ -58,11 +66,19 @@ def main() -> None:
     parser.add_argument(
         "--device", default="cpu", help="where the networks (and Warp's worlds) run: cpu or cuda"
     )
+    parser.add_argument(
+        "--objective", choices=OBJECTIVES, default="maaip", help="what the trainer learns"
+    )
     args = parser.parse_args()
     assets = data_paths().assets
     pull(assets, dev=True, log=lambda _line: None)
     demos = clip_demonstrations(assets, "punch")
     config = TrainConfig()
+    data = demos
+    if args.objective == "track":
+        gate = tracker_gate.parser().parse_args(["--threads", str(config.env.threads)])
+        config = tracker_gate.tracking_config(gate)
+        data = tracker_gate.synthetic_adversary(assets, BoneLengths(), float(config.env.policy_hz))
     if args.envs:
         # The same number of minibatches per epoch as the defaults.
         scale = args.envs / config.env.num_envs
@@ -86,7 +102,7 @@ def main() -> None:
         env = dataclasses.replace(config.env, stepping=default.stepping)
         baseline = raw_physics(env, demos, "cpu")
 
-    trainer = Trainer(config, demos)
+    trainer = Trainer(config, data)
     try:
         trainer.iterate()  # warm-up: first calls allocate
         best, split = 0.0, {}
@@ -97,14 +113,18 @@ def main() -> None:
             if rate > best:
                 best = rate
                 split = {
-                    k: metrics[k] for k in ("collect_s", "rewards_s", "discriminators_s", "ppo_s")
+                    k: metrics[k]
+                    for k in ("collect_s", "rewards_s", "discriminators_s", "ppo_s")
+                    if k in metrics
                 }
     finally:
         trainer.close()
     total = sum(split.values())
     print(
-        f"environments: {n}, horizon {config.ppo.horizon}, preset {config.network.preset} "
-        f"{config.network.hidden_sizes}, stepping {config.env.stepping}"
+        f"objective {config.objective}: environments {n}, horizon {config.ppo.horizon}, "
+        f"{config.ppo.epochs} epochs of minibatches of {config.ppo.minibatch_size}, preset "
+        f"{config.network.preset} {config.network.hidden_sizes}, stepping {config.env.stepping}, "
+        f"{config.env.threads} threads"
     )
     print(f"raw_physics: {physics:,.0f} env steps/s")
     if baseline is not None:
@@ -118,7 +138,11 @@ def main() -> None:
     # besides the physics (which already uses every core) fits in the physics' own time.
     steps = config.ppo.horizon * n
     per_step = ", ".join(f"{k[:-2]} {v / steps * 1e6:.0f}" for k, v in split.items())
-    print(f"per env step (us): raw physics {1e6 / physics:.0f}; end to end: {per_step}")
+    other = split["collect_s"] / steps * 1e6 - 1e6 / physics
+    print(
+        f"per env step (us): raw physics {1e6 / physics:.0f}; end to end: {per_step} "
+        f"(collect = raw physics + other collection {other:.0f})"
+    )
     print(f"train_vs_physics: {best / physics:.3f} x")
 
 

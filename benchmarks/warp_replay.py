@@ -9,7 +9,7 @@ adversary's (`ringside synthetic-adversary`).
     python benchmarks/warp_replay.py --data DIR [--dataset KEY] [--stills FILE.png]
     python benchmarks/warp_replay.py [--gate-folder FOLDER]
 
-Without ``--data``, the tracker of `benchmarks/tracker_gate.py`'s folder (`make bench` runs it
+Without ``--data``, seed 0's tracker of `benchmarks/tracker_gate.py`'s folder (`make bench` runs it
 first) replays DeepMimic's clips, each fighter from its clip's first frame at its own place.
 
 ``--stills`` saves three frames of one clip's replay in each physics, MuJoCo above, Warp below.
@@ -88,7 +88,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     if args.data is None:
-        blob = args.gate_folder / "checkpoint.pt"
+        blob = args.gate_folder / "seed-0" / "checkpoint.pt"
         if not blob.exists():
             sys.exit(f"{blob}: missing; run benchmarks/tracker_gate.py first (make bench does)")
         gate_args = tracker_gate.parser().parse_args([str(args.gate_folder)])

@@ -267,7 +267,46 @@ def training_page() -> None:
         column.metric(label, format_value(last.get(name)))
     for column, (title, names) in zip(st.columns(2) * 2, charts.items(), strict=True):
         column.altair_chart(curve_chart(frame, title, names))
+    if tracker:
+        gate_section(read(lambda con: queries.gate_checks(con, key)) or [])
     finish_page()
+
+
+def gate_section(checks: list[dict[str, Any]]) -> None:
+    """A tracker's gate checks: held or not, and the last few."""
+    st.subheader("The gate")
+    if not checks:
+        st.info(
+            "No gate check yet: the train stage gates a tracker every `train.track.gate_every` "
+            "iterations."
+        )
+        return
+    last = checks[-1]
+    held = [c["iterations"] for c in checks if c.get("gate_held")]
+    st.caption(
+        "Every clip of the train split tracked from its first frame on the policy's mean. Held "
+        "when met in `train.track.gate_needed` of the last `gate_window` checks (3 of 5 unless "
+        "set): "
+        + (
+            f"**held** from the check after {held[0]} iterations on."
+            if held
+            else f"**not held** after {last['iterations']} iterations."
+        )
+    )
+    table = pd.DataFrame(checks[-10:]).set_index("iterations")
+    table = table.rename(
+        columns={
+            "gate_finished_pct": "clips finished (%)",
+            "gate_body_error_cm": "body error (cm)",
+            "gate_root_error_cm": "root error (cm)",
+            "gate_met": "met",
+            "gate_held": "held",
+        }
+    )
+    for flag in ("met", "held"):
+        if flag in table:
+            table[flag] = table[flag].map({1.0: "yes", 0.0: "no"})
+    st.table(numbers_table(table))
 
 
 def sample_size(scalars: Mapping[str, float]) -> str:

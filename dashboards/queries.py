@@ -159,6 +159,11 @@ def curves(con: duckdb.DuckDBPyConnection, key: str, *, every: int) -> list[dict
     return train_store.learning_curves(con, key, every=every)
 
 
+def gate_checks(con: duckdb.DuckDBPyConnection, key: str) -> list[dict[str, Any]]:
+    """Tracker run ``key``'s gate checks, oldest first (`tasks.train.store.gate_checks`)."""
+    return train_store.gate_checks(con, key)
+
+
 def curves_frame(rows: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
     """Curve rows as a frame indexed by each block's first iteration, one column per curve."""
     if not rows:

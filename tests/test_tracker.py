@@ -23,7 +23,7 @@ from models.maaip.config import (
 from models.maaip.trainer import Trainer
 from models.tracking.clips import TrackingData, tracking_data
 from models.tracking.config import TrackConfig
-from models.tracking.gate import track_gate
+from models.tracking.gate import Gate, gate_held, gate_met, track_gate
 from models.tracking.reward import centre_of_mass, deepmimic_reward, rotation_angles
 from models.tracking.task import TRACK_OBSERVATION_DIM, Tracker
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
@@ -141,6 +141,41 @@ def test_a_reset_puts_each_agent_on_its_clip_frame_with_the_clips_velocities(dat
             np.testing.assert_allclose(getattr(states, name), getattr(ref, name), atol=1e-9)
 
 
+def test_hard_starts_fall_in_the_second_before_where_episodes_failed(data):
+    with _env(64) as env:
+        config = TrackConfig(hard_start_share=1.0, hard_start_window_s=0.5)
+        tracker = Tracker(data, config, env.config)
+        library = tracker.libraries[1]
+        punch = int(library.start[1])
+        # No failure yet: uniform. Then agent 1 failed at the punch's frame 40 (twice) and
+        # the walk's frame 5: its starts fall in the 15 frames up to each, two to one.
+        np.testing.assert_allclose(tracker.start_weights(1), 1 / len(library.startable))
+        tracker.failures[1][punch + 40] = 2.0
+        tracker.failures[1][5] = 1.0
+        tracker.reset(env, np.arange(64), np.random.default_rng(0))
+        _, frame = tracker.clip_and_frame()
+        clip = tracker.clip_and_frame()[0][:, 1]
+        starts = tracker.flat[:, 1]
+        in_punch = (starts >= punch + 25) & (starts <= punch + 40)
+        in_walk = starts <= 5
+        assert (in_punch | in_walk).all(), starts
+        assert 30 < in_punch.sum() < 60 and in_walk.sum() > 5
+        assert (clip[in_punch] == 1).all() and (frame[in_walk, 1] <= 5).all()
+        # Agent 0 failed nowhere: its starts stay uniform over every frame.
+        assert len(np.unique(tracker.flat[:, 0])) > 32
+        weights = tracker.start_weights(1)
+        assert weights.sum() == pytest.approx(1.0)
+        # A failure at a clip's first frames does not reach into the clip before it.
+        tracker.failures[1][:] = 0
+        tracker.failures[1][punch + 1] = 1.0
+        weights = tracker.start_weights(1)
+        assert set(library.startable[weights > 0]) == {punch, punch + 1}
+        # Mixed: half uniform.
+        half = Tracker(data, dataclasses.replace(config, hard_start_share=0.5), env.config)
+        half.failures[1][punch + 1] = 1.0
+        assert half.start_weights(1).min() == pytest.approx(0.5 / len(library.startable))
+
+
 def test_zero_corrections_play_the_clip_back_closely_for_a_few_steps(data):
     # PD targets on the next reference frame (a zero correction), from each clip's first frame,
     # 8 steps. Measured: body errors 2.6 (punch) and 6.6 cm (walk), roots 3.7-3.8 cm; holding
@@ -193,11 +228,18 @@ def _parameters(trainer: Trainer) -> torch.Tensor:
 
 @pytest.mark.parametrize("stepping", ["rollout", "warp"])
 def test_a_tracking_run_resumes_from_its_checkpoint_exactly(data, stepping):
-    config = dataclasses.replace(TINY, env=dataclasses.replace(TINY.env, stepping=stepping))
+    # With hard starts, whose failure counts are part of the state.
+    config = dataclasses.replace(
+        TINY,
+        env=dataclasses.replace(TINY.env, stepping=stepping),
+        track=TrackConfig(hard_start_share=0.5),
+    )
     whole = Trainer(config, data)
     try:
         expected = [whole.iterate() for _ in range(3)]
         final = _parameters(whole)
+        # Episodes failed, so the hard starts had failures to draw near.
+        assert sum(f.sum() for f in whole.objective.tracker.failures) > 0
     finally:
         whole.close()
     for name in ("reward_total", "reward_pose", "body_error_cm", "root_error_cm", "policy_loss"):
@@ -259,6 +301,41 @@ def test_a_policy_that_follows_a_short_clip_finishes_it_and_not_a_clip_it_loses(
     ]
     assert gate.finished_pct == 50.0
     assert gate.rows[0].body_error_cm < 8.0
+
+
+def test_the_gate_is_met_on_all_three_figures_and_held_on_three_of_the_last_five_checks():
+    track = TrackConfig()
+    # 13 of 14 clips (92.9 %) at 5 cm and 10 cm meets it; each figure alone can miss it.
+    assert gate_met(Gate(100 * 13 / 14, 5.0, 10.0, ()), track)
+    assert not gate_met(Gate(100 * 12 / 14, 3.0, 5.0, ()), track)
+    assert not gate_met(Gate(100.0, 5.01, 5.0, ()), track)
+    assert not gate_met(Gate(100.0, 3.0, 10.01, ()), track)
+    # Touched once, or twice long ago, is not held; 3 of the last 5 is, in any order.
+    assert not gate_held([True], track)
+    assert not gate_held([True, True, False, False, False, False], track)
+    assert gate_held([False, True, False, True, True], track)
+    assert gate_held([True, False, True, False, False, True, True, False, True], track)
+    assert not gate_held([True, True, True, False, False, False, True, True], track)
+    assert gate_held([True], dataclasses.replace(track, gate_window=1, gate_needed=1))
+    with pytest.raises(ValueError, match="gate_needed"):
+        TrackConfig(gate_window=2, gate_needed=3)
+
+
+def test_a_trackers_value_reads_its_own_agent_only_unless_told():
+    from models.maaip.objectives import tracking_networks
+
+    generator = torch.Generator().manual_seed(0)
+    _, own = tracking_networks(TINY, generator=generator)
+    both_config = dataclasses.replace(TINY, track=TrackConfig(value_sees_partner=True))
+    _, both = tracking_networks(both_config, generator=generator)
+    assert own.net[0].in_features == TRACK_OBSERVATION_DIM + 2
+    assert both.net[0].in_features == 2 * TRACK_OBSERVATION_DIM + 2
+    obs = torch.randn(6, TRACK_OBSERVATION_DIM, generator=generator)
+    other = torch.randn(6, TRACK_OBSERVATION_DIM, generator=generator)
+    agent = torch.tensor([0, 1, 0, 1, 0, 1])
+    with torch.no_grad():
+        assert torch.equal(own(obs, other, agent), own(obs, other.flip(0), agent))
+        assert not torch.equal(both(obs, other, agent), both(obs, other.flip(0), agent))
 
 
 def test_each_objective_takes_its_own_data(data, assets):

@@ -556,6 +556,22 @@ def test_the_paper_preset_is_the_thesis_table_and_a_given_value_wins():
         TrainConfig(preset="gpu")
 
 
+def test_a_tracker_takes_the_trackers_defaults_and_a_given_value_wins():
+    tracker = build(TrainConfig, {"objective": "track"}, section="train")
+    assert tracker.ppo.learning_rate == 3e-4 and tracker.ppo.gamma == 0.95
+    assert tracker.ppo.action_std == 0.05 and tracker.ppo.arm_action_std == 0
+    # MAAIP keeps its own; a tracker given another learning rate keeps it.
+    maaip = build(TrainConfig, {}, section="train")
+    assert maaip.ppo.learning_rate == 2e-5 and maaip.ppo.gamma == 0.99
+    given = build(
+        TrainConfig, {"objective": "track", "ppo": {"learning_rate": 1e-4}}, section="train"
+    )
+    assert given.ppo.learning_rate == 1e-4 and given.ppo.gamma == 0.95
+    # The paper preset on a tracker: its arenas, the tracker's learning rate.
+    paper = build(TrainConfig, {"objective": "track", "preset": "paper"}, section="train")
+    assert paper.env.num_envs == 2048 and paper.ppo.learning_rate == 3e-4
+
+
 def test_the_training_device_is_chosen_or_refused_clearly():
     with pytest.raises(ValueError, match="train.device must be one of"):
         TrainConfig(device="tpu")

@@ -22,6 +22,7 @@ from models.maaip.config import (
     PPOConfig,
 )
 from models.maaip.trainer import Trainer
+from models.tracking.config import TrackConfig
 from storage.artifacts import artifact_path, read_bytes
 from storage.db import connect
 from storage.paths import data_paths
@@ -70,6 +71,7 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
     argv = [
         *["--data", str(data), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS],
         *["--train-objective", "track", "--train-iterations", "2", "--json"],
+        *["--train-track-gate-every", "1"],
     ]
     code, out, err = run_cli(capsys, *argv)
     assert code == 0, err
@@ -113,6 +115,22 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
     held_out = any(r["split"] == "validation" for r in rows)
     assert ("track_body_error_cm_held_out" in metrics) == held_out
     assert "body_error_cm" in metrics and "episode_length_s" in metrics
+    # A gate check after each iteration: the last one is the final policy on the train clips,
+    # so it gives the train split's figures; a 2-iteration tracker (the long clips lost) does
+    # not hold the gate.
+    checks = query(
+        data,
+        "SELECT iteration, name, value FROM train_iterations WHERE key = ? AND name LIKE 'gate_%' "
+        "ORDER BY iteration, name",
+        [key],
+    )
+    last = {name: value for iteration, name, value in checks if iteration == 1}
+    assert {i for i, _, _ in checks} == {0, 1}
+    assert last["gate_finished_pct"] == pytest.approx(metrics["track_finished_pct"])
+    assert last["gate_body_error_cm"] == pytest.approx(metrics["track_body_error_cm"])
+    assert last["gate_met"] == 0.0 and last["gate_held"] == 0.0
+    assert metrics["track_gate_held"] == 0.0 and metrics["track_gate_checks"] == 2.0
+    assert metrics["track_gate_met_of_last"] == 0.0
 
     code, out, _ = run_cli(capsys, *argv)
     assert code == 0 and json.loads(out)[0]["state"] == "cached"
@@ -127,6 +145,16 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
     )
     assert not _fits(stored[0], TINY)
     assert _fits(stored[0], dataclasses.replace(TINY, objective="track"))
+    # Nor a tracker whose value reads the partner from one whose value does not, and a tracker
+    # stored before that setting existed had one that did.
+    partner = dataclasses.replace(
+        TINY, objective="track", track=TrackConfig(value_sees_partner=True)
+    )
+    assert not _fits(stored[0], partner)
+    older = json.loads(stored[0])
+    del older["track"]["value_sees_partner"]
+    assert _fits(json.dumps(older), partner)
+    assert not _fits(json.dumps(older), dataclasses.replace(TINY, objective="track"))
 
     # MAAIP from the tracker: its policy distilled into the run's before the first iteration.
     distilled = [
@@ -164,6 +192,31 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
     assert not app.exception, app.exception
     tiles = {m.label: m.value for m in app.metric}
     assert list(tiles) == list(TRACK_TILES.values()) and "–" not in tiles.values(), tiles
+    # And its gate checks, not held.
+    assert "The gate" in [h.value for h in app.subheader]
+    (gates,) = [t for t in app.table if "clips finished (%)" in t.value.columns]
+    assert list(gates.value["held"]) == ["no", "no"]
+    assert any("**not held** after 2 iterations" in c.value for c in app.caption)
+
+    # With a gate any tracker meets, held at 2 of the last 2 checks: the run stops there,
+    # 2 iterations of the 6 it was given.
+    loose = [
+        *["--data", str(data), "train", "--dataset", dataset_key, *TINY_TRAIN_FLAGS],
+        *["--train-objective", "track", "--train-iterations", "6", "--json"],
+        *["--train-track-gate-every", "1", "--train-track-gate-window", "2"],
+        *["--train-track-gate-needed", "2", "--train-track-gate-finished-pct", "0"],
+        *["--train-track-gate-body-error-cm", "1000", "--train-track-gate-root-error-cm", "1000"],
+    ]
+    code, out, err = run_cli(capsys, *loose)
+    assert code == 0, err
+    with connect(data_paths(data).db, read_only=True) as con:
+        held = output_metrics(con, "train", dataset_key, json.loads(out)[0]["key"])
+    assert held["iterations"] == 2.0 and held["track_gate_held"] == 1.0
+    assert held["track_gate_met_of_last"] == 2.0
+    app = AppTest.from_function(render_page, args=("training",), default_timeout=60)
+    app.query_params["run"] = json.loads(out)[0]["key"]
+    app.run()
+    assert any("**held** from the check after 2 iterations on" in c.value for c in app.caption)
 
 
 def test_train_cli_runs_and_caches(capsys, sample_run, dataset_key):

@@ -48,6 +48,19 @@ TRAIN_PRESETS: dict[str, dict[str, object]] = {
         "network.preset": "paper",
     },
 }
+# What the tracker (`objective` 'track') changes from MAAIP's built-in defaults, in the settings
+# left at them (as a preset does, applied before it): DeepMimic's discount, one action std on
+# every joint, and the learning rate that reached the gate soonest (docs/train.md, "Time to
+# the gate").
+OBJECTIVE_DEFAULTS: dict[str, dict[str, object]] = {
+    "maaip": {},
+    "track": {
+        "ppo.learning_rate": 3e-4,
+        "ppo.action_std": 0.05,
+        "ppo.arm_action_std": 0.0,
+        "ppo.gamma": 0.95,
+    },
+}
 DEVICES = ("auto", "cpu", "cuda")
 CONTROL_TASKS = ("none", "damage_min", "damage_max", "heading")
 DISCRIMINATOR_LOSSES = ("gail", "lsgan")
@@ -401,7 +414,9 @@ class TrainerConfig:
         "maaip",
         "What the policy learns: 'maaip' (adversarial motion and interaction priors, MAAIP) or "
         "'track' (follow reference clips with DeepMimic's reward, the `track` section; no "
-        "discriminators).",
+        "discriminators). A tracker takes its own defaults where these settings are left at "
+        "theirs: ppo.learning_rate 3e-4, ppo.gamma 0.95, ppo.action_std 0.05 and "
+        "ppo.arm_action_std 0 (OBJECTIVE_DEFAULTS in models/maaip/config.py).",
     )
     preset: str = setting(
         "cpu",
@@ -457,15 +472,17 @@ class TrainerConfig:
             )
 
     def with_preset(self) -> TrainerConfig:
-        """This config with its preset's values (`TRAIN_PRESETS`) in the settings left at their
-        built-in defaults: a value given that differs from the default wins. Settings read from
-        ringside.toml or flags get it as they are built (`tasks.config.build`); a config built
-        in code and then changed (`dataclasses.replace`) keeps what it was given."""
+        """This config with its objective's values (`OBJECTIVE_DEFAULTS`), then its preset's
+        (`TRAIN_PRESETS`), in the settings left at their built-in defaults: a value given that
+        differs from the default wins. Settings read from ringside.toml or flags get it as they
+        are built (`tasks.config.build`); a config built in code and then changed
+        (`dataclasses.replace`) keeps what it was given."""
         config = self
-        for name, value in TRAIN_PRESETS[self.preset].items():
-            section, leaf = name.split(".")
-            part = getattr(config, section)
-            default = next(f.default for f in fields(part) if f.name == leaf)
-            if getattr(part, leaf) == default:
-                config = replace(config, **{section: replace(part, **{leaf: value})})
+        for changes in (OBJECTIVE_DEFAULTS[self.objective], TRAIN_PRESETS[self.preset]):
+            for name, value in changes.items():
+                section, leaf = name.split(".")
+                part = getattr(config, section)
+                default = next(f.default for f in fields(part) if f.name == leaf)
+                if getattr(part, leaf) == default:
+                    config = replace(config, **{section: replace(part, **{leaf: value})})
         return config

@@ -253,7 +253,8 @@ class CentralValue(nn.Module):
     Each agent has its own rewards (its own interaction prior), so the value is asked for one
     agent at a time: input = [norm(o^self), norm(o^other), one-hot id (, task)], i.e. both
     agents' observations, ordered from the asking agent's side (MAPPO's agent-specific global
-    state). Output (B,).
+    state). Output (B,). Without ``sees_other`` (a tracker's, whose agents never meet) it reads
+    the asking agent's observation alone and ignores ``other_obs``.
     """
 
     def __init__(
@@ -263,12 +264,14 @@ class CentralValue(nn.Module):
         obs_dim: int = OBSERVATION_DIM,
         task_dim: int = 0,
         observation_clip: float = 5.0,
+        sees_other: bool = True,
         generator: torch.Generator | None = None,
     ):
         super().__init__()
-        self.obs_dim, self.task_dim = obs_dim, task_dim
+        self.obs_dim, self.task_dim, self.sees_other = obs_dim, task_dim, sees_other
         self.norm = RunningNorm(obs_dim, clip=observation_clip)
-        self.net = mlp(2 * obs_dim + NUM_AGENTS + task_dim, hidden, 1, generator=generator)
+        inputs = (2 if sees_other else 1) * obs_dim + NUM_AGENTS + task_dim
+        self.net = mlp(inputs, hidden, 1, generator=generator)
 
     def forward(
         self,
@@ -284,7 +287,8 @@ class CentralValue(nn.Module):
                 f"obs and other_obs must both have shape (B, {self.obs_dim}), got "
                 f"{tuple(obs.shape)} and {tuple(other_obs.shape)}"
             )
-        parts = [self.norm(obs), self.norm(other_obs), agent_one_hot(agent, len(obs), like=obs)]
+        parts = [self.norm(obs), *([self.norm(other_obs)] if self.sees_other else [])]
+        parts.append(agent_one_hot(agent, len(obs), like=obs))
         if self.task_dim:
             if task is None:
                 raise ValueError(f"task must be given, shape (B, {self.task_dim})")

@@ -376,8 +376,9 @@ class MotionPriors:
 def tracking_networks(
     config: TrainerConfig, *, generator: torch.Generator
 ) -> tuple[Policy, CentralValue]:
-    """The tracker's policy and centralised value: MAAIP's, with the tracker's observation
-    (TRACK_OBSERVATION_DIM) and a mean of zero correction (no guard offset)."""
+    """The tracker's policy and value: MAAIP's, with the tracker's observation
+    (TRACK_OBSERVATION_DIM), a mean of zero correction (no guard offset), and a value that reads
+    the other agent's observation only with `TrackConfig.value_sees_partner`."""
     hidden, clip = config.network.hidden_sizes, config.network.observation_clip
     policy = Policy(
         hidden=hidden,
@@ -387,7 +388,11 @@ def tracking_networks(
         generator=generator,
     )
     value = CentralValue(
-        hidden=hidden, obs_dim=TRACK_OBSERVATION_DIM, observation_clip=clip, generator=generator
+        hidden=hidden,
+        obs_dim=TRACK_OBSERVATION_DIM,
+        observation_clip=clip,
+        sees_other=config.track.value_sees_partner,
+        generator=generator,
     )
     return policy, value
 

@@ -44,6 +44,46 @@ class TrackConfig:
         "an arena, each tracking its own clip, never meet (the clips travel 1-2 m).",
     )
 
+    hard_start_share: float = setting(
+        0.0,
+        "The share of episode starts drawn where the tracker has been failing: a frame up to "
+        "`hard_start_window_s` before where recent episodes ended terminally, weighted by how "
+        "many did (PHC's hard-negative mining, by frame); the rest uniform over every frame "
+        "(DeepMimic's reference state initialisation). 0: all uniform.",
+    )
+    hard_start_window_s: float = setting(
+        1.0, "How far (s) before a failure a hard start may be drawn (`hard_start_share`)."
+    )
+    hard_start_memory_steps: float = setting(
+        2048.0,
+        "The failure counts that weight the hard starts decay by 1/e over this many policy "
+        "steps (about 32 iterations with the defaults), so they follow what the tracker fails "
+        "at now.",
+    )
+    value_sees_partner: bool = setting(
+        False,
+        "Whether the value also reads the other agent's observation (MAPPO's centralised value, "
+        "as MAAIP's). The two trackers of an arena never meet, and the other's ending is a "
+        "time-out for each (bootstrapped), so it carries nothing to predict; off, the value's "
+        "input is half as wide (measured: the PPO update a quarter cheaper, "
+        "`benchmarks/train_speed.py --objective track`).",
+    )
+    gate_every: int = setting(
+        20,
+        "Every this many iterations the train stage gates the tracker (`track_gate` on the train "
+        "clips): the `gate_*` iteration metrics; 0 never.",
+    )
+    gate_finished_pct: float = setting(90.0, "The gate: at least this share of clips finished (%).")
+    gate_body_error_cm: float = setting(5.0, "The gate: mean body error at most this (cm).")
+    gate_root_error_cm: float = setting(10.0, "The gate: mean root error at most this (cm).")
+    gate_window: int = setting(
+        5, "The gate is held when met in `gate_needed` of the last this many checks."
+    )
+    gate_needed: int = setting(3, "How many of the last `gate_window` checks must meet the gate.")
+    stop_when_held: bool = setting(
+        True, "The train stage ends a tracker run at the first check where the gate is held."
+    )
+
     def __post_init__(self) -> None:
         for name in ("w_pose", "w_velocity", "w_end_effector", "w_com"):
             value = getattr(self, name)
@@ -58,7 +98,27 @@ class TrackConfig:
             "com_scale",
             "root_limit_m",
             "separation_m",
+            "hard_start_window_s",
+            "hard_start_memory_steps",
+            "gate_body_error_cm",
+            "gate_root_error_cm",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"train.track.{name} must be positive, got {value}")
+        if not 0 <= self.hard_start_share <= 1:
+            raise ValueError(
+                f"train.track.hard_start_share must be between 0 and 1, got {self.hard_start_share}"
+            )
+        if not 0 <= self.gate_finished_pct <= 100:
+            raise ValueError(
+                f"train.track.gate_finished_pct must be between 0 and 100, got "
+                f"{self.gate_finished_pct}"
+            )
+        if self.gate_every < 0:
+            raise ValueError(f"train.track.gate_every must be >= 0, got {self.gate_every}")
+        if not 1 <= self.gate_needed <= self.gate_window:
+            raise ValueError(
+                f"train.track.gate_needed ({self.gate_needed}) must be between 1 and "
+                f"gate_window ({self.gate_window})"
+            )

@@ -160,6 +160,22 @@ def gate_of(rows: Sequence[GateRow]) -> Gate:
     )
 
 
+def gate_met(gate: Gate, config: TrackConfig) -> bool:
+    """Whether one check meets the gate: enough clips finished, both errors small enough."""
+    return (
+        gate.finished_pct >= config.gate_finished_pct
+        and gate.body_error_cm <= config.gate_body_error_cm
+        and gate.root_error_cm <= config.gate_root_error_cm
+    )
+
+
+def gate_held(met: Sequence[bool], config: TrackConfig) -> bool:
+    """Whether a run's checks so far, oldest first, hold the gate: met in at least
+    `gate_needed` of the last `gate_window` (one check that touches it is not enough: the
+    punch's last frames flip in and out)."""
+    return sum(bool(m) for m in met[-config.gate_window :]) >= config.gate_needed
+
+
 def track_gate(
     policy: TrackingPolicy,
     data: TrackingData,

@@ -4,7 +4,11 @@
 The method, as physics-based character animation practises it:
 - Reference state initialisation (DeepMimic, Peng et al., ACM TOG 37(4), 2018): an
   episode starts at a frame drawn uniformly from every frame (but the last) of every clip,
-  with the clip's velocities; the body is put exactly where the clip is.
+  with the clip's velocities; the body is put exactly where the clip is. With
+  `TrackConfig.hard_start_share`, that share of the starts is drawn instead up to
+  `hard_start_window_s` before the frames where recent episodes ended terminally, in
+  proportion to how many did (hard-negative mining, as PHC, Luo et al. 2023, samples the
+  motions it fails; here by frame, so that a clip lost in its second half starts there).
 - The action is a correction: the PD targets are the clip's next frame plus the policy's
   output (DReCon, Bergamin et al., ACM TOG 38(6), 2019), so an untrained policy already plays
   the clip back through the physics. The correction is added in MAAIP's action space
@@ -146,13 +150,41 @@ class Tracker:
         self.slots = np.array(
             [[0.0, -config.separation_m / 2, 0.0], [0, config.separation_m / 2, 0]]
         )
+        # Each agent's recent terminal endings by the frame it was on (decaying), which
+        # weight the hard starts (`TrackConfig.hard_start_share`).
+        self.failures = [np.zeros(len(f.clip.qpos)) for f in self.libraries]
 
     def state(self) -> dict:
-        return {"flat": self.flat.copy(), "offset": self.offset.copy()}
+        return {
+            "flat": self.flat.copy(),
+            "offset": self.offset.copy(),
+            "failures": [f.copy() for f in self.failures],
+        }
 
     def load_state(self, state: dict) -> None:
         self.flat[:] = state["flat"]
         self.offset[:] = state["offset"]
+        for mine, saved in zip(self.failures, state.get("failures", ()), strict=False):
+            mine[:] = saved
+
+    def start_weights(self, agent: int) -> np.ndarray:
+        """(len(startable),) the probability of each of agent ``agent``'s startable frames as an
+        episode start: uniform, mixed with `hard_start_share` of the frames up to
+        `hard_start_window_s` before its recent failures (module docstring)."""
+        f = self.libraries[agent]
+        uniform = np.full(len(f.startable), 1.0 / len(f.startable))
+        share = self.config.hard_start_share
+        if share == 0:
+            return uniform
+        # Failures within the window after each frame, in its own clip: prefix sums.
+        window = max(1, round(self.config.hard_start_window_s * f.fps))
+        before = np.concatenate([[0.0], np.cumsum(self.failures[agent])])
+        frames = f.startable
+        clip_last = f.last[np.searchsorted(f.last, frames)]
+        ahead = before[np.minimum(frames + window, clip_last) + 1] - before[frames]
+        if ahead.sum() <= 0:
+            return uniform
+        return (1 - share) * uniform + share * ahead / ahead.sum()
 
     def clip_and_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """(N, 2) each agent's clip index and frame in it."""
@@ -174,12 +206,19 @@ class Tracker:
         frame source says."""
         return self.source.next(self.libraries, self.flat[ids])
 
-    def observation(self, sim: BodyState, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
-        """(n, 2, 451) o^self of ``sim`` (n, 2) and the next reference frame (`tracking_input`)."""
+    def observation(
+        self,
+        sim: BodyState,
+        ids: np.ndarray | slice = slice(None),
+        *,
+        own: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """(n, 2, 451) o^self of ``sim`` (n, 2) (``own`` where the arena computed it already)
+        and the next reference frame (`tracking_input`)."""
         nxt = self.next_frames(ids)
         ref_obs = np.stack([f.clip.observation[nxt[:, a]] for a, f in enumerate(self.libraries)], 1)
         given = tracking_input(sim, self.reference(nxt, ids), ref_obs)
-        return np.concatenate([self_observation(sim), given], -1)
+        return np.concatenate([self_observation(sim) if own is None else own, given], -1)
 
     def reset(
         self,
@@ -206,6 +245,8 @@ class Tracker:
                 flat = f.index(np.asarray(clips)[:, a], 0)
             elif as_filmed and a == 1:
                 flat = self.flat[ids, 0]  # agent 0's frame: the same step of the same footage
+            elif self.config.hard_start_share > 0:
+                flat = rng.choice(f.startable, size=len(ids), p=self.start_weights(a))
             else:
                 flat = f.startable[rng.integers(len(f.startable), size=len(ids))]
             self.flat[ids, a] = flat
@@ -252,11 +293,16 @@ class Tracker:
             terms = deepmimic_reward(sim, ref, sim_com, ref_com + self.offset, config=self.config)
             body, root = body_error(sim, ref), root_error(sim, ref)
             drift = root > self.config.root_limit_m
-            observation = self.observation(sim)
+            observation = self.observation(sim, own=to_host(result.self_observation))
         stable = ~result.unstable
         terminal = result.fell | drift | result.unstable[:, None]
         ended = np.stack([f.at_end(self.flat[:, a]) for a, f in enumerate(self.libraries)], 1)
         terminated = terminal.any(1)
+        if self.config.hard_start_share > 0:
+            keep = np.exp(-1.0 / self.config.hard_start_memory_steps)
+            for a, failures in enumerate(self.failures):
+                failures *= keep
+                np.add.at(failures, self.flat[terminal[:, a], a], 1.0)
         truncated = (ended.any(1) | result.truncated) & ~terminated
         reward = np.where(stable[:, None], terms["total"], 0.0)
         stacked = np.stack([terms[k] for k in REWARD_TERMS], -1)

@@ -23,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from models.maaip.trainer import Trainer, checkpoint_policy
+from models.tracking.gate import gate_held, gate_met, track_gate
 from storage.artifacts import artifact_path, put_bytes, read_bytes
 from storage.db import connect, transact
 from tasks.config import build
@@ -34,6 +35,7 @@ from tasks.train.store import (
     RunInfo,
     drop_iterations,
     iteration_means,
+    metric_series,
     newest_checkpoint,
     record_checkpoint,
 )
@@ -169,18 +171,37 @@ def train(
         deadline = start + config.minutes * 60 if config.minutes > 0 else math.inf
         pending: list[tuple[int, dict]] = []
         final = None
-        while trainer.iteration < total:
+        gates = tracking is not None and config.track.gate_every > 0
+        met: list[float] = []
+        if gates:
+            with connect(db, read_only=True) as con:
+                met = metric_series(con, key, dataset_key, "gate_met")
+        held = gates and gate_held(met, config.track)
+        while trainer.iteration < total and not (held and config.track.stop_when_held):
             iteration = trainer.iteration
             metrics = {**trainer.iterate(), **distilled}
             distilled = {}
+            if gates and trainer.iteration % config.track.gate_every == 0:
+                assert tracking is not None
+                checked = track_gate(trainer.nets.policy, tracking["train"], config)
+                met.append(float(gate_met(checked, config.track)))
+                held = gate_held(met, config.track)
+                metrics |= {
+                    "gate_finished_pct": checked.finished_pct,
+                    "gate_body_error_cm": checked.body_error_cm,
+                    "gate_root_error_cm": checked.root_error_cm,
+                    "gate_met": met[-1],
+                    "gate_held": float(held),
+                }
             pending.append((iteration, metrics))
             bar.update(1)
             if "episode_length_s" in metrics:
                 bar.set_postfix(ep_s=f"{metrics['episode_length_s']:.2f}")
-            if trainer.iteration % config.checkpoint_every == 0:
+            stop_held = held and config.track.stop_when_held
+            if trainer.iteration % config.checkpoint_every == 0 or stop_held:
                 final = _save(db, artifacts, key, dataset_key, trainer, pending)
                 pending = []
-                if time.perf_counter() >= deadline:
+                if time.perf_counter() >= deadline or stop_held:
                     break
             if stop is not None and stop(trainer.iteration):
                 raise KeyboardInterrupt(f"stopped at iteration {trainer.iteration}")
@@ -192,6 +213,11 @@ def train(
         judged: dict[str, float] = {}
         if tracking is not None:
             rows["train_tracking"], judged = clip_tracking(trainer.nets.policy, tracking, config)
+            if gates:
+                window = met[-config.track.gate_window :]
+                judged["track_gate_held"] = float(held)
+                judged["track_gate_checks"] = float(len(met))
+                judged["track_gate_met_of_last"] = float(sum(window))
     finally:
         trainer.close()
     with connect(db, read_only=True) as con:

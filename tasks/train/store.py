@@ -76,13 +76,17 @@ def _fits(stored: str, config: TrainConfig) -> bool:
     """Whether a run made with settings ``stored`` (JSON) has networks of ``config``'s shapes
     (a tracker's and MAAIP's policies see different observations)."""
     try:
-        theirs = build(TrainConfig, json.loads(stored), section="train")
+        settings = json.loads(stored)
+        theirs = build(TrainConfig, settings, section="train")
     except (ValueError, TypeError):  # settings of an older version that no longer exist
         return False
+    # A tracker made before `value_sees_partner` existed had a value that saw the partner.
+    sees_partner = (settings.get("track") or {}).get("value_sees_partner", True)
     return (
         theirs.objective == config.objective
         and theirs.network.hidden_sizes == config.network.hidden_sizes
         and theirs.reward.task_observation_dim == config.reward.task_observation_dim
+        and (config.objective != "track" or sees_partner == config.track.value_sees_partner)
     )
 
 
@@ -212,6 +216,43 @@ def drop_iterations(con: duckdb.DuckDBPyConnection, key: str, dataset_key: str, 
         "DELETE FROM train_iterations WHERE key = ? AND video_id = ? AND iteration >= ?",
         [key, dataset_key, since],
     )
+
+
+def metric_series(
+    con: duckdb.DuckDBPyConnection, key: str, dataset_key: str, name: str
+) -> list[float]:
+    """Run ``key``'s per-iteration metric ``name``, oldest iteration first, where recorded."""
+    return [
+        value
+        for (value,) in con.execute(
+            "SELECT value FROM train_iterations WHERE key = ? AND video_id = ? AND name = ? "
+            "ORDER BY iteration",
+            [key, dataset_key, name],
+        ).fetchall()
+    ]
+
+
+GATE_METRICS = (
+    "gate_finished_pct",
+    "gate_body_error_cm",
+    "gate_root_error_cm",
+    "gate_met",
+    "gate_held",
+)
+
+
+def gate_checks(con: duckdb.DuckDBPyConnection, key: str) -> list[dict[str, Any]]:
+    """Tracker run ``key``'s gate checks, oldest first: the number of iterations done when each
+    was made, its figures and whether the gate was met and held then (`GATE_METRICS`)."""
+    rows = con.execute(
+        "SELECT iteration + 1, name, value FROM train_iterations WHERE key = ? AND name IN "
+        f"({', '.join('?' for _ in GATE_METRICS)}) ORDER BY iteration, name",
+        [key, *GATE_METRICS],
+    ).fetchall()
+    checks: dict[int, dict[str, Any]] = {}
+    for iteration, name, value in rows:
+        checks.setdefault(iteration, {"iterations": iteration})[name] = value
+    return list(checks.values())
 
 
 def iteration_means(

@@ -61,18 +61,22 @@ class HostWorlds:
         for i in range(num_envs):
             self.gather(i)
 
-    def gather(self, i: int) -> None:
+    def gather(self, i: int, *, check: bool = True) -> None:
         """Refresh environment i's kinematics and copy what the observations and the fall rule
-        read into row i of `frames` and `head_z`."""
+        read into row i of `frames` and `head_z`; with ``check``, row i of `stable` too (a
+        caller that has every world's state in one array checks them at once, `stable_states`)."""
         data = self.datas[i]
         refresh(self.model, data)
         world_frames(self.model, data, self.frames[i])
         self.head_z[i] = data.geom_xpos[self.index.head_geoms, 2]
-        # MuJoCo's own test (mj_checkPos / mj_checkVel): not finite or beyond mjMAXVAL.
-        self.stable[i] = bool(
-            np.all(np.abs(data.qpos) < mujoco.mjMAXVAL)
-            and np.all(np.abs(data.qvel) < mujoco.mjMAXVAL)
-        )
+        if check:
+            self.stable[i] = bool(stable_states(np.concatenate([data.qpos, data.qvel])))
+
+
+def stable_states(values: np.ndarray) -> np.ndarray:
+    """(...) whether every position and velocity in ``values`` (..., k) is finite and within
+    mjMAXVAL: MuJoCo's own test (mj_checkPos, mj_checkVel). NaN fails the comparison."""
+    return np.all(np.abs(values) < mujoco.mjMAXVAL, axis=-1)
 
 
 class OnHost:

@@ -19,7 +19,7 @@ from models.arena.config import EnvConfig
 from models.arena.contacts import sensor_contacts
 from models.arena.mjcf import NUM_AGENTS
 from models.arena.puppet import PuppetPaths
-from models.arena.stepping.host import HostWorlds, OnHost
+from models.arena.stepping.host import HostWorlds, OnHost, stable_states
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -34,6 +34,9 @@ class RolloutStepping(OnHost):
         self._rollout: mujoco.rollout.Rollout | None = mujoco.rollout.Rollout(nthread=threads)
         self._scratch = [mujoco.MjData(self.model) for _ in range(max(threads, 1))]
         self._nstate = mujoco.mj_stateSize(self.model, _FULL)
+        # Where qpos and qvel lie in a full-physics state: after the time, in that order.
+        start = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_TIME)
+        self._physics = slice(start, start + self.model.nq + self.model.nv)
 
     def close(self) -> None:
         if self._rollout is not None:
@@ -54,11 +57,16 @@ class RolloutStepping(OnHost):
         states, sensordata = self._rollout.rollout(
             model, self._scratch, state, control, initial_warmstart=np.zeros((n, model.nv))
         )
+        final = states[:, -1]
+        if contacts:
+            # One vectorised check of every world's qpos and qvel (per world it was 40 % of
+            # gathering one, measured).
+            self.worlds.stable[:] = stable_states(final[:, self._physics])
         for i, data in enumerate(datas):
-            mujoco.mj_setState(model, data, states[i, -1], _FULL)
+            mujoco.mj_setState(model, data, final[i], _FULL)
             data.ctrl[:] = ctrl[i]
             if contacts:
-                self.worlds.gather(i)
+                self.worlds.gather(i, check=False)
         if not contacts:
             return np.zeros((n, NUM_AGENTS)), np.zeros((n, NUM_AGENTS), dtype=bool)
         sensors = self.worlds.index.sensors
