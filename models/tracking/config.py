@@ -45,7 +45,7 @@ class TrackConfig:
     )
 
     hard_start_share: float = setting(
-        0.0,
+        0.5,
         "The share of episode starts drawn where the tracker has been failing: a frame up to "
         "`hard_start_window_s` before where recent episodes ended terminally, weighted by how "
         "many did (PHC's hard-negative mining, by frame); the rest uniform over every frame "
