@@ -131,7 +131,12 @@ def parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--gamma", type=float, default=TRACKER.ppo.gamma, help="DeepMimic's 0.95")
     parser.add_argument("--epochs", type=int, default=TRACKER.ppo.epochs)
-    parser.add_argument("--hard-start-share", type=float, default=TRACKER.track.hard_start_share)
+    parser.add_argument(
+        "--hard-start-share",
+        type=float,
+        default=0.5,
+        help="train.track.hard_start_share: 0.5 on these clean clips, 0 the stage's default",
+    )
     parser.add_argument(
         "--value-sees-partner",
         action="store_true",
