@@ -67,7 +67,7 @@ class TrackConfig:
         "Whether the value also reads the other agent's observation (MAPPO's centralised value, "
         "as MAAIP's). The two trackers of an arena never meet, and the other's ending is a "
         "time-out for each (bootstrapped), so it carries nothing to predict; off, the value's "
-        "input is half as wide (measured: the PPO update a quarter cheaper, "
+        "input is half as wide (measured: the PPO update a fifth cheaper, "
         "`benchmarks/train_speed.py --objective track`).",
     )
     gate_every: int = setting(
