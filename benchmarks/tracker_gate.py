@@ -67,12 +67,12 @@ def synthetic_adversary(assets: Path, bones: BoneLengths, fps: float) -> Trackin
 TRACKER = TrainConfig(objective="track").with_preset()
 
 
-def tracking_config(args: argparse.Namespace) -> TrainConfig:
-    """The tracker's defaults with this benchmark's arguments."""
+def tracking_config(args: argparse.Namespace, seed: int = 0) -> TrainConfig:
+    """The tracker's defaults with this benchmark's arguments, for ``seed``."""
     base = TRACKER
     return TrainConfig(
         objective="track",
-        seed=getattr(args, "seed", args.seeds[0]),
+        seed=seed,
         device=args.device,
         iterations=args.iterations,
         track=dataclasses.replace(
@@ -156,7 +156,7 @@ def main() -> None:
     held = {}
     for seed in args.seeds:
         print(f"seed {seed}:", flush=True)
-        held[seed] = run_seed(argparse.Namespace(**vars(args), seed=seed), assets)
+        held[seed] = run_seed(args, seed, assets)
     times = [held[s] if held[s] is not None else math.inf for s in args.seeds]
     print(
         "held at: "
@@ -169,13 +169,13 @@ def main() -> None:
     print(f"tracker_gate_held_minutes: {statistics.median(times):.1f} min")
 
 
-def run_seed(args: argparse.Namespace, assets: Path) -> float | None:
-    """Train (or resume) seed ``args.seed``'s tracker in FOLDER/seed-K until its gate is held or
-    its budget is spent; the wall-clock minutes at the check that held it, or None."""
-    config = tracking_config(args)
+def run_seed(args: argparse.Namespace, seed: int, assets: Path) -> float | None:
+    """Train (or resume) seed ``seed``'s tracker in FOLDER/seed-K until its gate is held or its
+    budget is spent; the wall-clock minutes at the check that held it, or None."""
+    config = tracking_config(args, seed)
     track = config.track
     data = synthetic_adversary(assets, BoneLengths(), float(config.env.policy_hz))
-    folder = args.folder / f"seed-{args.seed}"
+    folder = args.folder / f"seed-{seed}"
     folder.mkdir(parents=True, exist_ok=True)
     checkpoint, progress_file = folder / "checkpoint.pt", folder / "progress.json"
     trainer = Trainer(config, data)
@@ -205,8 +205,7 @@ def run_seed(args: argparse.Namespace, assets: Path) -> float | None:
             progress["train_s"] += now - clock
             clock = now
             done = trainer.iteration
-            checked = done % args.gate_every == 0
-            if checked:
+            if done % args.gate_every == 0:
                 gate = track_gate(trainer.nets.policy, data, config)
                 row = {
                     "iteration": done,
@@ -264,7 +263,7 @@ def run_seed(args: argparse.Namespace, assets: Path) -> float | None:
     first = progress.get("reached")
     held = progress.get("held")
     print(
-        f"seed {args.seed}: iterations {trainer.iteration}, "
+        f"seed {seed}: iterations {trainer.iteration}, "
         f"{trainer.iteration * steps_per_iteration / 1e6:.2f} M env steps, "
         f"{progress['train_s'] / 60:.1f} min of training, {progress['wall_s'] / 60:.1f} wall; "
         f"gate {'met' if gate_met(gate, track) else 'not met'} now "

@@ -70,7 +70,7 @@ class HostWorlds:
         world_frames(self.model, data, self.frames[i])
         self.head_z[i] = data.geom_xpos[self.index.head_geoms, 2]
         if check:
-            self.stable[i] = bool(stable_states(np.concatenate([data.qpos, data.qvel])))
+            self.stable[i] = bool(stable_states(data.qpos) and stable_states(data.qvel))
 
 
 def stable_states(values: np.ndarray) -> np.ndarray:
