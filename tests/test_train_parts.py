@@ -313,7 +313,9 @@ def _one_sample_batch(policy, value, ratio: float, advantage: float) -> PPOBatch
     actions = torch.randn(1, ACTION_DIM, generator=gen) * 0.1
     with torch.no_grad():
         current = policy.log_prob(obs, agent, actions)
-    return PPOBatch(
+    return PPOBatch.of(
+        policy,
+        value,
         obs=obs,
         other_obs=torch.randn(1, OBSERVATION_DIM, generator=gen),
         agent=agent,
@@ -393,7 +395,17 @@ def test_ppo_improves_a_one_step_bandit():
             gamma=config.gamma,
             lam=config.gae_lambda,
         )
-        batch = PPOBatch(obs, other, agent, actions, log_probs, advantages[0], returns[0])
+        batch = PPOBatch.of(
+            policy,
+            value,
+            obs=obs,
+            other_obs=other,
+            agent=agent,
+            actions=actions,
+            log_probs=log_probs,
+            advantages=advantages[0],
+            returns=returns[0],
+        )
         for _ in range(config.epochs):
             order = torch.randperm(len(batch), generator=gen)
             for index in order.split(config.minibatch_size):

@@ -379,40 +379,60 @@ def gae(
 
 @dataclass(frozen=True)
 class PPOBatch:
-    """Flattened samples of both agents for PPO, B rows.
+    """Flattened samples of both agents for PPO, B rows (`of` makes one).
 
-    obs, other_obs (B, 274): the acting agent's and the other agent's observations (the
-    value's input); agent (B,) ids; actions (B, A); log_probs (B,) under the collecting
-    policy; advantages, returns (B,); task (B, k) or None.
+    policy_inputs, value_inputs: the networks' inputs (`Policy.inputs`, `CentralValue.inputs`),
+    normalised once for the whole update (the normalisers follow the data only after it);
+    actions (B, A); log_probs (B,) under the collecting policy; advantages, returns (B,).
     """
 
-    obs: Tensor
-    other_obs: Tensor
-    agent: Tensor
+    policy_inputs: Tensor
+    value_inputs: Tensor
     actions: Tensor
     log_probs: Tensor
     advantages: Tensor
     returns: Tensor
-    task: Tensor | None = None
 
     def __post_init__(self) -> None:
-        n = self.obs.shape[0]
+        n = self.policy_inputs.shape[0]
         for f in fields(self):
             x = getattr(self, f.name)
-            if x is not None and x.shape[0] != n:
-                raise ValueError(f"PPOBatch.{f.name} has {x.shape[0]} rows, obs has {n}")
+            if x.shape[0] != n:
+                raise ValueError(f"PPOBatch.{f.name} has {x.shape[0]} rows, policy_inputs has {n}")
+
+    @classmethod
+    def of(
+        cls,
+        policy: Policy,
+        value: CentralValue,
+        *,
+        obs: Tensor,
+        other_obs: Tensor,
+        agent: Tensor,
+        actions: Tensor,
+        log_probs: Tensor,
+        advantages: Tensor,
+        returns: Tensor,
+        task: Tensor | None = None,
+    ) -> PPOBatch:
+        """The batch of these samples: obs, other_obs (B, F) the acting agent's and the other
+        agent's observations, agent (B,) ids, task (B, k) or None."""
+        with torch.no_grad():
+            return cls(
+                policy_inputs=policy.inputs(obs, agent, task),
+                value_inputs=value.inputs(obs, other_obs, agent, task),
+                actions=actions,
+                log_probs=log_probs,
+                advantages=advantages,
+                returns=returns,
+            )
 
     def __len__(self) -> int:
-        return self.obs.shape[0]
+        return self.policy_inputs.shape[0]
 
     def select(self, index: Tensor) -> PPOBatch:
         """The rows ``index`` (a minibatch)."""
-        return PPOBatch(
-            **{
-                f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[index]
-                for f in fields(self)
-            }
-        )
+        return PPOBatch(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
 
 
 def ppo_losses(
@@ -431,7 +451,7 @@ def ppo_losses(
     ``normalize_advantages``), R the TD(lambda) returns, V the centralised value. With A > 0
     and r > 1 + eps (or A < 0 and r < 1 - eps) the surrogate is constant: zero gradient.
     """
-    log_probs = policy.log_prob(batch.obs, batch.agent, batch.actions, batch.task)
+    log_probs = policy.log_prob_of(batch.policy_inputs, batch.actions)
     log_ratio = log_probs - batch.log_probs
     ratio = log_ratio.exp()
     adv = batch.advantages
@@ -439,7 +459,7 @@ def ppo_losses(
         adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     surrogate = torch.min(ratio * adv, ratio.clamp(1 - clip, 1 + clip) * adv)
     policy_loss = -surrogate.mean()
-    predicted = value(batch.obs, batch.other_obs, batch.agent, batch.task)
+    predicted = value.value_of(batch.value_inputs)
     value_loss = (predicted - batch.returns).square().mean()
     loss = policy_loss + value_coef * value_loss
     with torch.no_grad():

@@ -170,8 +170,14 @@ class Policy(nn.Module):
         # Each agent's mean is the network's output plus its row: the actions it starts from.
         self.register_buffer("offset", torch.zeros(NUM_AGENTS, action_dim, dtype=torch.float32))
 
-    def _inputs(self, obs: Tensor, one_hot: Tensor, task: Tensor | None) -> Tensor:
-        parts = [self.norm(obs), one_hot]
+    def inputs(self, obs: Tensor, agent: Tensor | int, task: Tensor | None = None) -> Tensor:
+        """(B, obs_dim + 2 [+ task_dim]) the network's input: the normalised observation, the
+        one-hot agent id and the task's observation. PPO makes it once per batch, not per
+        minibatch (the normaliser does not change during an update)."""
+        check_features(obs, "obs", self.obs_dim)
+        if obs.ndim != 2:
+            raise ValueError(f"obs must have shape (B, {self.obs_dim}), got {tuple(obs.shape)}")
+        parts = [self.norm(obs), agent_one_hot(agent, obs.shape[0], like=obs)]
         if self.task_dim:
             if task is None:
                 raise ValueError(f"task must be given, shape (B, {self.task_dim})")
@@ -181,13 +187,14 @@ class Policy(nn.Module):
             raise ValueError("task must be None for a policy built with task_dim=0")
         return torch.cat(parts, dim=-1)
 
+    def mean_of(self, inputs: Tensor) -> Tensor:
+        """mu(o, i) (B, A) from `inputs`: the network's output plus agent i's `offset`."""
+        one_hot = inputs[:, self.obs_dim : self.obs_dim + NUM_AGENTS]
+        return self.net(inputs) + one_hot @ self.offset.to(inputs.dtype)
+
     def forward(self, obs: Tensor, agent: Tensor | int, task: Tensor | None = None) -> Tensor:
         """The Gaussian's mean mu(o, i), (B, A): the network's output plus agent i's `offset`."""
-        check_features(obs, "obs", self.obs_dim)
-        if obs.ndim != 2:
-            raise ValueError(f"obs must have shape (B, {self.obs_dim}), got {tuple(obs.shape)}")
-        one_hot = agent_one_hot(agent, obs.shape[0], like=obs)
-        return self.net(self._inputs(obs, one_hot, task)) + one_hot @ self.offset.to(obs.dtype)
+        return self.mean_of(self.inputs(obs, agent, task))
 
     def start_from(self, actions: np.ndarray) -> None:
         """Set each agent's `offset` to ``actions`` (2, A') in its first A' outputs (e.g. its
@@ -213,8 +220,12 @@ class Policy(nn.Module):
         self, obs: Tensor, agent: Tensor | int, actions: Tensor, task: Tensor | None = None
     ) -> Tensor:
         """log pi(a | o, i), (B,)."""
+        return self.log_prob_of(self.inputs(obs, agent, task), actions)
+
+    def log_prob_of(self, inputs: Tensor, actions: Tensor) -> Tensor:
+        """log pi(a | o, i), (B,), from the network's `inputs`."""
         check_features(actions, "actions", self.action_dim)
-        mean = self(obs, agent, task)
+        mean = self.mean_of(inputs)
         return _gaussian_log_prob(actions, mean, self.std.to(mean.dtype))
 
     @torch.no_grad()
@@ -273,13 +284,14 @@ class CentralValue(nn.Module):
         inputs = (2 if sees_other else 1) * obs_dim + NUM_AGENTS + task_dim
         self.net = mlp(inputs, hidden, 1, generator=generator)
 
-    def forward(
+    def inputs(
         self,
         obs: Tensor,
         other_obs: Tensor,
         agent: Tensor | int,
         task: Tensor | None = None,
     ) -> Tensor:
+        """The network's input: [norm(o^self) (, norm(o^other)), one-hot id (, task)]."""
         check_features(obs, "obs", self.obs_dim)
         check_features(other_obs, "other_obs", self.obs_dim)
         if obs.ndim != 2 or other_obs.shape != obs.shape:
@@ -294,7 +306,20 @@ class CentralValue(nn.Module):
                 raise ValueError(f"task must be given, shape (B, {self.task_dim})")
             check_features(task, "task", self.task_dim)
             parts.append(task.to(obs.dtype))
-        return self.net(torch.cat(parts, dim=-1)).squeeze(-1)
+        return torch.cat(parts, dim=-1)
+
+    def value_of(self, inputs: Tensor) -> Tensor:
+        """V (B,) from the network's `inputs`."""
+        return self.net(inputs).squeeze(-1)
+
+    def forward(
+        self,
+        obs: Tensor,
+        other_obs: Tensor,
+        agent: Tensor | int,
+        task: Tensor | None = None,
+    ) -> Tensor:
+        return self.value_of(self.inputs(obs, other_obs, agent, task))
 
 
 class Discriminator(nn.Module):

@@ -212,7 +212,8 @@ class MotionPriors:
         for d in self.discriminators:
             d.to(device)
         self.d_optimisers = [
-            torch.optim.Adam(d.parameters(), lr=disc.learning_rate) for d in self.discriminators
+            torch.optim.Adam(d.parameters(), lr=disc.learning_rate, fused=True)
+            for d in self.discriminators
         ]
         self.buffers = [
             ReplayBuffer(disc.replay_size, d.input_dim, device=device) for d in self.discriminators
