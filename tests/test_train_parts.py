@@ -313,12 +313,9 @@ def _one_sample_batch(policy, value, ratio: float, advantage: float) -> PPOBatch
     actions = torch.randn(1, ACTION_DIM, generator=gen) * 0.1
     with torch.no_grad():
         current = policy.log_prob(obs, agent, actions)
-    return PPOBatch.of(
-        policy,
-        value,
-        obs=obs,
-        other_obs=torch.randn(1, OBSERVATION_DIM, generator=gen),
-        agent=agent,
+    return PPOBatch(
+        policy_inputs=policy.inputs(obs, agent),
+        value_inputs=value.inputs(obs, torch.randn(1, OBSERVATION_DIM, generator=gen), agent),
         actions=actions,
         log_probs=current - math.log(ratio),  # so that pi / pi_old = ratio
         advantages=torch.tensor([advantage]),
@@ -395,12 +392,9 @@ def test_ppo_improves_a_one_step_bandit():
             gamma=config.gamma,
             lam=config.gae_lambda,
         )
-        batch = PPOBatch.of(
-            policy,
-            value,
-            obs=obs,
-            other_obs=other,
-            agent=agent,
+        batch = PPOBatch(
+            policy_inputs=policy.inputs(obs, agent),
+            value_inputs=value.inputs(obs, other, agent),
             actions=actions,
             log_probs=log_probs,
             advantages=advantages[0],

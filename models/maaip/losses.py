@@ -379,7 +379,7 @@ def gae(
 
 @dataclass(frozen=True)
 class PPOBatch:
-    """Flattened samples of both agents for PPO, B rows (`of` makes one).
+    """Flattened samples of both agents for PPO, B rows.
 
     policy_inputs, value_inputs: the networks' inputs (`Policy.inputs`, `CentralValue.inputs`),
     normalised once for the whole update (the normalisers follow the data only after it);
@@ -399,33 +399,6 @@ class PPOBatch:
             x = getattr(self, f.name)
             if x.shape[0] != n:
                 raise ValueError(f"PPOBatch.{f.name} has {x.shape[0]} rows, policy_inputs has {n}")
-
-    @classmethod
-    def of(
-        cls,
-        policy: Policy,
-        value: CentralValue,
-        *,
-        obs: Tensor,
-        other_obs: Tensor,
-        agent: Tensor,
-        actions: Tensor,
-        log_probs: Tensor,
-        advantages: Tensor,
-        returns: Tensor,
-        task: Tensor | None = None,
-    ) -> PPOBatch:
-        """The batch of these samples: obs, other_obs (B, F) the acting agent's and the other
-        agent's observations, agent (B,) ids, task (B, k) or None."""
-        with torch.no_grad():
-            return cls(
-                policy_inputs=policy.inputs(obs, agent, task),
-                value_inputs=value.inputs(obs, other_obs, agent, task),
-                actions=actions,
-                log_probs=log_probs,
-                advantages=advantages,
-                returns=returns,
-            )
 
     def __len__(self) -> int:
         return self.policy_inputs.shape[0]

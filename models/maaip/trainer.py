@@ -292,16 +292,20 @@ class Trainer:
         """GAE per agent, then PPO epochs over minibatches of both agents' samples."""
         ppo = self.config.ppo
         horizon, n, _ = r.log_probs.shape
+        policy, value = self.nets.policy, self.nets.value
         # Each agent's opponent's observation, the value's input where it sees the partner (a
         # tracker's does not, and is handed its own, unread, to save the copy).
-        other = r.obs.flip(2) if self.nets.value.sees_other else r.obs
-        agent = torch.arange(2, device=self.device).expand(horizon, n, 2)
+        partner = (lambda x: x.flip(2)) if value.sees_other else (lambda x: x)  # noqa: E731
+        agent = torch.arange(2, device=self.device).expand(horizon, n, 2).reshape(-1)
         flat = lambda x: None if x is None else x.reshape(-1, x.shape[-1])  # noqa: E731
         with torch.no_grad():
-            values = self.nets.value(flat(r.obs), flat(other), agent.reshape(-1), flat(r.task))
-            next_other = r.next_obs.flip(2) if self.nets.value.sees_other else r.next_obs
-            next_values = self.nets.value(
-                flat(r.next_obs), flat(next_other), agent.reshape(-1), flat(r.next_task)
+            # The networks' inputs, normalised once for the whole update: the normalisers follow
+            # the data only after it.
+            value_inputs = value.inputs(flat(r.obs), flat(partner(r.obs)), agent, flat(r.task))
+            policy_inputs = policy.inputs(flat(r.obs), agent, flat(r.task))
+            values = value.value_of(value_inputs)
+            next_values = value(
+                flat(r.next_obs), flat(partner(r.next_obs)), agent, flat(r.next_task)
             )
         dones = (r.terminated | r.truncated)[..., None].expand(horizon, n, 2)
         timeouts = r.truncated[..., None].expand(horizon, n, 2)
@@ -316,17 +320,13 @@ class Trainer:
             gamma=ppo.gamma,
             lam=ppo.gae_lambda,
         )
-        batch = PPOBatch.of(
-            self.nets.policy,
-            self.nets.value,
-            obs=flat(r.obs),
-            other_obs=flat(other),
-            agent=agent.reshape(-1),
+        batch = PPOBatch(
+            policy_inputs=policy_inputs,
+            value_inputs=value_inputs,
             actions=flat(r.actions),
             log_probs=r.log_probs.reshape(-1),
             advantages=advantages.reshape(-1),
             returns=returns.reshape(-1),
-            task=flat(r.task),
         )
         params = [*self.nets.policy.parameters(), *self.nets.value.parameters()]
         kls = []
