@@ -129,13 +129,25 @@ def _unreachable(error: duckdb.Error) -> bool:
     )  # fmt: skip
 
 
+def _initialised_meanwhile(error: duckdb.Error) -> bool:
+    """Whether ``error`` is DuckLake's first attach of an empty catalog finding the catalog's
+    tables made meanwhile by another process's first attach (a team's workers starting at
+    once): PostgreSQL refuses the second CREATE TABLE, and attaching again reads the catalog
+    the other made."""
+    text = str(error)
+    return "Failed to initialize DuckLake" in text and (
+        "already exists" in text or "pg_type_typname_nsp_index" in text
+    )
+
+
 class CatalogUnreachable(RuntimeError):
     """The lake's PostgreSQL did not answer within the wait."""
 
 
 def _open_lake(lake: Lake, *, read_only: bool, wait_s: float) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB with the lake attached and in use. PostgreSQL not answering (a
-    restart) is waited for up to ``wait_s``, then raised in one line."""
+    restart) is waited for up to ``wait_s``, then raised in one line; a first attach that
+    another process's first attach beat to the catalog's tables is tried again."""
     if not read_only:
         lake.data_path.mkdir(parents=True, exist_ok=True)
     deadline = time.monotonic() + wait_s
@@ -165,6 +177,9 @@ def _open_lake(lake: Lake, *, read_only: bool, wait_s: float) -> duckdb.DuckDBPy
             return con
         except duckdb.Error as error:
             con.close()
+            if _initialised_meanwhile(error) and time.monotonic() <= deadline:
+                time.sleep(random.uniform(0, delay))
+                continue
             if not _unreachable(error):
                 raise
             if time.monotonic() > deadline:

@@ -422,6 +422,38 @@ def test_many_writer_processes_commit_every_output_once(spawn, lake: Lake):
     assert retried > 0, "the two writers never collided: this part tested nothing"
 
 
+# Waits for a line, then opens the lake for writing (attaching it, which creates the catalog's
+# own tables when none are there yet, and migrating it) and prints the schema's versions.
+OPENER = (
+    CHILD
+    + """
+print("ready", flush=True)
+sys.stdin.readline()
+with connect(lake) as con:
+    rows = con.execute("SELECT version FROM schema_migrations ORDER BY version").fetchall()
+    print(json.dumps([version for (version,) in rows]), flush=True)
+"""
+)
+
+
+def test_many_processes_opening_a_fresh_lake_at_once_all_get_it(spawn, lake: Lake):
+    # The first connections of a team's workers meet a catalog database with nothing in it: each
+    # DuckLake attach creates the catalog's tables, and all but one of them find those tables
+    # made meanwhile ("relation ... already exists"; CI saw it on three workers).
+    children = [spawn(OPENER, lake.catalog, lake.shared) for _ in range(6)]
+    for child in children:
+        assert child.line(60) == "ready"
+    for child in children:
+        child.send("go")
+    versions = [version for version, _, _ in migrations()]
+    for child in children:
+        assert json.loads(child.line(120)) == versions, child.said()
+        assert child.process.wait(30) == 0, child.said()
+    with connect(lake, read_only=True) as con:
+        applied = con.execute("SELECT version FROM schema_migrations ORDER BY 1").fetchall()
+    assert applied == [(version,) for version in versions]  # each migration applied once
+
+
 # -- 3. Claims across machines ---------------------------------------------------------------
 
 CLAIM = (
