@@ -142,6 +142,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="a tracker run's clip to play, one of DeepMimic's (`tasks.deepmimic`: walk, punch, "
         "...); a tracker run needs one, a MAAIP run takes none",
     )
+    export.add_argument(
+        "--matched",
+        action="store_true",
+        help="a tracker run as the matched opponent: it plays the fighter's own train footage "
+        "(the clips the tracker finished), picked by the partner-aware motion matcher",
+    )
     export.add_argument("--json", action="store_true")
 
     motion = commands.add_parser(

@@ -53,18 +53,23 @@ def curves_command(args, paths: DataPaths) -> int:
 
 def export_command(args, paths: DataPaths) -> int:
     from tasks.errors import BadInput
-    from tasks.opponent.export import deepmimic_clip, trained_policy
+    from tasks.opponent.export import deepmimic_clip, matched_footage, trained_policy
     from tasks.opponent.tracker import KIND as TRACKER
 
     trained = trained_policy(paths.db, paths.artifacts, args.run)
     agent = 0 if args.agent == "adversary" else 1
-    clip = None
-    if trained.kind == TRACKER:
+    clip = footage = None
+    if args.matched:
+        if trained.kind != TRACKER or args.clip is not None:
+            raise BadInput("--matched", "takes a tracker run ('track') and no --clip")
+        footage = matched_footage(paths.db, trained, agent)
+    elif trained.kind == TRACKER:
         if args.clip is None:
             raise BadInput(
                 f"--run {args.run}",
                 "is a 'track' run (train.objective), which follows clips: export it with the "
-                "clip it plays (--clip NAME, one of DeepMimic's)",
+                "clip it plays (--clip NAME, one of DeepMimic's), or as the matched opponent "
+                "playing its footage (--matched)",
             )
         qpos = deepmimic_clip(
             paths.assets, args.clip, trained.bones[agent], fps=trained.config.env.policy_hz
@@ -73,7 +78,7 @@ def export_command(args, paths: DataPaths) -> int:
     elif args.clip is not None:
         raise BadInput(f"--clip {args.clip}", "only a tracker run plays a clip; this is MAAIP's")
     out = args.out or paths.root / "opponents" / f"{trained.run_key[:12]}-{args.agent}"
-    folder = trained.export(agent, out, clip)
+    folder = trained.export(agent, out, clip, footage)
     if args.json:
         print(
             json.dumps(

@@ -1,6 +1,6 @@
 """Export a trained fighter as an opponent folder of its kind (`tasks.opponent.folder` says what
-is in it): MAAIP's policy (`export_opponent`) or the motion tracker's with the clip it plays
-(`export_tracker`).
+is in it): MAAIP's policy (`export_opponent`), the motion tracker's with the clip it plays
+(`export_tracker`), or with the footage the motion matcher picks from (`export_matched`).
 
 The policy goes to ONNX with torch's TorchScript-based exporter (`dynamo=False`: the newer
 exporter needs the onnxscript package, which nothing else here uses), as the normaliser and
@@ -15,7 +15,7 @@ import io
 import json
 import shutil
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -30,18 +30,21 @@ from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT, NQ, action_to_
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
 from models.maaip.networks import Policy
 from models.maaip.trainer import checkpoint_policy
+from models.matching import MatchConfig
 from models.tracking.task import TRACK_OBSERVATION_DIM
 from storage.artifacts import read_bytes
 from storage.db import connect
 from storage.records import output_metrics
 from tasks.config import build
+from tasks.dataset.store import footage_clips
 from tasks.deepmimic import CLIPS, WALKER_CLIPS, clip_path, load_deepmimic, retarget
 from tasks.errors import BadInput
-from tasks.opponent import maaip, tracker
+from tasks.opponent import maaip, matched, tracker
 from tasks.opponent.folder import FORMAT, KINDS, MANIFEST
 from tasks.opponent.maaip import OnnxPolicy
+from tasks.roles import ROLES
 from tasks.train.config import TrainConfig
-from tasks.train.store import RunInfo, finished_runs
+from tasks.train.store import RunInfo, clips_finished, finished_runs
 
 ONNX_OPSET = 17
 
@@ -63,17 +66,36 @@ class TrainedPolicy:
         """The kind of opponent folder it exports as."""
         return tracker.KIND if self.config.objective == "track" else maaip.KIND
 
-    def export(self, agent: int, out: Path, clip: tuple[str, np.ndarray] | None = None) -> Path:
+    def export(
+        self,
+        agent: int,
+        out: Path,
+        clip: tuple[str, np.ndarray] | None = None,
+        footage: MatchedFootage | None = None,
+    ) -> Path:
         """One of its fighters as an opponent folder, the manifest naming the dataset, the run,
         its iteration and metrics: MAAIP's (`export_opponent`), or a tracker's playing
         ``clip`` (its name and qpos (T, 35) on that fighter's bones at the policy's rate,
-        `export_tracker`)."""
+        `export_tracker`) or the ``footage`` the motion matcher picks from (`export_matched`)."""
         facts = {
             "dataset_key": self.dataset_key,
             "run_key": self.run_key,
             "iteration": self.iteration,
             "metrics": self.metrics,
         }
+        if footage is not None:
+            if self.kind != tracker.KIND or clip is not None:
+                raise ValueError(f"run {self.run_key[:12]}: only a tracker plays footage, alone")
+            return export_matched(
+                out,
+                policy=self.policy,
+                agent=agent,
+                bones=self.bones,
+                env=self.config.env,
+                clips=footage.clips,
+                matcher=MatchConfig(),
+                facts={**facts, "left_out": list(footage.left_out)},
+            )
         if self.kind == tracker.KIND:
             if clip is None:
                 raise ValueError(f"run {self.run_key[:12]} is a tracker: give the clip it plays")
@@ -96,6 +118,36 @@ class TrainedPolicy:
             env=self.config.env,
             facts=facts,
         )
+
+
+@dataclass(frozen=True)
+class MatchedFootage:
+    """What a matched opponent plays: the clips of its fighter's train footage that its tracker
+    finished (name, the fighter's qpos (T, 35), the other fighter's at the same frames), and
+    the names of those it did not, left out."""
+
+    clips: tuple[tuple[str, np.ndarray, np.ndarray], ...]
+    left_out: tuple[str, ...]
+
+
+def matched_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFootage:
+    """The dataset's train footage of ``agent``'s fighter that tracker run ``trained`` finished
+    once trained (`train_tracking`); BadInput when it finished none."""
+    with connect(db, read_only=True) as con:
+        # Agent 0 tracked each clip's fighter and agent 1 the other (`paired_tracking`).
+        runs = [c for c in footage_clips(con, trained.dataset_key, ROLES[0]) if len(c.qpos) >= 2]
+        finished = clips_finished(con, trained.run_key, "train", agent)
+    kept, left = [], []
+    for c in runs:
+        own, other = (c.qpos, c.other_qpos) if agent == 0 else (c.other_qpos, c.qpos)
+        (kept if finished.get(c.name, False) else left).append((c.name, own, other))
+    if not kept:
+        raise BadInput(
+            f"--run {trained.run_key[:12]}",
+            f"its tracker finished none of the {len(runs)} train clips of its "
+            f"{ROLES[agent]}: no footage it can play",
+        )
+    return MatchedFootage(tuple(kept), tuple(name for name, _, _ in left))
 
 
 def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
@@ -327,6 +379,81 @@ def export_tracker(
         extra_files={tracker.CLIP: clip_bytes.getvalue()},
         extra={
             "clip": {"name": name, "frames": len(qpos), "fps": env.policy_hz, "file": tracker.CLIP}
+        },
+    )
+
+
+def export_matched(
+    out: Path,
+    *,
+    policy: Policy,
+    agent: int,
+    bones: tuple[BoneLengths, BoneLengths],
+    env: EnvConfig,
+    clips: Sequence[tuple[str, np.ndarray, np.ndarray]],
+    matcher: MatchConfig,
+    facts: dict,
+) -> Path:
+    """Write the matched opponent's folder ``out`` (replacing one that is there) and return it:
+    the tracker's policy playing ``clips`` as the matcher picks them (`tasks.opponent.matched`).
+
+    Args:
+        out, policy, agent, bones, env, facts: as for `export_tracker`.
+        clips: the fighter's footage: each clip's name, the fighter's qpos (T, 35) on
+            ``bones[agent]`` and the other fighter's at the same frames on ``bones[1 - agent]``,
+            at ``env.policy_hz``.
+        matcher: the matcher's settings.
+
+    A bout starts the fighter in the first clip's first pose, its partner at rest.
+    """
+    if agent not in (0, 1):
+        raise ValueError(f"agent must be 0 or 1, got {agent!r}")
+    if policy.obs_dim != TRACK_OBSERVATION_DIM or policy.task_dim:
+        raise ValueError(
+            f"policy: a tracker's takes {TRACK_OBSERVATION_DIM} inputs and no task, got "
+            f"{policy.obs_dim} and {policy.task_dim}"
+        )
+    if not clips:
+        raise ValueError("clips: the matched opponent needs footage to play")
+    for name, qpos, partner in clips:
+        q, p = np.asarray(qpos), np.asarray(partner)
+        if q.ndim != 2 or q.shape[1] != NQ or p.shape != q.shape or not np.isfinite(q).all():
+            raise ValueError(
+                f"clip {name!r}: qpos and its partner's must be finite (T, {NQ}), got "
+                f"{q.shape} and {p.shape}"
+            )
+    arrays = matched.motion_file(clips, env.policy_hz)
+    motion = io.BytesIO()
+    np.savez(motion, **arrays)
+    guard = np.zeros((2, len(HINGE_NAMES)))
+    guard[agent] = np.asarray(clips[0][1])[0, 7:]
+    return _write_folder(
+        Path(out),
+        matched.KIND,
+        policy=policy,
+        agent=agent,
+        bones=bones,
+        env=env,
+        facts=facts,
+        guard=guard,
+        observation={
+            "size": TRACK_OBSERVATION_DIM,
+            "frame": "o^self, then the matched motion's next frame's (tracking_input); see "
+            "models/tracking/task.py and tasks/opponent/matched.py",
+        },
+        action={
+            **_action_layout(),
+            "meaning": "a correction added to the matched frame's PD targets (DReCon)",
+        },
+        extra_files={matched.MOTION: motion.getvalue()},
+        extra={
+            "motion": {
+                "clips": len(clips),
+                "frames": int(arrays["lengths"].sum()),
+                "fps": env.policy_hz,
+                "file": matched.MOTION,
+            },
+            "matcher": matcher.as_dict(),
         },
     )
 

@@ -17,6 +17,9 @@ and, by kind:
 - "maaip" (`tasks.opponent.maaip`): policy.onnx, MAAIP's policy, (B, 274) in.
 - "tracker" (`tasks.opponent.tracker`): policy.onnx, the motion tracker's policy, (B, 451) in,
   and clip.npz, the reference clip it plays.
+- "matched" (`tasks.opponent.matched`): the tracker's policy.onnx and motion.npz, the fighter's
+  footage with the other fighter's at the same frames, which the partner-aware motion matcher
+  picks from (its settings in the manifest).
 
 A folder of format 1 (written before the kinds) names no kind: it is read as "maaip", which it
 is. `load_opponent` refuses, in one line naming the file (`BadInput`), a kind it does not know,
@@ -40,7 +43,7 @@ from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NUM_ACTUATED
 from storage.files import sha256_file
 from tasks.errors import BadInput
-from tasks.opponent import maaip, tracker
+from tasks.opponent import maaip, matched, tracker
 from tasks.opponent.controller import Controller
 
 FORMAT = 2
@@ -66,6 +69,7 @@ KINDS: Mapping[str, Kind] = MappingProxyType(
     {
         maaip.KIND: Kind(maaip.FILES, maaip.load),
         tracker.KIND: Kind(tracker.FILES, tracker.load),
+        matched.KIND: Kind(matched.FILES, matched.load),
     }
 )
 

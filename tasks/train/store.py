@@ -330,3 +330,15 @@ def dataset_tracking(con: duckdb.DuckDBPyConnection, dataset_key: str) -> tuple[
     )
     names = [d[0] for d in cursor.description]
     return found[0], [dict(zip(names, row, strict=True)) for row in cursor.fetchall()]
+
+
+def clips_finished(
+    con: duckdb.DuckDBPyConnection, run_key: str, split: str, agent: int
+) -> dict[str, bool]:
+    """Whether tracker run ``run_key``, once trained, finished each clip of ``split`` it tracked
+    as ``agent`` (`train_tracking`), by clip name."""
+    rows = con.execute(
+        "SELECT clip, finished FROM train_tracking WHERE key = ? AND split = ? AND agent = ?",
+        [run_key, split, agent],
+    ).fetchall()
+    return dict(rows)

@@ -1,0 +1,313 @@
+"""The motion tracker playing the fighter's own footage, chosen as it goes by the partner-aware
+motion matcher (`models.matching`), as a controller: the opponent of kind "matched" (DReCon,
+Bergamin et al. 2019; Vid2Player3D, Zhang et al. 2023).
+
+`MatchedTracker` keeps, per arena, the database frame the fighter is at and where the motion is
+laid in the arena (a turn about the vertical and a move along the floor, as `ClipTracker` lays
+its clip). Each policy step it tracks the laid motion's next frame and moves on to it. Every
+`MatchConfig.search_every` steps, and whenever the played clip is about to end, it searches:
+the query is the simulated fighter's body and its partner's, with the future of the frame it
+plays. When the nearest frame is nearer than playing on (or the clip ends), that frame is played
+from the next step, laid where the simulated body is and faces (so matching always continues
+from where the body really is), and cross-faded in over `MatchConfig.blend_steps` steps (the
+bodies' positions and velocities linearly, their rotations along the shortest arc, the PD
+targets linearly). A motion that strays further than `MatchConfig.anchor_m` from the simulated
+pelvis is moved back onto it.
+
+At an episode start (`reset`) the search has no frame being played: its future is the standing
+one (no move, facing ahead), and the match is laid where the fighter stands.
+
+The folder of kind "matched" (`tasks.opponent.folder`): policy.onnx, the tracker's, input
+"observation" (B, 451) float32, output "action" (B, 28); motion.npz, the database's clips as
+played: "qpos" (F, 35) of the fighter on its bones, "partner_qpos" (F, 35) of the other fighter
+of the footage at the same frames, "lengths" (C,) the clips' frame counts, "names" (C,), "fps";
+and the matcher's settings in the manifest ("matcher", `MatchConfig.as_dict`).
+
+Shape letters: B arenas given, F frames of the database, C clips.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from models.humanoid.boxer import BoneLengths
+from models.humanoid.kinematics import NQ, heading_frame_of_matrix
+from models.humanoid.observations import BodyState, self_observation
+from models.matching import MatchConfig, MotionDatabase, motion_database
+from models.tracking.clips import reference_clip
+from models.tracking.task import TRACK_OBSERVATION_DIM, tracking_input
+from tasks.errors import BadInput
+from tasks.opponent.controller import Seen
+from tasks.opponent.policy_file import load_policy
+
+KIND = "matched"
+MOTION = "motion.npz"
+FILES = ("policy.onnx", MOTION, "humanoid.xml", "arena.xml")
+
+
+def laid(states: BodyState, turn: np.ndarray, shift: np.ndarray) -> BodyState:
+    """States (B,) turned by ``turn`` (B, 3, 3) about the vertical and moved by ``shift`` (B, 3)."""
+    return BodyState(
+        np.einsum("nij,nbj->nbi", turn, states.pos) + shift[:, None],
+        turn[:, None] @ states.rot,
+        np.einsum("nij,nbj->nbi", turn, states.lin_vel),
+        np.einsum("nij,nbj->nbi", turn, states.ang_vel),
+    )
+
+
+def cross_fade(a: BodyState, b: BodyState, w: np.ndarray) -> BodyState:
+    """States (B,) a fraction ``w`` (B,) of the way from ``a`` to ``b``: positions and velocities
+    linearly, rotations along the shortest arc."""
+    lin = w[:, None, None]
+    rel = Rotation.from_matrix((a.rot.swapaxes(-1, -2) @ b.rot).reshape(-1, 3, 3)).as_rotvec()
+    step = Rotation.from_rotvec(rel * np.repeat(w, a.rot.shape[1])[:, None]).as_matrix()
+    return BodyState(
+        a.pos + lin * (b.pos - a.pos),
+        a.rot @ step.reshape(a.rot.shape),
+        a.lin_vel + lin * (b.lin_vel - a.lin_vel),
+        a.ang_vel + lin * (b.ang_vel - a.ang_vel),
+    )
+
+
+def laying(body: BodyState, frame: BodyState) -> tuple[np.ndarray, np.ndarray]:
+    """The turn (B, 3, 3) and move (B, 3) that lay database frames ``frame`` (B,) on simulated
+    bodies ``body`` (B,): the frame's pelvis on the body's on the floor, facing its way."""
+    turn = heading_frame_of_matrix(body.rot[:, 0]) @ heading_frame_of_matrix(
+        frame.rot[:, 0]
+    ).swapaxes(-1, -2)
+    shift = body.pos[:, 0] - np.einsum("nij,nj->ni", turn, frame.pos[:, 0])
+    shift[:, 2] = 0.0
+    return turn, shift
+
+
+class MatchedTracker:
+    """A tracker's policy playing ``database``'s frames as the matcher picks them (module
+    docstring).
+
+    Args:
+        policy: (B, 451) float32 tracker observations -> (B, 28) float64 corrections, e.g. an
+            exported tracker's `PolicyFile.run`.
+        database: the fighter's motion, at the policy's rate, with its matcher's settings.
+    """
+
+    def __init__(self, policy: Callable[[np.ndarray], np.ndarray], database: MotionDatabase):
+        self.policy, self.database = policy, database
+        self.config = database.config
+        self.searches = 0  # how many searches, and how many of them changed the frame played
+        self.switches = 0
+        self._at = np.zeros(0, dtype=int)  # by arena: the database frame it is at; -1: none
+        self._turn = np.zeros((0, 3, 3))  # by arena: the motion's turn about the vertical
+        self._shift = np.zeros((0, 3))  # by arena: then its move along the floor
+        self._since = np.zeros(0, dtype=int)  # by arena: steps since its last search
+        # By arena: the motion faded out (its frame, turn and move) and steps left of the fade.
+        self._old = np.zeros(0, dtype=int)
+        self._old_turn = np.zeros((0, 3, 3))
+        self._old_shift = np.zeros((0, 3))
+        self._fade = np.zeros(0, dtype=int)
+
+    def fresh(self) -> MatchedTracker:
+        return MatchedTracker(self.policy, self.database)
+
+    def _grow(self, count: int) -> None:
+        extra = count - len(self._at)
+        if extra <= 0:
+            return
+        eye = np.tile(np.eye(3), (extra, 1, 1))
+        self._at = np.concatenate([self._at, np.full(extra, -1)])
+        self._turn = np.concatenate([self._turn, eye])
+        self._shift = np.concatenate([self._shift, np.zeros((extra, 3))])
+        self._since = np.concatenate([self._since, np.zeros(extra, dtype=int)])
+        self._old = np.concatenate([self._old, np.zeros(extra, dtype=int)])
+        self._old_turn = np.concatenate([self._old_turn, eye])
+        self._old_shift = np.concatenate([self._old_shift, np.zeros((extra, 3))])
+        self._fade = np.concatenate([self._fade, np.zeros(extra, dtype=int)])
+
+    def frames(self, arenas: np.ndarray) -> np.ndarray:
+        """(B,) the database frame the fighter is at in each of ``arenas``."""
+        return self._at[np.asarray(arenas, dtype=int)].copy()
+
+    def reference(self, arenas: np.ndarray) -> BodyState:
+        """(B,) the frame each fighter of ``arenas`` (B,) tracks next, laid in its arena and
+        cross-faded from the motion it left."""
+        ids = np.asarray(arenas, dtype=int)
+        return self._next(ids)[0]
+
+    def _next(self, ids: np.ndarray) -> tuple[BodyState, np.ndarray, np.ndarray]:
+        """The next frame's laid states (B,), its o^self (B, 223) and its PD targets (B, 28)."""
+        library = self.database.library
+        nxt = library.next(self._at[ids])
+        states = laid(library.clip.states[nxt], self._turn[ids], self._shift[ids])
+        actions = library.clip.actions[nxt]
+        fading = self._fade[ids] > 0
+        if not fading.any():
+            return states, library.clip.observation[nxt], actions
+        old = library.next(self._old[ids])
+        before = laid(library.clip.states[old], self._old_turn[ids], self._old_shift[ids])
+        w = np.where(fading, 1.0 - self._fade[ids] / (self.config.blend_steps + 1), 1.0)
+        states = cross_fade(before, states, w)
+        actions = library.clip.actions[old] + w[:, None] * (actions - library.clip.actions[old])
+        return states, self_observation(states), actions
+
+    def _search(self, ids: np.ndarray, seen: Seen, rows: np.ndarray, *, start: bool) -> None:
+        """Search for the fighters of arenas ``ids`` (rows ``rows`` of ``seen``) and play the
+        match where it beats playing on (always at a ``start``)."""
+        db = self.database
+        body, partner = seen.body[rows], seen.bodies[rows, 1 - seen.slot]
+        playing = np.full(len(ids), -1) if start else self._at[ids]
+        query = db.query(body, partner, None if start else playing)
+        found = db.nearest(query, playing)
+        self.searches += len(ids)
+        if start:
+            switch = np.ones(len(ids), dtype=bool)
+        else:
+            onward = db.library.next(playing)
+            ending = db.library.at_end(db.library.next(onward))
+            switch = ending | (db.distance(query, found) < db.distance(query, onward))
+        self._since[ids] = 0
+        if not switch.any():
+            return
+        ids, rows, found = ids[switch], rows[switch], found[switch]
+        self.switches += int(switch.sum()) if not start else 0
+        if not start and self.config.blend_steps:
+            self._old[ids] = self._at[ids]
+            self._old_turn[ids] = self._turn[ids]
+            self._old_shift[ids] = self._shift[ids]
+            self._fade[ids] = self.config.blend_steps
+        else:
+            self._fade[ids] = 0
+        # Laid where the simulated body is, at the frame before the one tracked next.
+        self._turn[ids], self._shift[ids] = laying(seen.body[rows], db.library.clip.states[found])
+        self._at[ids] = found
+
+    def reset(self, seen: Seen) -> None:
+        ids = np.asarray(seen.arenas, dtype=int)
+        self._grow(int(ids.max()) + 1 if len(ids) else 0)
+        if len(ids):
+            self._search(ids, seen, np.arange(len(ids)), start=True)
+
+    def act(self, seen: Seen) -> np.ndarray:
+        ids = np.asarray(seen.arenas, dtype=int)
+        if len(ids) and (ids.max() >= len(self._at) or (self._at[ids] < 0).any()):
+            raise ValueError("act before reset: every arena's episode starts with `reset`")
+        library = self.database.library
+        due = (self._since[ids] >= self.config.search_every) | library.at_end(
+            library.next(library.next(self._at[ids]))
+        )
+        if due.any():
+            self._search(ids[due], seen, np.flatnonzero(due), start=False)
+        # The motion moved back under the simulated pelvis where it strayed.
+        states, _, _ = self._next(ids)
+        strayed = np.linalg.norm((states.pos[:, 0] - seen.body.pos[:, 0])[:, :2], axis=-1)
+        far = strayed > self.config.anchor_m
+        if far.any():
+            back = seen.body.pos[far, 0] - states.pos[far, 0]
+            back[:, 2] = 0.0
+            self._shift[ids[far]] += back
+            self._old_shift[ids[far]] += back
+        states, observation, actions = self._next(ids)
+        sim = seen.body
+        given = tracking_input(sim, states, observation)
+        correction = self.policy(np.concatenate([self_observation(sim), given], -1))
+        self._at[ids] = library.next(self._at[ids])
+        self._old[ids] = library.next(self._old[ids])
+        self._fade[ids] = np.maximum(self._fade[ids] - 1, 0)
+        self._since[ids] += 1
+        return actions + correction
+
+
+def motion_file(
+    clips: Sequence[tuple[str, np.ndarray, np.ndarray]], fps: float
+) -> dict[str, np.ndarray]:
+    """The arrays of motion.npz (module docstring) of ``clips``, each its name, the fighter's
+    qpos (T, 35) and the other fighter's at the same frames (T, 35)."""
+    return {
+        "qpos": np.concatenate([np.asarray(q, dtype=np.float64) for _, q, _ in clips]),
+        "partner_qpos": np.concatenate([np.asarray(p, dtype=np.float64) for _, _, p in clips]),
+        "lengths": np.array([len(q) for _, q, _ in clips]),
+        "names": np.array([name for name, _, _ in clips]),
+        "fps": np.float64(fps),
+    }
+
+
+def load_motion(
+    path: Path,
+    bones: BoneLengths,
+    partner_bones: BoneLengths,
+    *,
+    policy_hz: float,
+    config: MatchConfig,
+) -> MotionDatabase:
+    """motion.npz as a MotionDatabase of the fighter on ``bones`` with its partner on
+    ``partner_bones``; BadInput naming the file otherwise."""
+    try:
+        with np.load(path, allow_pickle=False) as stored:
+            qpos, partner = stored["qpos"], stored["partner_qpos"]
+            lengths, names, fps = stored["lengths"], stored["names"], float(stored["fps"])
+    except (OSError, ValueError, KeyError) as error:
+        raise BadInput(
+            str(path),
+            f"not a motion file with qpos, partner_qpos, lengths, names and fps ({error})",
+        ) from error
+    if fps != policy_hz:
+        raise BadInput(
+            str(path),
+            f"motion at {fps:g} fps; the policy steps at {policy_hz:g} Hz, a frame a step",
+        )
+    if qpos.ndim != 2 or qpos.shape[1] != NQ or partner.shape != qpos.shape:
+        raise BadInput(
+            str(path),
+            f"qpos and partner_qpos must both be (F, {NQ}), got {qpos.shape} and {partner.shape}",
+        )
+    if (
+        lengths.ndim != 1
+        or len(names) != len(lengths)
+        or lengths.sum() != len(qpos)
+        or (lengths < 2).any()
+    ):
+        raise BadInput(
+            str(path),
+            f"lengths {lengths.tolist()} do not cut {len(qpos)} frames into clips of 2 or more",
+        )
+    cuts = np.cumsum(lengths)[:-1]
+    try:
+        own = [
+            reference_clip(str(n), q, bones, fps=fps)
+            for n, q in zip(names, np.split(qpos, cuts), strict=True)
+        ]
+        others = [
+            reference_clip(f"{n}:partner", q, partner_bones, fps=fps)
+            for n, q in zip(names, np.split(partner, cuts), strict=True)
+        ]
+        return motion_database(own, others, fps=fps, config=config)
+    except ValueError as error:
+        raise BadInput(str(path), str(error)) from error
+
+
+def load(
+    folder: Path, manifest: dict, bones: tuple[BoneLengths, BoneLengths], agent: int
+) -> MatchedTracker:
+    """The controller of a "matched" folder (files checked by the caller)."""
+    policy = load_policy(
+        folder / "policy.onnx",
+        TRACK_OBSERVATION_DIM,
+        made_by="the motion tracker's o^self and tracking_input",
+    )
+    if policy.task_dim:
+        raise BadInput(str(policy.path), "a tracker's policy takes no task input")
+    manifest_path = str(folder / "manifest.json")
+    try:
+        policy_hz = float(manifest["env"]["policy_hz"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise BadInput(manifest_path, f"env.policy_hz unreadable ({error})") from error
+    try:
+        config = MatchConfig.from_dict(manifest["matcher"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise BadInput(manifest_path, f"matcher settings unreadable ({error})") from error
+    database = load_motion(
+        folder / MOTION, bones[agent], bones[1 - agent], policy_hz=policy_hz, config=config
+    )
+    return MatchedTracker(policy.run, database)

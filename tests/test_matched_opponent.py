@@ -1,0 +1,326 @@
+"""The matched opponent (tasks.opponent.matched): a tracker playing its fighter's own footage as
+the partner-aware motion matcher picks it, exported, loaded, checked, and played.
+
+The footage is DeepMimic's walk with its partner 4 m ahead and DeepMimic's punch with its
+partner 0.7 m ahead (as tests/test_matching.py). The tracker is tiny and trained two iterations
+on the walk, so where the matcher's choices are the question, the fighter is moved to each frame
+it tracks (tracking perfectly) rather than simulated; the bout and `ringside spar` then run it in
+MuJoCo."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from opponents import REPO
+from test_matching import facing, turned
+
+from models.arena.config import EnvConfig
+from models.arena.starts import ReferenceMotions
+from models.humanoid.boxer import BoneLengths
+from models.humanoid.kinematics import NQ, NV
+from models.humanoid.observations import OBSERVATION_DIM, BodyState
+from models.maaip.config import NetworkConfig, PPOConfig
+from models.maaip.networks import Policy
+from models.maaip.trainer import Trainer
+from models.matching import MatchConfig
+from models.tracking.clips import tracking_data
+from storage.files import sha256_file
+from tasks.deepmimic import clip_path, load_deepmimic, retarget
+from tasks.errors import BadInput
+from tasks.evaluate.bouts import simulate
+from tasks.opponent.controller import Seen
+from tasks.opponent.export import TrainedPolicy, export_matched, policy_onnx
+from tasks.opponent.folder import load_opponent
+from tasks.opponent.matched import MatchedTracker
+from tasks.opponent.still import StillGuard
+from tasks.train.config import TrainConfig
+
+BONES = (BoneLengths(), BoneLengths())
+TRACK = TrainConfig(
+    objective="track",
+    seed=5,
+    network=NetworkConfig(hidden="32,32"),
+    ppo=PPOConfig(horizon=8, minibatch_size=32, epochs=2),
+    env=EnvConfig(num_envs=4, threads=1),
+)
+FIELDS = tuple(BodyState.__dataclass_fields__)
+
+
+@pytest.fixture(scope="module")
+def footage(assets) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    walk = retarget(load_deepmimic(clip_path(assets, "walk")))
+    punch = retarget(load_deepmimic(clip_path(assets, "punch")))
+    return [("walk", walk, facing(walk, 4.0)), ("punch", punch, facing(punch, 0.7))]
+
+
+@pytest.fixture(scope="module")
+def tracker_policy(footage) -> Policy:
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    walk = footage[0][1]
+    data = tracking_data(({"walk": walk}, {"walk": walk}), BONES, fps=30.0, key="clips:walk")
+    trainer = Trainer(TRACK, data)
+    try:
+        for _ in range(2):
+            trainer.iterate()
+    finally:
+        trainer.close()
+        torch.set_num_threads(before)
+    return trainer.nets.policy.eval()
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory, tracker_policy, footage):
+    facts = {"dataset_key": "none", "run_key": "tracker", "iteration": 2, "metrics": {}}
+    return export_matched(
+        tmp_path_factory.mktemp("matched") / "walk-punch",
+        policy=tracker_policy,
+        agent=0,
+        bones=BONES,
+        env=TRACK.env,
+        clips=footage,
+        matcher=MatchConfig(search_every=3, blend_steps=4),
+        facts=facts,
+    )
+
+
+def pair(me: BodyState, partner: BodyState) -> BodyState:
+    """(B, 2) states of fighter ``me`` (B,) in slot 0 and its partner (B,) in slot 1."""
+    return BodyState(*(np.stack([getattr(me, f), getattr(partner, f)], 1) for f in FIELDS))
+
+
+def seen(me: BodyState, partner: BodyState) -> Seen:
+    zeros = np.zeros((len(me.pos), OBSERVATION_DIM))
+    return Seen(np.arange(len(me.pos)), 0, pair(me, partner), zeros, zeros)
+
+
+def partner_of(controller: MatchedTracker, clip: int, me: BodyState) -> BodyState:
+    """Clip ``clip``'s partner (the walk's 4 m ahead, the punch's 0.7 m, facing the fighter)
+    placed as it stands to that clip's first frame, about each of fighters ``me`` (B,)."""
+    db = controller.database
+    first = db.library.clip.states[db.library.start[clip]]
+    partner = db.partner[db.library.start[clip]]
+    yaw0 = np.arctan2(first.rot[0, 1, 0], first.rot[0, 0, 0])
+    centred = BodyState(
+        partner.pos - first.pos[0] * [1, 1, 0], partner.rot, partner.lin_vel, partner.ang_vel
+    )
+    placed = [
+        turned(centred, np.arctan2(r[1, 0], r[0, 0]) - yaw0, p * [1, 1, 0])
+        for r, p in zip(me.rot[:, 0], me.pos[:, 0], strict=True)
+    ]
+    return BodyState(*(np.stack([getattr(p, f) for p in placed]) for f in FIELDS))
+
+
+def played_on(controller: MatchedTracker, me: BodyState, clip: int, steps: int) -> list[int]:
+    """``steps`` policy steps of ``controller`` tracking perfectly (the fighter reaches each
+    frame it tracks) with clip ``clip``'s partner kept where it stands to that clip; the
+    database frame it is at after each."""
+    played = []
+    for _ in range(steps):
+        ahead = controller.reference(np.array([0]))
+        controller.act(seen(me, partner_of(controller, clip, me)))
+        played.append(int(controller.frames(np.array([0]))[0]))
+        me = ahead
+    return played
+
+
+class Recorded:
+    """A controller as it is, the database frame it is at after each step written down."""
+
+    def __init__(self, inner: MatchedTracker):
+        self.inner, self.played = inner, []
+
+    def reset(self, seen: Seen) -> None:
+        self.inner.reset(seen)
+
+    def act(self, seen: Seen) -> np.ndarray:
+        actions = self.inner.act(seen)
+        self.played.append(int(self.inner.frames(seen.arenas)[0]))
+        return actions
+
+    def fresh(self) -> Recorded:
+        return self
+
+
+def test_the_matched_opponent_exports_as_a_folder_of_its_kind(folder, footage):
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "arena.xml",
+        "humanoid.xml",
+        "manifest.json",
+        "motion.npz",
+        "policy.onnx",
+    ]
+    assert manifest["kind"] == "matched" and manifest["observation"]["size"] == 451
+    assert manifest["motion"] == {"clips": 2, "frames": 39 + 65, "fps": 30, "file": "motion.npz"}
+    assert manifest["matcher"]["search_every"] == 3 and manifest["matcher"]["blend_steps"] == 4
+    opponent = load_opponent(folder)
+    controller = opponent.controller
+    assert opponent.kind == "matched" and isinstance(controller, MatchedTracker)
+    assert controller.config == MatchConfig(search_every=3, blend_steps=4)
+    np.testing.assert_allclose(controller.database.library.clip.qpos[:39], footage[0][1])
+    np.testing.assert_allclose(opponent.guard[0], footage[0][1][0, 7:])
+
+
+def test_it_plays_its_footage_on_and_never_holds_a_clips_end(folder):
+    """Tracking perfectly with its partner kept 4 m ahead, the walker walks on for 4 s: always
+    frames of the walk (the footage's own answer to a far partner), never a clip's last frame,
+    mostly frame after frame."""
+    controller = load_opponent(folder).controller.fresh()
+    lib = controller.database.library
+    me = lib.clip.states[np.array([0])]
+    controller.reset(seen(me, partner_of(controller, 0, me)))
+    played = played_on(controller, me, clip=0, steps=120)
+    clips, _ = lib.locate(np.array(played))
+    assert (clips == 0).all(), played
+    assert not lib.at_end(np.array(played)).any()
+    assert controller.switches >= 120 // 39  # the 1.3 s walk played on again from its frames
+    assert (np.diff(played) == 1).mean() > 0.8, played
+
+
+def test_with_its_partner_stepping_into_reach_it_turns_to_the_punch(folder):
+    controller = load_opponent(folder).controller.fresh()
+    lib = controller.database.library
+    me = lib.clip.states[np.array([0])]
+    controller.reset(seen(me, partner_of(controller, 0, me)))
+    before = played_on(controller, me, clip=0, steps=6)
+    assert (lib.locate(np.array(before))[0] == 0).all()
+    me = controller.reference(np.array([0]))
+    after = played_on(controller, me, clip=1, steps=controller.config.search_every + 1)
+    assert lib.locate(np.array(after[-1:]))[0][0] == 1, after
+    # The punch is laid where the body stands, facing its way.
+    ref = controller.reference(np.array([0]))
+    assert np.linalg.norm((ref.pos[0, 0] - me.pos[0, 0])[:2]) < 0.3
+
+
+def test_a_motion_strayed_from_the_body_is_moved_back_under_it(folder):
+    controller = load_opponent(folder).controller.fresh()
+    lib = controller.database.library
+    me = lib.clip.states[np.array([0])]
+    far = controller.database.partner[np.array([0])]
+    controller.reset(seen(me, far))
+    pushed = BodyState(me.pos + [0.0, 1.0, 0.0], me.rot, me.lin_vel, me.ang_vel)
+    controller.act(seen(pushed, far))
+    # The step after the push: the tracked frame lies within the anchor of the pushed pelvis.
+    ref = controller.reference(np.array([0]))
+    assert np.linalg.norm((ref.pos[0, 0] - pushed.pos[0, 0])[:2]) <= controller.config.anchor_m
+
+
+def test_a_bout_runs_it_in_mujoco_and_it_punches_with_its_partner_in_reach(folder, footage):
+    """`simulate` takes the loaded matched opponent as any controller: 1 s from the walk's first
+    pose, the partner standing 4 m ahead, then 0.7 m ahead. With the partner in reach it plays
+    the punch's frames, with the partner far the walk's."""
+    walk = footage[0][1]
+    shares = {}
+    for name, gap in (("far", 4.0), ("near", 0.7)):
+        recorded = Recorded(load_opponent(folder).controller.fresh())
+        q1 = facing(walk, gap)[:1]
+        zero = np.zeros((1, NV))
+        stance = np.stack([walk[0, 7:], q1[0, 7:]])
+        start = ReferenceMotions(walk[:1].copy(), zero, q1, zero, stance=stance)
+        bouts = simulate(
+            (recorded, StillGuard(q1[0, 7:])),
+            reference=start,
+            bones=BONES,
+            env_config=TRACK.env,
+            episodes=1,
+            frames=30,
+            seed=0,
+        )
+        assert np.isfinite(bouts.qpos[0, : bouts.steps[0] + 1]).all() and bouts.steps[0] >= 10
+        clips, _ = recorded.inner.database.library.locate(np.array(recorded.played))
+        shares[name] = float((clips == 1).mean())
+    # Measured: 0 % of the steps from the punch with the partner far, 100 % with it near.
+    assert shares["far"] <= 0.2 and shares["near"] >= 0.8, shares
+
+
+def test_broken_matched_folders_are_refused_in_one_line(tmp_path, folder):
+    def broken(name: str, change):
+        copy = tmp_path / name
+        shutil.copytree(folder, copy)
+        manifest = json.loads((copy / "manifest.json").read_text())
+        change(copy, manifest)
+        (copy / "manifest.json").write_text(json.dumps(manifest))
+        return copy
+
+    def refused(copy, pattern: str) -> None:
+        with pytest.raises(BadInput, match=pattern) as caught:
+            load_opponent(copy)
+        assert "\n" not in str(caught.value)
+
+    refused(
+        broken("no_motion", lambda copy, _: (copy / "motion.npz").unlink()),
+        r"motion.npz: missing from the opponent folder",
+    )
+
+    def rewritten(**arrays):
+        def change(copy, manifest):
+            with np.load(copy / "motion.npz") as stored:
+                np.savez(copy / "motion.npz", **{**dict(stored), **arrays})
+            manifest["files"]["motion.npz"] = sha256_file(copy / "motion.npz")
+
+        return change
+
+    refused(
+        broken("other_body", rewritten(qpos=np.zeros((104, NQ + 3)))),
+        r"motion.npz: qpos and partner_qpos must both be \(F, 35\), got \(104, 38\)",
+    )
+    refused(
+        broken("cut_wrong", rewritten(lengths=np.array([39, 60]))),
+        r"motion.npz: lengths \[39, 60\] do not cut 104 frames",
+    )
+    refused(
+        broken("other_rate", rewritten(fps=np.float64(60.0))),
+        r"motion.npz: motion at 60 fps; the policy steps at 30 Hz",
+    )
+
+    def settings(copy, manifest):
+        manifest["matcher"]["weights"]["elbows"] = 1.0
+
+    refused(broken("bad_settings", settings), r"manifest.json: matcher settings unreadable")
+
+    def maaip_policy(copy, manifest):
+        small = Policy(hidden=(8,), action_std=0.1, obs_dim=OBSERVATION_DIM)
+        (copy / "policy.onnx").write_bytes(policy_onnx(small, 0))
+        manifest["files"]["policy.onnx"] = sha256_file(copy / "policy.onnx")
+
+    refused(
+        broken("maaip_policy", maaip_policy),
+        r"policy.onnx: takes observations of shape \['batch', 274\]; this Ringside makes "
+        r"\(B, 451\)",
+    )
+
+
+def test_a_tracker_run_exports_as_the_matched_opponent(tmp_path, tracker_policy, footage):
+    """What `ringside export --run KEY --matched` does once it has the run's footage."""
+    from tasks.opponent.export import MatchedFootage
+
+    run = TrainedPolicy("k" * 64, "d" * 64, 2, TRACK, tracker_policy, BONES, {})
+    played = MatchedFootage(tuple(footage), ("left@0",))
+    opponent = load_opponent(run.export(0, tmp_path / "matched", footage=played))
+    assert opponent.kind == "matched" and opponent.manifest["left_out"] == ["left@0"]
+    with pytest.raises(ValueError, match="only a tracker plays footage"):
+        TrainedPolicy("m" * 64, "d" * 64, 2, TrainConfig(), tracker_policy, BONES, {}).export(
+            0, tmp_path / "none", footage=played
+        )
+
+
+def test_the_matched_opponent_spars_without_torch(folder):
+    """`ringside spar` on the matched folder, in a fresh interpreter: nothing imports torch."""
+    code = (
+        "import json, sys; from flows.cli import main; "
+        f"rc = main(['spar', '{folder}', '--seconds', '2', '--json']); "
+        "assert 'torch' not in sys.modules, 'torch was imported'; sys.exit(rc)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout.strip().splitlines()[0])
+    assert result["policy_steps"] == 60 and result["timings_s"]["policy"] > 0
