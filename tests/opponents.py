@@ -3,12 +3,18 @@
 The folders are real exports (`export_opponent`) of an untrained policy whose mean is each
 fighter's guard, taken from DeepMimic's punch clip as both fighters perform it. Such an opponent
 stands in its guard (tests/test_opponent.py), which is what a live test needs; what a trained
-one does is the evaluation's business."""
+one does is the evaluation's business. For the tracker's kinds: a tiny tracker trained two
+iterations (`walk_tracker`); for any kind: broken copies of a folder refused in one line
+(`broken_copy`, `refused`), `ringside spar` without torch (`spar_without_torch`) and a served
+session's first states (`served_states`)."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import json
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -18,19 +24,99 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+import pytest
 import torch
+from websockets.asyncio.client import connect
 
 from flows.serve import stop_process
 from models.arena.config import EnvConfig
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.stance import guard_pose
-from models.maaip.config import NetworkConfig
-from models.maaip.networks import make_networks
+from models.maaip.config import NetworkConfig, PPOConfig
+from models.maaip.networks import Policy, make_networks
+from models.maaip.trainer import Trainer
+from models.tracking.clips import tracking_data
+from tasks.errors import BadInput
 from tasks.opponent.export import export_opponent
+from tasks.opponent.folder import load_opponent
 from tasks.train.config import TrainConfig
 from tasks.train.data import clip_demonstrations
 
 BONES = (BoneLengths(), BoneLengths().scaled(0.95))
+REPO = Path(__file__).resolve().parent.parent
+
+# The tiny tracker's run: two iterations of 4 arenas on the default bodies.
+TRACK = TrainConfig(
+    objective="track",
+    seed=5,
+    network=NetworkConfig(hidden="32,32"),
+    ppo=PPOConfig(horizon=8, minibatch_size=32, epochs=2),
+    env=EnvConfig(num_envs=4, threads=1),
+)
+
+
+def walk_tracker(walk: np.ndarray) -> Policy:
+    """A tracker trained two iterations (`TRACK`) on ``walk`` (T, 35) at 30 Hz, both agents on
+    the default bones (its normaliser has seen data); in eval mode."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    bones = (BoneLengths(), BoneLengths())
+    data = tracking_data(({"walk": walk}, {"walk": walk}), bones, fps=30.0, key="clips:walk")
+    trainer = Trainer(TRACK, data)
+    try:
+        for _ in range(2):
+            trainer.iterate()
+    finally:
+        trainer.close()
+        torch.set_num_threads(before)
+    return trainer.nets.policy.eval()
+
+
+def broken_copy(root: Path, folder: Path, name: str, change) -> Path:
+    """A copy of opponent ``folder`` as ``root/name``, ``change(copy, manifest)`` applied and
+    the manifest written back."""
+    copy = root / name
+    shutil.copytree(folder, copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    change(copy, manifest)
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    return copy
+
+
+def refused(copy: Path, pattern: str) -> None:
+    """Loading ``copy`` raises BadInput matching ``pattern``, in one line."""
+    with pytest.raises(BadInput, match=pattern) as caught:
+        load_opponent(copy)
+    assert "\n" not in str(caught.value)
+
+
+def spar_without_torch(folder: Path) -> dict:
+    """`ringside spar FOLDER --seconds 2 --json` in a fresh interpreter, asserting that nothing
+    imported torch; its JSON result."""
+    code = (
+        "import json, sys; from flows.cli import main; "
+        f"rc = main(['spar', '{folder}', '--seconds', '2', '--json']); "
+        "assert 'torch' not in sys.modules, 'torch was imported'; sys.exit(rc)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[0])
+
+
+async def served_states(url: str, count: int) -> list[dict]:
+    """The first ``count`` states of a session in commands mode on the server at ``url``."""
+    async with connect(url) as ws:
+        await ws.send(json.dumps({"type": "hello", "protocol": 1, "mode": "commands"}))
+        welcome = json.loads(await ws.recv())
+        assert welcome["type"] == "welcome"
+        states = []
+        while len(states) < count:
+            message = json.loads(await asyncio.wait_for(ws.recv(), 10.0))
+            if message["type"] == "state":
+                states.append(message)
+        return states
 
 
 def untrained_opponents(
@@ -64,9 +150,6 @@ def guard_opponents(assets: Path, root: Path) -> tuple[Path, Path]:
         ]
     )
     return untrained_opponents(root, BONES, stance, EnvConfig(num_envs=32))
-
-
-REPO = Path(__file__).resolve().parent.parent
 
 
 class Served(NamedTuple):

@@ -13,28 +13,28 @@ from __future__ import annotations
 
 import asyncio
 import json
-import shutil
-import subprocess
-import sys
 
 import mujoco
 import numpy as np
 import pytest
 import torch
-from opponents import REPO, spar_server
+from opponents import (
+    TRACK,
+    broken_copy,
+    refused,
+    served_states,
+    spar_server,
+    spar_without_torch,
+    walk_tracker,
+)
 from scipy.spatial.transform import Rotation
-from websockets.asyncio.client import connect
 
-from models.arena.config import EnvConfig
 from models.arena.mjcf import arena_mjcf
 from models.arena.starts import ReferenceMotions
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NUM_ACTUATED, NV, heading_frame_of_matrix
 from models.humanoid.observations import OBSERVATION_DIM
-from models.maaip.config import NetworkConfig, PPOConfig
 from models.maaip.networks import Policy
-from models.maaip.trainer import Trainer
-from models.tracking.clips import tracking_data
 from models.tracking.task import TRACK_OBSERVATION_DIM
 from storage.files import sha256_file
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
@@ -45,16 +45,8 @@ from tasks.opponent.export import TrainedPolicy, deepmimic_clip, export_tracker,
 from tasks.opponent.folder import load_opponent
 from tasks.opponent.still import StillGuard
 from tasks.opponent.tracker import ClipTracker
-from tasks.train.config import TrainConfig
 
 BONES = (BoneLengths(), BoneLengths())
-TRACK = TrainConfig(
-    objective="track",
-    seed=5,
-    network=NetworkConfig(hidden="32,32"),
-    ppo=PPOConfig(horizon=8, minibatch_size=32, epochs=2),
-    env=EnvConfig(num_envs=4, threads=1),
-)
 STEPS = 12  # policy steps the pose is compared over (0.4 s of the 1.3 s walk)
 
 
@@ -66,18 +58,7 @@ def walk(assets) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def tracker_policy(walk) -> Policy:
-    """A tracker trained two iterations on the walk (its normaliser has seen data)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    data = tracking_data(({"walk": walk}, {"walk": walk}), BONES, fps=30.0, key="clips:walk")
-    trainer = Trainer(TRACK, data)
-    try:
-        for _ in range(2):
-            trainer.iterate()
-    finally:
-        trainer.close()
-        torch.set_num_threads(before)
-    return trainer.nets.policy.eval()
+    return walk_tracker(walk)
 
 
 @pytest.fixture(scope="module")
@@ -197,17 +178,7 @@ def test_the_tracker_holds_the_clips_last_frame_after_its_end_and_starts_again_a
 
 def test_broken_tracker_folders_are_refused_in_one_line(tmp_path, folder):
     def broken(name: str, change):
-        copy = tmp_path / name
-        shutil.copytree(folder, copy)
-        manifest = json.loads((copy / "manifest.json").read_text())
-        change(copy, manifest)
-        (copy / "manifest.json").write_text(json.dumps(manifest))
-        return copy
-
-    def refused(copy, pattern: str) -> None:
-        with pytest.raises(BadInput, match=pattern) as caught:
-            load_opponent(copy)
-        assert "\n" not in str(caught.value)
+        return broken_copy(tmp_path, folder, name, change)
 
     def kind(name):
         return lambda _, manifest: manifest.update(kind=name)
@@ -257,30 +228,8 @@ def test_a_tracker_run_exports_with_the_clip_it_plays(tmp_path, assets, tracker_
 
 def test_a_tracker_spars_against_the_still_partner_without_torch(folder):
     """`ringside spar` on the tracker's folder, in a fresh interpreter: nothing imports torch."""
-    code = (
-        "import json, sys; from flows.cli import main; "
-        f"rc = main(['spar', '{folder}', '--seconds', '2', '--json']); "
-        "assert 'torch' not in sys.modules, 'torch was imported'; sys.exit(rc)"
-    )
-    done = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300
-    )
-    assert done.returncode == 0, done.stderr
-    result = json.loads(done.stdout.strip().splitlines()[0])
+    result = spar_without_torch(folder)
     assert result["policy_steps"] == 60 and result["timings_s"]["policy"] > 0
-
-
-async def _served_states(url: str, count: int) -> list[dict]:
-    async with connect(url) as ws:
-        await ws.send(json.dumps({"type": "hello", "protocol": 1, "mode": "commands"}))
-        welcome = json.loads(await ws.recv())
-        assert welcome["type"] == "welcome"
-        states = []
-        while len(states) < count:
-            message = json.loads(await asyncio.wait_for(ws.recv(), 10.0))
-            if message["type"] == "state":
-                states.append(message)
-        return states
 
 
 def test_a_tracker_is_served_over_a_websocket(folder, tmp_path):
@@ -290,7 +239,7 @@ def test_a_tracker_is_served_over_a_websocket(folder, tmp_path):
     step 1 to step 12 (a fighter holding its first pose would end that far from it)."""
     clip = load_opponent(folder).controller.clip
     with spar_server(folder, tmp_path / "data") as served:
-        states = asyncio.run(_served_states(served.url, STEPS))
+        states = asyncio.run(served_states(served.url, STEPS))
     assert [s["step"] for s in states] == list(range(1, STEPS + 1))
     errors = []
     for state in states:

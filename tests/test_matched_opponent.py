@@ -9,30 +9,30 @@ MuJoCo."""
 
 from __future__ import annotations
 
+import asyncio
 import json
-import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest
-import torch
-from opponents import REPO
+from opponents import (
+    TRACK,
+    broken_copy,
+    refused,
+    served_states,
+    spar_server,
+    spar_without_torch,
+    walk_tracker,
+)
 from test_matching import facing, turned
 
-from models.arena.config import EnvConfig
 from models.arena.starts import ReferenceMotions
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ, NV
 from models.humanoid.observations import OBSERVATION_DIM, BodyState
-from models.maaip.config import NetworkConfig, PPOConfig
 from models.maaip.networks import Policy
-from models.maaip.trainer import Trainer
 from models.matching import MatchConfig
-from models.tracking.clips import tracking_data
 from storage.files import sha256_file
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
-from tasks.errors import BadInput
 from tasks.evaluate.bouts import simulate
 from tasks.opponent.controller import Seen
 from tasks.opponent.export import TrainedPolicy, export_matched, policy_onnx
@@ -42,13 +42,6 @@ from tasks.opponent.still import StillGuard
 from tasks.train.config import TrainConfig
 
 BONES = (BoneLengths(), BoneLengths())
-TRACK = TrainConfig(
-    objective="track",
-    seed=5,
-    network=NetworkConfig(hidden="32,32"),
-    ppo=PPOConfig(horizon=8, minibatch_size=32, epochs=2),
-    env=EnvConfig(num_envs=4, threads=1),
-)
 FIELDS = tuple(BodyState.__dataclass_fields__)
 
 
@@ -61,18 +54,7 @@ def footage(assets) -> list[tuple[str, np.ndarray, np.ndarray]]:
 
 @pytest.fixture(scope="module")
 def tracker_policy(footage) -> Policy:
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    walk = footage[0][1]
-    data = tracking_data(({"walk": walk}, {"walk": walk}), BONES, fps=30.0, key="clips:walk")
-    trainer = Trainer(TRACK, data)
-    try:
-        for _ in range(2):
-            trainer.iterate()
-    finally:
-        trainer.close()
-        torch.set_num_threads(before)
-    return trainer.nets.policy.eval()
+    return walk_tracker(footage[0][1])
 
 
 @pytest.fixture(scope="module")
@@ -180,7 +162,7 @@ def test_it_plays_its_footage_on_and_never_holds_a_clips_end(folder):
     clips, _ = lib.locate(np.array(played))
     assert (clips == 0).all(), played
     assert not lib.at_end(np.array(played)).any()
-    assert controller.switches >= 120 // 39  # the 1.3 s walk played on again from its frames
+    assert controller.counts.switches >= 120 // 39  # the 1.3 s walk played on again from its frames
     assert (np.diff(played) == 1).mean() > 0.8, played
 
 
@@ -242,17 +224,7 @@ def test_a_bout_runs_it_in_mujoco_and_it_punches_with_its_partner_in_reach(folde
 
 def test_broken_matched_folders_are_refused_in_one_line(tmp_path, folder):
     def broken(name: str, change):
-        copy = tmp_path / name
-        shutil.copytree(folder, copy)
-        manifest = json.loads((copy / "manifest.json").read_text())
-        change(copy, manifest)
-        (copy / "manifest.json").write_text(json.dumps(manifest))
-        return copy
-
-    def refused(copy, pattern: str) -> None:
-        with pytest.raises(BadInput, match=pattern) as caught:
-            load_opponent(copy)
-        assert "\n" not in str(caught.value)
+        return broken_copy(tmp_path, folder, name, change)
 
     refused(
         broken("no_motion", lambda copy, _: (copy / "motion.npz").unlink()),
@@ -313,14 +285,16 @@ def test_a_tracker_run_exports_as_the_matched_opponent(tmp_path, tracker_policy,
 
 def test_the_matched_opponent_spars_without_torch(folder):
     """`ringside spar` on the matched folder, in a fresh interpreter: nothing imports torch."""
-    code = (
-        "import json, sys; from flows.cli import main; "
-        f"rc = main(['spar', '{folder}', '--seconds', '2', '--json']); "
-        "assert 'torch' not in sys.modules, 'torch was imported'; sys.exit(rc)"
-    )
-    done = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, timeout=300
-    )
-    assert done.returncode == 0, done.stderr
-    result = json.loads(done.stdout.strip().splitlines()[0])
+    result = spar_without_torch(folder)
     assert result["policy_steps"] == 60 and result["timings_s"]["policy"] > 0
+
+
+def test_the_matched_opponent_is_served_over_a_websocket(folder, tmp_path):
+    """One `spar-server` session on the matched folder: a state a step, finite bodies."""
+    with spar_server(folder, tmp_path / "data") as served:
+        states = asyncio.run(served_states(served.url, 30))
+    assert [s["step"] for s in states] == list(range(1, 31))
+    for state in states:
+        (opponent,) = [f for f in state["fighters"] if f["role"] == "opponent"]
+        bodies = np.array(list(opponent["bodies"].values()))
+        assert bodies.shape == (15, 7) and np.isfinite(bodies).all()

@@ -31,6 +31,7 @@ from tasks.config import build
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.store import dataset_info, footage_clips, record_dataset
+from tasks.opponent.export import matched_footage, trained_policy
 from tasks.opponent.folder import load_opponent
 from tasks.roles import ROLES
 from tasks.train.config import TrainConfig
@@ -139,6 +140,23 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
         code, _, err = run_cli(capsys, "--data", str(data), command, "--run", key[:12])
         lines = err.strip().splitlines()
         assert code == 2 and len(lines) == 1 and "is a 'track' run" in lines[0], err
+    # As the matched opponent it would play the train footage its tracker finished, the rest
+    # named as left out: here the short clips, too short for the matcher's second of future,
+    # so the export is refused in one line and writes nothing.
+    trained = trained_policy(data_paths(data).db, data_paths(data).artifacts, key[:12])
+    footage = matched_footage(data_paths(data).db, trained, 0)
+    adversary_rows = [r for r in rows if r["split"] == "train" and r["agent"] == 0]
+    assert {name for name, _, _ in footage.clips} == {
+        r["clip"] for r in adversary_rows if r["finished"]
+    }
+    assert set(footage.left_out) == {r["clip"] for r in adversary_rows if not r["finished"]}
+    assert all(len(own) == 10 for _, own, _ in footage.clips) and footage.left_out
+    out_dir = tmp_path / "matched"
+    argv = ["--data", str(data), "export", "--run", key[:12], "--matched", "--out", str(out_dir)]
+    code, _, err = run_cli(capsys, *argv)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "no clip is longer than the matcher's future" in err
+    assert not out_dir.exists()
     # Nor does a MAAIP run start from a tracker's networks (other observations).
     (stored,) = query(
         data, "SELECT config FROM stage_outputs WHERE stage = 'train' AND key = ?", [key]

@@ -342,13 +342,7 @@ def export_tracker(
         guard: (2, 28) where a bout starts each fighter; by default the clip's first frame's
             hinges for the tracker (its replay starts there) and the rest pose for its partner.
     """
-    if agent not in (0, 1):
-        raise ValueError(f"agent must be 0 or 1, got {agent!r}")
-    if policy.obs_dim != TRACK_OBSERVATION_DIM or policy.task_dim:
-        raise ValueError(
-            f"policy: a tracker's takes {TRACK_OBSERVATION_DIM} inputs and no task, got "
-            f"{policy.obs_dim} and {policy.task_dim}"
-        )
+    _check_tracker(policy, agent)
     name, qpos = clip
     qpos = np.asarray(qpos, dtype=np.float64)
     if qpos.ndim != 2 or qpos.shape[1] != NQ or len(qpos) < 2 or not np.isfinite(qpos).all():
@@ -367,15 +361,7 @@ def export_tracker(
         env=env,
         facts=facts,
         guard=guard,
-        observation={
-            "size": TRACK_OBSERVATION_DIM,
-            "frame": "o^self, then the next clip frame's (tracking_input); see "
-            "models/tracking/task.py",
-        },
-        action={
-            **_action_layout(),
-            "meaning": "a correction added to the clip's next frame's PD targets (DReCon)",
-        },
+        **_tracker_layouts("the next clip frame's"),
         extra_files={tracker.CLIP: clip_bytes.getvalue()},
         extra={
             "clip": {"name": name, "frames": len(qpos), "fps": env.policy_hz, "file": tracker.CLIP}
@@ -406,23 +392,13 @@ def export_matched(
 
     A bout starts the fighter in the first clip's first pose, its partner at rest.
     """
-    if agent not in (0, 1):
-        raise ValueError(f"agent must be 0 or 1, got {agent!r}")
-    if policy.obs_dim != TRACK_OBSERVATION_DIM or policy.task_dim:
-        raise ValueError(
-            f"policy: a tracker's takes {TRACK_OBSERVATION_DIM} inputs and no task, got "
-            f"{policy.obs_dim} and {policy.task_dim}"
-        )
+    _check_tracker(policy, agent)
     if not clips:
         raise ValueError("clips: the matched opponent needs footage to play")
-    for name, qpos, partner in clips:
-        q, p = np.asarray(qpos), np.asarray(partner)
-        if q.ndim != 2 or q.shape[1] != NQ or p.shape != q.shape or not np.isfinite(q).all():
-            raise ValueError(
-                f"clip {name!r}: qpos and its partner's must be finite (T, {NQ}), got "
-                f"{q.shape} and {p.shape}"
-            )
     arrays = matched.motion_file(clips, env.policy_hz)
+    # The database the folder will load, made once here: footage it cannot match from (clips
+    # too short for the matcher's future, another body's qpos) is refused now, not at load.
+    matched.motion_of(arrays, bones[agent], bones[1 - agent], matcher)
     motion = io.BytesIO()
     np.savez(motion, **arrays)
     guard = np.zeros((2, len(HINGE_NAMES)))
@@ -436,15 +412,7 @@ def export_matched(
         env=env,
         facts=facts,
         guard=guard,
-        observation={
-            "size": TRACK_OBSERVATION_DIM,
-            "frame": "o^self, then the matched motion's next frame's (tracking_input); see "
-            "models/tracking/task.py and tasks/opponent/matched.py",
-        },
-        action={
-            **_action_layout(),
-            "meaning": "a correction added to the matched frame's PD targets (DReCon)",
-        },
+        **_tracker_layouts("the matched motion's next frame's"),
         extra_files={matched.MOTION: motion.getvalue()},
         extra={
             "motion": {
@@ -456,6 +424,31 @@ def export_matched(
             "matcher": matcher.as_dict(),
         },
     )
+
+
+def _check_tracker(policy: Policy, agent: int) -> None:
+    if agent not in (0, 1):
+        raise ValueError(f"agent must be 0 or 1, got {agent!r}")
+    if policy.obs_dim != TRACK_OBSERVATION_DIM or policy.task_dim:
+        raise ValueError(
+            f"policy: a tracker's takes {TRACK_OBSERVATION_DIM} inputs and no task, got "
+            f"{policy.obs_dim} and {policy.task_dim}"
+        )
+
+
+def _tracker_layouts(frame: str) -> dict[str, dict]:
+    """The observation and action entries of a tracker's manifest, ``frame`` naming what the
+    tracker is told of (the next clip frame's, the matched motion's next frame's)."""
+    return {
+        "observation": {
+            "size": TRACK_OBSERVATION_DIM,
+            "frame": f"o^self, then {frame} (tracking_input); see models/tracking/task.py",
+        },
+        "action": {
+            **_action_layout(),
+            "meaning": "a correction added to the PD targets of that frame (DReCon)",
+        },
+    }
 
 
 def write_folder(out: Path, files: Mapping[str, bytes]) -> Path:

@@ -28,35 +28,26 @@ Shape letters: B arenas given, F frames of the database, C clips.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths
-from models.humanoid.kinematics import NQ, heading_frame_of_matrix
+from models.humanoid.kinematics import NQ
 from models.humanoid.observations import BodyState, self_observation
 from models.matching import MatchConfig, MotionDatabase, motion_database
 from models.tracking.clips import reference_clip
-from models.tracking.task import TRACK_OBSERVATION_DIM, tracking_input
+from models.tracking.task import tracking_input
 from tasks.errors import BadInput
 from tasks.opponent.controller import Seen
-from tasks.opponent.policy_file import load_policy
+from tasks.opponent.tracker import laid, laying, tracker_policy
 
 KIND = "matched"
 MOTION = "motion.npz"
 FILES = ("policy.onnx", MOTION, "humanoid.xml", "arena.xml")
-
-
-def laid(states: BodyState, turn: np.ndarray, shift: np.ndarray) -> BodyState:
-    """States (B,) turned by ``turn`` (B, 3, 3) about the vertical and moved by ``shift`` (B, 3)."""
-    return BodyState(
-        np.einsum("nij,nbj->nbi", turn, states.pos) + shift[:, None],
-        turn[:, None] @ states.rot,
-        np.einsum("nij,nbj->nbi", turn, states.lin_vel),
-        np.einsum("nij,nbj->nbi", turn, states.ang_vel),
-    )
 
 
 def cross_fade(a: BodyState, b: BodyState, w: np.ndarray) -> BodyState:
@@ -73,15 +64,13 @@ def cross_fade(a: BodyState, b: BodyState, w: np.ndarray) -> BodyState:
     )
 
 
-def laying(body: BodyState, frame: BodyState) -> tuple[np.ndarray, np.ndarray]:
-    """The turn (B, 3, 3) and move (B, 3) that lay database frames ``frame`` (B,) on simulated
-    bodies ``body`` (B,): the frame's pelvis on the body's on the floor, facing its way."""
-    turn = heading_frame_of_matrix(body.rot[:, 0]) @ heading_frame_of_matrix(
-        frame.rot[:, 0]
-    ).swapaxes(-1, -2)
-    shift = body.pos[:, 0] - np.einsum("nij,nj->ni", turn, frame.pos[:, 0])
-    shift[:, 2] = 0.0
-    return turn, shift
+@dataclass
+class MatchCounts:
+    """Searches made and how many of them changed the frame played (an episode's first match
+    not counted), by a controller and its `fresh` copies together."""
+
+    searches: int = 0
+    switches: int = 0
 
 
 class MatchedTracker:
@@ -94,11 +83,15 @@ class MatchedTracker:
         database: the fighter's motion, at the policy's rate, with its matcher's settings.
     """
 
-    def __init__(self, policy: Callable[[np.ndarray], np.ndarray], database: MotionDatabase):
+    def __init__(
+        self,
+        policy: Callable[[np.ndarray], np.ndarray],
+        database: MotionDatabase,
+        counts: MatchCounts | None = None,
+    ):
         self.policy, self.database = policy, database
         self.config = database.config
-        self.searches = 0  # how many searches, and how many of them changed the frame played
-        self.switches = 0
+        self.counts = MatchCounts() if counts is None else counts
         self._at = np.zeros(0, dtype=int)  # by arena: the database frame it is at; -1: none
         self._turn = np.zeros((0, 3, 3))  # by arena: the motion's turn about the vertical
         self._shift = np.zeros((0, 3))  # by arena: then its move along the floor
@@ -110,7 +103,7 @@ class MatchedTracker:
         self._fade = np.zeros(0, dtype=int)
 
     def fresh(self) -> MatchedTracker:
-        return MatchedTracker(self.policy, self.database)
+        return MatchedTracker(self.policy, self.database, self.counts)
 
     def _grow(self, count: int) -> None:
         extra = count - len(self._at)
@@ -160,7 +153,7 @@ class MatchedTracker:
         playing = np.full(len(ids), -1) if start else self._at[ids]
         query = db.query(body, partner, None if start else playing)
         found = db.nearest(query, playing)
-        self.searches += len(ids)
+        self.counts.searches += len(ids)
         if start:
             switch = np.ones(len(ids), dtype=bool)
         else:
@@ -171,7 +164,7 @@ class MatchedTracker:
         if not switch.any():
             return
         ids, rows, found = ids[switch], rows[switch], found[switch]
-        self.switches += int(switch.sum()) if not start else 0
+        self.counts.switches += int(switch.sum()) if not start else 0
         if not start and self.config.blend_steps:
             self._old[ids] = self._at[ids]
             self._old_turn[ids] = self._turn[ids]
@@ -233,6 +226,42 @@ def motion_file(
     }
 
 
+def motion_of(
+    arrays: Mapping[str, np.ndarray],
+    bones: BoneLengths,
+    partner_bones: BoneLengths,
+    config: MatchConfig,
+) -> MotionDatabase:
+    """The MotionDatabase of motion.npz's ``arrays`` (`motion_file`), the fighter on ``bones``
+    and its partner on ``partner_bones``; ValueError saying what is wrong."""
+    qpos, partner = np.asarray(arrays["qpos"]), np.asarray(arrays["partner_qpos"])
+    lengths, names = np.asarray(arrays["lengths"]), np.asarray(arrays["names"])
+    fps = float(arrays["fps"])
+    if qpos.ndim != 2 or qpos.shape[1] != NQ or partner.shape != qpos.shape:
+        raise ValueError(
+            f"qpos and partner_qpos must both be (F, {NQ}), got {qpos.shape} and {partner.shape}"
+        )
+    if (
+        lengths.ndim != 1
+        or len(names) != len(lengths)
+        or lengths.sum() != len(qpos)
+        or (lengths < 2).any()
+    ):
+        raise ValueError(
+            f"lengths {lengths.tolist()} do not cut {len(qpos)} frames into clips of 2 or more"
+        )
+    cuts = np.cumsum(lengths)[:-1]
+    own = [
+        reference_clip(str(n), q, bones, fps=fps)
+        for n, q in zip(names, np.split(qpos, cuts), strict=True)
+    ]
+    others = [
+        reference_clip(f"{n}:partner", q, partner_bones, fps=fps)
+        for n, q in zip(names, np.split(partner, cuts), strict=True)
+    ]
+    return motion_database(own, others, fps=fps, config=config)
+
+
 def load_motion(
     path: Path,
     bones: BoneLengths,
@@ -241,48 +270,21 @@ def load_motion(
     policy_hz: float,
     config: MatchConfig,
 ) -> MotionDatabase:
-    """motion.npz as a MotionDatabase of the fighter on ``bones`` with its partner on
-    ``partner_bones``; BadInput naming the file otherwise."""
+    """motion.npz as a MotionDatabase (`motion_of`); BadInput naming the file otherwise."""
+    names = ("qpos", "partner_qpos", "lengths", "names", "fps")
     try:
         with np.load(path, allow_pickle=False) as stored:
-            qpos, partner = stored["qpos"], stored["partner_qpos"]
-            lengths, names, fps = stored["lengths"], stored["names"], float(stored["fps"])
+            arrays = {name: stored[name] for name in names}
     except (OSError, ValueError, KeyError) as error:
+        raise BadInput(str(path), f"not a motion file with {', '.join(names)} ({error})") from error
+    if float(arrays["fps"]) != policy_hz:
         raise BadInput(
             str(path),
-            f"not a motion file with qpos, partner_qpos, lengths, names and fps ({error})",
-        ) from error
-    if fps != policy_hz:
-        raise BadInput(
-            str(path),
-            f"motion at {fps:g} fps; the policy steps at {policy_hz:g} Hz, a frame a step",
+            f"motion at {float(arrays['fps']):g} fps; the policy steps at {policy_hz:g} Hz, a "
+            "frame a step",
         )
-    if qpos.ndim != 2 or qpos.shape[1] != NQ or partner.shape != qpos.shape:
-        raise BadInput(
-            str(path),
-            f"qpos and partner_qpos must both be (F, {NQ}), got {qpos.shape} and {partner.shape}",
-        )
-    if (
-        lengths.ndim != 1
-        or len(names) != len(lengths)
-        or lengths.sum() != len(qpos)
-        or (lengths < 2).any()
-    ):
-        raise BadInput(
-            str(path),
-            f"lengths {lengths.tolist()} do not cut {len(qpos)} frames into clips of 2 or more",
-        )
-    cuts = np.cumsum(lengths)[:-1]
     try:
-        own = [
-            reference_clip(str(n), q, bones, fps=fps)
-            for n, q in zip(names, np.split(qpos, cuts), strict=True)
-        ]
-        others = [
-            reference_clip(f"{n}:partner", q, partner_bones, fps=fps)
-            for n, q in zip(names, np.split(partner, cuts), strict=True)
-        ]
-        return motion_database(own, others, fps=fps, config=config)
+        return motion_of(arrays, bones, partner_bones, config)
     except ValueError as error:
         raise BadInput(str(path), str(error)) from error
 
@@ -291,22 +293,13 @@ def load(
     folder: Path, manifest: dict, bones: tuple[BoneLengths, BoneLengths], agent: int
 ) -> MatchedTracker:
     """The controller of a "matched" folder (files checked by the caller)."""
-    policy = load_policy(
-        folder / "policy.onnx",
-        TRACK_OBSERVATION_DIM,
-        made_by="the motion tracker's o^self and tracking_input",
-    )
-    if policy.task_dim:
-        raise BadInput(str(policy.path), "a tracker's policy takes no task input")
-    manifest_path = str(folder / "manifest.json")
-    try:
-        policy_hz = float(manifest["env"]["policy_hz"])
-    except (KeyError, TypeError, ValueError) as error:
-        raise BadInput(manifest_path, f"env.policy_hz unreadable ({error})") from error
+    policy, policy_hz = tracker_policy(folder, manifest)
     try:
         config = MatchConfig.from_dict(manifest["matcher"])
     except (KeyError, TypeError, ValueError) as error:
-        raise BadInput(manifest_path, f"matcher settings unreadable ({error})") from error
+        raise BadInput(
+            str(folder / "manifest.json"), f"matcher settings unreadable ({error})"
+        ) from error
     database = load_motion(
         folder / MOTION, bones[agent], bones[1 - agent], policy_hz=policy_hz, config=config
     )

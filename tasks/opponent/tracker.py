@@ -36,11 +36,32 @@ from models.tracking.clips import ReferenceClip, reference_clip
 from models.tracking.task import TRACK_OBSERVATION_DIM, tracking_input
 from tasks.errors import BadInput
 from tasks.opponent.controller import Seen
-from tasks.opponent.policy_file import load_policy
+from tasks.opponent.policy_file import PolicyFile, load_policy
 
 KIND = "tracker"
 CLIP = "clip.npz"
 FILES = ("policy.onnx", CLIP, "humanoid.xml", "arena.xml")
+
+
+def laid(states: BodyState, turn: np.ndarray, shift: np.ndarray) -> BodyState:
+    """States (B,) turned by ``turn`` (B, 3, 3) about the vertical and moved by ``shift`` (B, 3)."""
+    return BodyState(
+        np.einsum("nij,nbj->nbi", turn, states.pos) + shift[:, None],
+        turn[:, None] @ states.rot,
+        np.einsum("nij,nbj->nbi", turn, states.lin_vel),
+        np.einsum("nij,nbj->nbi", turn, states.ang_vel),
+    )
+
+
+def laying(body: BodyState, frame: BodyState) -> tuple[np.ndarray, np.ndarray]:
+    """The turn (B, 3, 3) and move (B, 3) that lay database frames ``frame`` (B,) on simulated
+    bodies ``body`` (B,): the frame's pelvis on the body's on the floor, facing its way."""
+    turn = heading_frame_of_matrix(body.rot[:, 0]) @ heading_frame_of_matrix(
+        frame.rot[:, 0]
+    ).swapaxes(-1, -2)
+    shift = body.pos[:, 0] - np.einsum("nij,nj->ni", turn, frame.pos[:, 0])
+    shift[:, 2] = 0.0
+    return turn, shift
 
 
 class ClipTracker:
@@ -72,25 +93,14 @@ class ClipTracker:
     def reset(self, seen: Seen) -> None:
         ids = np.asarray(seen.arenas, dtype=int)
         self._grow(int(ids.max()) + 1 if len(ids) else 0)
-        body = seen.body
-        first = self.clip.states[0]
-        turn = heading_frame_of_matrix(body.rot[:, 0]) @ heading_frame_of_matrix(first.rot[0]).T
-        shift = body.pos[:, 0] - turn @ first.pos[0]
-        shift[:, 2] = 0.0
+        turn, shift = laying(seen.body, self.clip.states[np.zeros(len(ids), dtype=int)])
         self._frame[ids] = 0
         self._turn[ids] = turn
         self._shift[ids] = shift
 
     def reference(self, frames: np.ndarray, arenas: np.ndarray) -> BodyState:
         """(B,) the clip's frames ``frames`` (B,) where it was laid in ``arenas`` (B,)."""
-        states = self.clip.states[frames]
-        turn, shift = self._turn[arenas], self._shift[arenas]
-        return BodyState(
-            np.einsum("nij,nbj->nbi", turn, states.pos) + shift[:, None],
-            turn[:, None] @ states.rot,
-            np.einsum("nij,nbj->nbi", turn, states.lin_vel),
-            np.einsum("nij,nbj->nbi", turn, states.ang_vel),
-        )
+        return laid(self.clip.states[frames], self._turn[arenas], self._shift[arenas])
 
     def frames(self, arenas: np.ndarray) -> np.ndarray:
         """(B,) the clip frame the fighter is at in each of ``arenas``."""
@@ -137,10 +147,9 @@ def load_clip(path: Path, bones: BoneLengths, *, policy_hz: float) -> ReferenceC
         raise BadInput(str(path), str(error)) from error
 
 
-def load(
-    folder: Path, manifest: dict, bones: tuple[BoneLengths, BoneLengths], agent: int
-) -> ClipTracker:
-    """The controller of a "tracker" folder (files checked by the caller)."""
+def tracker_policy(folder: Path, manifest: dict) -> tuple[PolicyFile, float]:
+    """A folder's tracker policy (451 inputs, no task) and the rate it steps at (the manifest's
+    env.policy_hz); BadInput naming the file otherwise. Also the "matched" kind's."""
     policy = load_policy(
         folder / "policy.onnx",
         TRACK_OBSERVATION_DIM,
@@ -154,5 +163,13 @@ def load(
         raise BadInput(
             str(folder / "manifest.json"), f"env.policy_hz unreadable ({error})"
         ) from error
+    return policy, policy_hz
+
+
+def load(
+    folder: Path, manifest: dict, bones: tuple[BoneLengths, BoneLengths], agent: int
+) -> ClipTracker:
+    """The controller of a "tracker" folder (files checked by the caller)."""
+    policy, policy_hz = tracker_policy(folder, manifest)
     clip = load_clip(folder / CLIP, bones[agent], policy_hz=policy_hz)
     return ClipTracker(policy.run, clip)
