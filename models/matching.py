@@ -45,7 +45,7 @@ from models.tracking.clips import ClipLibrary, ReferenceClip, clip_library
 FEET = [BODY_NAMES.index("left_foot"), BODY_NAMES.index("right_foot")]
 HANDS = [BODY_NAMES.index("left_hand"), BODY_NAMES.index("right_hand")]
 
-# The feature groups, in the vector's order, with their widths (K future times).
+# The feature groups, in the vector's order (their widths: `MotionDatabase.slices`).
 FEATURE_GROUPS = (
     "feet",
     "hands",
@@ -211,6 +211,7 @@ class MotionDatabase:
         partner: (F,) body states of the other fighter at the same frames.
         features: (F, D) each frame's raw features, `FEATURE_GROUPS` in order (a frame without
             a whole future in its clip has its future clamped to the clip's last frame).
+        slices: where each group of `FEATURE_GROUPS` lies in a feature vector.
         mean, scale: (D,) the features' weighting: weighted = (features - mean) * scale.
         candidates: the flat indices of the frames a search may return (a whole future ahead).
         config: the matcher's settings.
@@ -219,6 +220,7 @@ class MotionDatabase:
     library: ClipLibrary
     partner: BodyState
     features: np.ndarray
+    slices: dict[str, slice]
     mean: np.ndarray
     scale: np.ndarray
     candidates: np.ndarray
@@ -228,7 +230,7 @@ class MotionDatabase:
     @property
     def future_steps(self) -> np.ndarray:
         """(K,) the future times in frames."""
-        return np.rint(np.asarray(self.config.future_s) * self.library.fps).astype(int)
+        return future_frames(self.config, self.library.fps)
 
     def weighted(self, features: np.ndarray) -> np.ndarray:
         """(..., D) raw features standardised and weighted, as the search compares them."""
@@ -248,7 +250,7 @@ class MotionDatabase:
         else:
             ahead = self.features[np.asarray(future_of, dtype=int)]
             for name in ("future_position", "future_facing"):
-                groups[name] = ahead[..., _group_slices(k)[name]]
+                groups[name] = ahead[..., self.slices[name]]
         return _joined(groups)
 
     def distance(self, query: np.ndarray, frames: np.ndarray) -> np.ndarray:
@@ -271,8 +273,8 @@ class MotionDatabase:
         frame it plays (``playing`` (B,); -1 for none), by the KD-tree."""
         points = self.weighted(query)
         playing = np.asarray(playing, dtype=int)
-        # Few candidates are near the played frame (2 skip + 1 of them at most), so the nearest
-        # skip + 2 hold an allowed one unless the candidates are that few.
+        # At most 2 skip + 1 candidates are near the played frame, so the nearest 2 skip + 2
+        # hold an allowed one unless the candidates are that few.
         k = min(2 * self.config.skip_frames + 2, len(self.candidates))
         _, found = self._tree.query(points, k=k)
         found = self.candidates[np.asarray(found).reshape(len(points), k)]
@@ -296,25 +298,9 @@ class MotionDatabase:
         return self.candidates[np.argmin(distance, axis=1)]
 
 
-def _group_slices(num_future: int) -> dict[str, slice]:
-    widths = {
-        "feet": 6,
-        "hands": 6,
-        "limb_velocity": 12,
-        "pelvis_velocity": 3,
-        "yaw_rate": 1,
-        "future_position": 2 * num_future,
-        "future_facing": 2 * num_future,
-        "partner_distance": 1,
-        "partner_bearing": 2,
-        "partner_approach": 1,
-        "partner_hands": 6,
-    }
-    slices, start = {}, 0
-    for name in FEATURE_GROUPS:
-        slices[name] = slice(start, start + widths[name])
-        start += widths[name]
-    return slices
+def future_frames(config: MatchConfig, fps: float) -> np.ndarray:
+    """(K,) the matcher's future times (`MatchConfig.future_s`) in frames at ``fps``."""
+    return np.rint(np.asarray(config.future_s) * fps).astype(int)
 
 
 def motion_database(
@@ -340,7 +326,7 @@ def motion_database(
     library = clip_library(clips, fps=fps)
     states = library.clip.states
     partner = clip_library(partners, fps=fps).clip.states
-    steps = np.rint(np.asarray(config.future_s) * fps).astype(int)
+    steps = future_frames(config, fps)
     flat = np.arange(len(library.clip.qpos))
     clip_of, _ = library.locate(flat)
     last = library.last[clip_of]
@@ -351,6 +337,10 @@ def motion_database(
         **future_features(states, states[ahead]),
     }
     features = _joined(groups)
+    widths = np.cumsum([0] + [groups[g].shape[-1] for g in FEATURE_GROUPS])
+    slices = {
+        g: slice(a, b) for g, a, b in zip(FEATURE_GROUPS, widths[:-1], widths[1:], strict=True)
+    }
     candidates = flat[flat + steps.max() <= last]
     if not candidates.size:
         raise ValueError(
@@ -359,7 +349,6 @@ def motion_database(
         )
     mean = features[candidates].mean(axis=0)
     std = features[candidates].std(axis=0)
-    slices = _group_slices(len(config.future_s))
     scale = np.zeros(features.shape[1])
     for name, part in slices.items():
         width = part.stop - part.start
@@ -367,4 +356,4 @@ def motion_database(
         spread = np.where(std[part] > 1e-6, std[part], np.inf)
         scale[part] = getattr(config.weights, name) / np.sqrt(width) / spread
     tree = cKDTree((features[candidates] - mean) * scale)
-    return MotionDatabase(library, partner, features, mean, scale, candidates, config, tree)
+    return MotionDatabase(library, partner, features, slices, mean, scale, candidates, config, tree)

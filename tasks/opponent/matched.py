@@ -145,6 +145,12 @@ class MatchedTracker:
         actions = library.clip.actions[old] + w[:, None] * (actions - library.clip.actions[old])
         return states, self_observation(states), actions
 
+    def _ending(self, at: np.ndarray) -> np.ndarray:
+        """(B,) whether the clip played from frames ``at`` (B,) ends within two steps: a match
+        is due, and is played whatever its distance."""
+        library = self.database.library
+        return library.at_end(library.next(library.next(at)))
+
     def _search(self, ids: np.ndarray, seen: Seen, rows: np.ndarray, *, start: bool) -> None:
         """Search for the fighters of arenas ``ids`` (rows ``rows`` of ``seen``) and play the
         match where it beats playing on (always at a ``start``)."""
@@ -158,8 +164,9 @@ class MatchedTracker:
             switch = np.ones(len(ids), dtype=bool)
         else:
             onward = db.library.next(playing)
-            ending = db.library.at_end(db.library.next(onward))
-            switch = ending | (db.distance(query, found) < db.distance(query, onward))
+            switch = self._ending(playing) | (
+                db.distance(query, found) < db.distance(query, onward)
+            )
         self._since[ids] = 0
         if not switch.any():
             return
@@ -187,22 +194,21 @@ class MatchedTracker:
         if len(ids) and (ids.max() >= len(self._at) or (self._at[ids] < 0).any()):
             raise ValueError("act before reset: every arena's episode starts with `reset`")
         library = self.database.library
-        due = (self._since[ids] >= self.config.search_every) | library.at_end(
-            library.next(library.next(self._at[ids]))
-        )
+        due = (self._since[ids] >= self.config.search_every) | self._ending(self._at[ids])
         if due.any():
             self._search(ids[due], seen, np.flatnonzero(due), start=False)
-        # The motion moved back under the simulated pelvis where it strayed.
-        states, _, _ = self._next(ids)
-        strayed = np.linalg.norm((states.pos[:, 0] - seen.body.pos[:, 0])[:, :2], axis=-1)
+        states, observation, actions = self._next(ids)
+        # The motion moved back under the simulated pelvis where it strayed: both motions of a
+        # fade move alike, so the faded frame moves with them (its o^self does not change).
+        sim = seen.body
+        strayed = np.linalg.norm((states.pos[:, 0] - sim.pos[:, 0])[:, :2], axis=-1)
         far = strayed > self.config.anchor_m
         if far.any():
-            back = seen.body.pos[far, 0] - states.pos[far, 0]
+            back = sim.pos[far, 0] - states.pos[far, 0]
             back[:, 2] = 0.0
             self._shift[ids[far]] += back
             self._old_shift[ids[far]] += back
-        states, observation, actions = self._next(ids)
-        sim = seen.body
+            states.pos[far] += back[:, None]
         given = tracking_input(sim, states, observation)
         correction = self.policy(np.concatenate([self_observation(sim), given], -1))
         self._at[ids] = library.next(self._at[ids])

@@ -54,7 +54,7 @@ def laid(states: BodyState, turn: np.ndarray, shift: np.ndarray) -> BodyState:
 
 
 def laying(body: BodyState, frame: BodyState) -> tuple[np.ndarray, np.ndarray]:
-    """The turn (B, 3, 3) and move (B, 3) that lay database frames ``frame`` (B,) on simulated
+    """The turn (B, 3, 3) and move (B, 3) that lay motion frames ``frame`` (B,) on simulated
     bodies ``body`` (B,): the frame's pelvis on the body's on the floor, facing its way."""
     turn = heading_frame_of_matrix(body.rot[:, 0]) @ heading_frame_of_matrix(
         frame.rot[:, 0]
