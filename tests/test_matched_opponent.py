@@ -30,14 +30,15 @@ from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ, NV
 from models.humanoid.observations import OBSERVATION_DIM, BodyState
 from models.maaip.networks import Policy
-from models.matching import MatchConfig
+from models.matching import MatchConfig, motion_database
+from models.tracking.clips import reference_clip
 from storage.files import sha256_file
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.evaluate.bouts import simulate
 from tasks.opponent.controller import Seen
 from tasks.opponent.export import TrainedPolicy, export_matched, policy_onnx
 from tasks.opponent.folder import load_opponent
-from tasks.opponent.matched import MatchedTracker
+from tasks.opponent.matched import MatchedTracker, matched_streams
 from tasks.opponent.still import StillGuard
 from tasks.train.config import TrainConfig
 
@@ -298,3 +299,81 @@ def test_the_matched_opponent_is_served_over_a_websocket(folder, tmp_path):
         (opponent,) = [f for f in state["fighters"] if f["role"] == "opponent"]
         bodies = np.array(list(opponent["bodies"].values()))
         assert bodies.shape == (15, 7) and np.isfinite(bodies).all()
+
+
+def _two_databases(footage, config: MatchConfig | None = None):
+    """The walk-and-punch fighter's database and its partners' (each the other's partner)."""
+    own = [reference_clip(n, q, BONES[0], fps=30.0) for n, q, _ in footage]
+    others = [reference_clip(f"{n}:partner", p, BONES[1], fps=30.0) for n, _, p in footage]
+    return (
+        motion_database(own, others, fps=30.0, config=config),
+        motion_database(others, own, fps=30.0, config=config),
+    )
+
+
+def test_matched_streams_stitch_the_footage_into_long_motion_without_cuts(footage):
+    """DReCon's training streams: 10 s of each fighter, against clips of 1.3 s and 2.2 s, so
+    they are made of transitions; each is laid where the motion left off (the pelvis never
+    jumps) and cross-faded (no hinge moves faster than in the footage: without the fade, cuts
+    move one by 1.7 rad in a frame)."""
+    count, frames = 6, 300
+    streams = matched_streams(
+        _two_databases(footage), count=count, frames=frames, rng=np.random.default_rng(0)
+    )
+    assert [s.shape for s in streams] == [(count, frames, NQ)] * 2
+    assert max(len(q) for _, q, _ in footage) < frames / 4
+    own = streams[0]
+    step = np.linalg.norm(np.diff(own[:, :, :2], axis=1), axis=-1)
+    assert step.max() < 0.15  # 4.5 m/s; the walk's own steps are up to 0.045 m
+    fastest = max(np.abs(np.diff(q[:, 7:], axis=0)).max() for _, q, _ in footage)
+    assert np.abs(np.diff(own[:, :, 7:], axis=1)).max() <= fastest + 1e-6
+    cut = matched_streams(
+        _two_databases(footage, MatchConfig(blend_steps=0)),
+        count=count,
+        frames=frames,
+        rng=np.random.default_rng(0),
+    )[0]
+    assert np.abs(np.diff(cut[:, :, 7:], axis=1)).max() > fastest + 0.5
+    # Both of the fighter's clips are played in every stream, and the streams differ.
+    db = _two_databases(footage)[0]
+    poses = db.library.clip.qpos[:, 7:]
+    nearest = np.argmin(
+        np.abs(own[:, :, None, 7:] - poses[None, None]).max(-1), axis=-1
+    )  # (count, frames) the nearest footage frame by the largest hinge gap
+    clip_of, _ = db.library.locate(nearest)
+    assert all(set(np.unique(c)) == {0, 1} for c in clip_of)
+    assert not np.allclose(own[0], own[1])
+    again = matched_streams(
+        _two_databases(footage), count=count, frames=frames, rng=np.random.default_rng(0)
+    )
+    np.testing.assert_array_equal(again[0], own)
+
+
+def test_a_tracker_trains_on_matched_streams_beside_its_footage(footage):
+    """`train.track.matched_streams` adds the streams to the train clips of both agents (the
+    gate and the clips' tracking stay on the footage: `tasks.train.run`)."""
+    from dataclasses import replace
+
+    from models.tracking.clips import tracking_data
+    from tasks.errors import BadInput
+    from tasks.train.tracker import with_streams
+
+    qpos = ({n: q for n, q, _ in footage}, {n: p for n, _, p in footage})
+    data = tracking_data(qpos, BONES, fps=30.0, key="clips:walk,punch")
+    config = replace(TRACK, track=replace(TRACK.track, matched_streams=3, matched_stream_s=4.0))
+    made = with_streams(data, config)
+    assert [[c.name for c in clips] for clips in made.clips] == [
+        ["walk", "punch", "stream:0", "stream:1", "stream:2"]
+    ] * 2
+    assert all(c.num_frames == 120 for clips in made.clips for c in clips[2:])
+    assert with_streams(data, TRACK) is data
+    short = tracking_data(
+        ({n: q[:20] for n, q, _ in footage}, {n: p[:20] for n, _, p in footage}),
+        BONES,
+        fps=30.0,
+        key="short",
+    )
+    with pytest.raises(BadInput, match="matched_streams: no clip is longer"):
+        with_streams(short, config)
+    with pytest.raises(ValueError, match="matched_streams must be >= 0"):
+        replace(TRACK.track, matched_streams=-1)

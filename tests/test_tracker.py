@@ -115,6 +115,24 @@ def test_rotation_angles_are_exact_near_zero():
 # ---------------------------------------------------------------- episodes
 
 
+def test_rest_starts_put_that_share_of_the_starts_at_rest_on_their_frame(data):
+    """`TrackConfig.rest_start_share`: the start frame's pose with no velocity, as a bout
+    starts its fighters; the other starts keep the clip's velocities."""
+    with _env(64) as env:
+        tracker = Tracker(data, TrackConfig(rest_start_share=0.5), env.config)
+        tracker.reset(env, np.arange(64), np.random.default_rng(3))
+        clip, frame = tracker.clip_and_frame()
+        rest = []
+        for i, d in enumerate(env.datas):
+            agent = env.index.agents[0]
+            want = data.clips[0][clip[i, 0]].qpos[frame[i, 0]]
+            np.testing.assert_allclose(d.qpos[agent.qpos][2:], want[2:], atol=1e-12)
+            rest.append(not d.qvel[agent.qvel].any())
+        assert 16 <= sum(rest) <= 48
+    with pytest.raises(ValueError, match="rest_start_share must be between 0 and 1"):
+        TrackConfig(rest_start_share=1.5)
+
+
 def test_a_reset_puts_each_agent_on_its_clip_frame_with_the_clips_velocities(data):
     with _env(6) as env:
         tracker = _tracker(data, env)

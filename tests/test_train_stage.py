@@ -498,3 +498,22 @@ def test_a_run_on_a_later_dataset_of_the_adversary_starts_from_its_previous_netw
     assert code == 0, err
     (cold,) = json.loads(out)
     assert cold["key"] != warm["key"] and not cold["notes"]
+    # `train.warm_from` names the run to start from, on any dataset; a name that fits no
+    # finished run, or a run of other networks, is refused in one line.
+    code, out, err = run_cli(
+        capsys, *base, "--dataset", dataset_key, "--train-warm-from", cold["key"][:12]
+    )
+    assert code == 0, err
+    (named,) = json.loads(out)
+    assert any(f"started from the networks of run {cold['key'][:12]}" in n for n in named["notes"])
+    for run, said in (("0" * 12, "names no finished training run"), (previous[:12], "networks")):
+        flags = [
+            "--dataset",
+            dataset_key,
+            "--train-warm-from",
+            run,
+            "--train-network-hidden",
+            "8,8",
+        ]
+        code, out, err = run_cli(capsys, *base, *flags)
+        assert code != 0 and said in err and len(err.strip().splitlines()) == 1, err

@@ -53,6 +53,12 @@ class TrackConfig:
         "Time to the gate): 0.5 holds the gate on clean clips (DeepMimic's) 3x sooner, but on "
         "lifted footage, where some frames no body can follow, it trains worse; so 0 here.",
     )
+    rest_start_share: float = setting(
+        0.0,
+        "The share of episode starts made at rest: the start frame's pose with no velocity, as "
+        "a bout starts its fighters (`tasks.opponent.spar`) and as a matched opponent stands up "
+        "again after a fall; the rest start with the clip's velocities (DeepMimic).",
+    )
     hard_start_window_s: float = setting(
         1.0, "How far (s) before a failure a hard start may be drawn (`hard_start_share`)."
     )
@@ -70,6 +76,14 @@ class TrackConfig:
         "input is half as wide (measured: the PPO update a fifth cheaper, "
         "`benchmarks/train_speed.py --objective track`).",
     )
+    matched_streams: int = setting(
+        0,
+        "How many streams of matched motion are added to the train stage's clips: both "
+        "fighters' train footage played by their motion matchers against each other "
+        "(`tasks.opponent.matched.matched_streams`), transitions and all, as the matched "
+        "opponent plays it (DReCon trains its tracker on such streams). 0: none.",
+    )
+    matched_stream_s: float = setting(10.0, "Each matched stream's length (s).")
     gate_every: int = setting(
         20,
         "Every this many iterations the train stage gates the tracker (`track_gate` on the train "
@@ -102,12 +116,17 @@ class TrackConfig:
             "separation_m",
             "hard_start_window_s",
             "hard_start_memory_steps",
+            "matched_stream_s",
             "gate_body_error_cm",
             "gate_root_error_cm",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"train.track.{name} must be positive, got {value}")
+        if not 0 <= self.rest_start_share <= 1:
+            raise ValueError(
+                f"train.track.rest_start_share must be between 0 and 1, got {self.rest_start_share}"
+            )
         if not 0 <= self.hard_start_share <= 1:
             raise ValueError(
                 f"train.track.hard_start_share must be between 0 and 1, got {self.hard_start_share}"
@@ -116,6 +135,10 @@ class TrackConfig:
             raise ValueError(
                 f"train.track.gate_finished_pct must be between 0 and 100, got "
                 f"{self.gate_finished_pct}"
+            )
+        if self.matched_streams < 0:
+            raise ValueError(
+                f"train.track.matched_streams must be >= 0, got {self.matched_streams}"
             )
         if self.gate_every < 0:
             raise ValueError(f"train.track.gate_every must be >= 0, got {self.gate_every}")

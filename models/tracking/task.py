@@ -4,7 +4,8 @@
 The method, as physics-based character animation practises it:
 - Reference state initialisation (DeepMimic, Peng et al., ACM TOG 37(4), 2018): an
   episode starts at a frame drawn uniformly from every frame (but the last) of every clip,
-  with the clip's velocities; the body is put exactly where the clip is. With
+  with the clip's velocities (or, `TrackConfig.rest_start_share` of them, at rest); the body is
+  put exactly where the clip is. With
   `TrackConfig.hard_start_share`, that share of the starts is drawn instead up to
   `hard_start_window_s` before the frames where recent episodes ended terminally, in
   proportion to how many did (hard-negative mining, as PHC, Luo et al. 2023, samples the
@@ -257,6 +258,8 @@ class Tracker:
             qpos[:, a] = f.clip.qpos[flat]
             qpos[:, a, :3] += self.offset[ids, a]
             qvel[:, a] = f.clip.qvel[flat]
+        if self.config.rest_start_share > 0 and clips is None:
+            qvel[rng.random(len(ids)) < self.config.rest_start_share] = 0.0
         env.set_states(ids, qpos, qvel)
         return self.observation(env.body_states(ids), ids)
 

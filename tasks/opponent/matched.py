@@ -189,14 +189,26 @@ class MatchedTracker:
         if len(ids):
             self._search(ids, seen, np.arange(len(ids)), start=True)
 
-    def act(self, seen: Seen) -> np.ndarray:
+    def _due(self, seen: Seen) -> np.ndarray:
+        """The arenas of ``seen`` (checked to be reset) after the searches due this step."""
         ids = np.asarray(seen.arenas, dtype=int)
         if len(ids) and (ids.max() >= len(self._at) or (self._at[ids] < 0).any()):
             raise ValueError("act before reset: every arena's episode starts with `reset`")
-        library = self.database.library
         due = (self._since[ids] >= self.config.search_every) | self._ending(self._at[ids])
         if due.any():
             self._search(ids[due], seen, np.flatnonzero(due), start=False)
+        return ids
+
+    def _advance(self, ids: np.ndarray) -> None:
+        """Arenas ``ids`` on to the frames just tracked."""
+        library = self.database.library
+        self._at[ids] = library.next(self._at[ids])
+        self._old[ids] = library.next(self._old[ids])
+        self._fade[ids] = np.maximum(self._fade[ids] - 1, 0)
+        self._since[ids] += 1
+
+    def act(self, seen: Seen) -> np.ndarray:
+        ids = self._due(seen)
         states, observation, actions = self._next(ids)
         # The motion moved back under the simulated pelvis where it strayed: both motions of a
         # fade move alike, so the faded frame moves with them (its o^self does not change).
@@ -211,11 +223,82 @@ class MatchedTracker:
             states.pos[far] += back[:, None]
         given = tracking_input(sim, states, observation)
         correction = self.policy(np.concatenate([self_observation(sim), given], -1))
-        self._at[ids] = library.next(self._at[ids])
-        self._old[ids] = library.next(self._old[ids])
-        self._fade[ids] = np.maximum(self._fade[ids] - 1, 0)
-        self._since[ids] += 1
+        self._advance(ids)
         return actions + correction
+
+    def _next_qpos(self, ids: np.ndarray) -> np.ndarray:
+        """(B, 35) the qpos of the frame arenas ``ids`` track next, laid as `_next` lays it and
+        cross-faded in qpos (the root's position and the hinges linearly, its rotation along the
+        shortest arc)."""
+        library = self.database.library
+        qpos = laid_qpos(
+            library.clip.qpos[library.next(self._at[ids])], self._turn[ids], self._shift[ids]
+        )
+        fading = self._fade[ids] > 0
+        if not fading.any():
+            return qpos
+        old = library.next(self._old[ids])
+        before = laid_qpos(library.clip.qpos[old], self._old_turn[ids], self._old_shift[ids])
+        w = np.where(fading, 1.0 - self._fade[ids] / (self.config.blend_steps + 1), 1.0)
+        faded = before + w[:, None] * (qpos - before)
+        a, b = (Rotation.from_quat(q[:, 3:7], scalar_first=True) for q in (before, qpos))
+        step = Rotation.from_rotvec((a.inv() * b).as_rotvec() * w[:, None])
+        faded[:, 3:7] = (a * step).as_quat(scalar_first=True)
+        return faded
+
+
+def laid_qpos(qpos: np.ndarray, turn: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """qpos (B, 35) turned by ``turn`` (B, 3, 3) about the vertical and moved by ``shift`` (B,
+    3), as `laid` lays their body states."""
+    out = qpos.copy()
+    out[:, :3] = np.einsum("nij,nj->ni", turn, qpos[:, :3]) + shift
+    root = Rotation.from_matrix(turn) * Rotation.from_quat(qpos[:, 3:7], scalar_first=True)
+    out[:, 3:7] = root.as_quat(scalar_first=True)
+    return out
+
+
+def matched_streams(
+    databases: tuple[MotionDatabase, MotionDatabase],
+    *,
+    count: int,
+    frames: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` streams of ``frames`` frames each of the two fighters' motion as their matchers
+    play it against each other, with nothing but the motion itself in the loop (DReCon trains
+    its tracker on such streams: the transitions are what the tracker must learn to survive).
+    Returns each fighter's qpos (count, frames, 35).
+
+    ``databases`` are the two fighters' of one footage, frame for frame (fighter 0's clips
+    with fighter 1's as its partner, and fighter 1's with fighter 0's). Each stream starts at a
+    frame drawn uniformly from the candidates, both fighters where the footage has them; each
+    step each fighter's matcher searches as `MatchedTracker` does, its own body the frame it
+    played and its partner the other fighter's."""
+    if not np.array_equal(databases[0].library.last, databases[1].library.last):
+        raise ValueError("the two fighters' databases must be one footage's, clip for clip")
+    ids = np.arange(count)
+    players = [MatchedTracker(lambda x: np.zeros((len(x), 28)), db) for db in databases]
+    start = databases[0].candidates[rng.integers(len(databases[0].candidates), size=count)]
+    bodies = []
+    for player in players:
+        player._grow(count)
+        player._at[ids] = start
+        bodies.append(player.database.library.clip.states[start])
+    qpos = np.empty((2, count, frames, NQ))
+    for t in range(frames):
+        both = BodyState(
+            *(
+                np.stack([getattr(b, f) for b in bodies], 1)
+                for f in ("pos", "rot", "lin_vel", "ang_vel")
+            )
+        )
+        for slot, player in enumerate(players):
+            player._due(Seen(ids, slot, both, np.zeros((count, 0)), np.zeros((count, 0))))
+            qpos[slot, :, t] = player._next_qpos(ids)
+            bodies[slot] = player._next(ids)[0]
+        for player in players:
+            player._advance(ids)
+    return qpos[0], qpos[1]
 
 
 def motion_file(

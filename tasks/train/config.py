@@ -35,6 +35,14 @@ class TrainConfig(TrainerConfig):
         "false always starts from a fresh initialisation.",
     )
 
+    warm_from: str = setting(
+        "",
+        "A finished run (its key, or a prefix of it) whose networks a new run starts from, in "
+        "place of `warm_start`'s choice: e.g. a tracker of the footage trained on further on "
+        "matched streams (`train.track.matched_streams`). Its networks must have this run's "
+        "shapes. Empty: `warm_start` chooses.",
+    )
+
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.iterations < 1:

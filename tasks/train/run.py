@@ -39,7 +39,7 @@ from tasks.train.store import (
     newest_checkpoint,
     record_checkpoint,
 )
-from tasks.train.tracker import clip_tracking, footage_tracking
+from tasks.train.tracker import clip_tracking, footage_tracking, with_streams
 
 STAGE = "train"
 
@@ -133,7 +133,11 @@ def train(
             if config.objective == "track"
             else None
         )
-        data = load_demonstrations(con, dataset_key) if tracking is None else tracking["train"]
+        data = (
+            load_demonstrations(con, dataset_key)
+            if tracking is None
+            else with_streams(tracking["train"], config)
+        )
     trainer = Trainer(config, data)
     notes = []
     try:

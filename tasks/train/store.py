@@ -57,6 +57,22 @@ def finished_runs(con: duckdb.DuckDBPyConnection, where: str, params: list) -> l
     return [RunInfo(*row[:4], json.loads(row[4])) for row in rows]
 
 
+def named_warm_start(con: duckdb.DuckDBPyConnection, run: str, config: TrainConfig) -> RunInfo:
+    """The finished run ``run`` (a key or a prefix of one) that a run with `train.warm_from`
+    starts from; BadInput when it names no finished run, several, or one of other networks."""
+    found = finished_runs(con, "p.key LIKE ? || '%'", [run])
+    if len(found) != 1:
+        problem = "names no finished training run" if not found else "names several runs"
+        raise BadInput(f"train.warm_from {run}", f"{problem}; see `ringside metrics --stage train`")
+    if not _fits(json.dumps(found[0].config), config):
+        raise BadInput(
+            f"train.warm_from {run}",
+            f"run {found[0].run_key[:12]}'s networks are not this run's (objective "
+            f"{found[0].objective!r}, or other sizes)",
+        )
+    return found[0]
+
+
 def tracker_run(con: duckdb.DuckDBPyConnection, run_key: str) -> RunInfo:
     """The finished tracker run ``run_key``."""
     (found,) = finished_runs(con, "p.key = ?", [run_key])

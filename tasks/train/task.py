@@ -15,7 +15,7 @@ from tasks.runner import StagePlan, StageSpec
 from tasks.stage_inputs import NoInputs
 from tasks.train.config import TrainConfig
 from tasks.train.run import STAGE, train
-from tasks.train.store import RunInfo, dataset_tracker, warm_start_source
+from tasks.train.store import RunInfo, dataset_tracker, named_warm_start, warm_start_source
 
 
 def train_code() -> str:
@@ -80,13 +80,22 @@ def train_plan(
     paths: DataPaths, config: TrainConfig, dataset_key: str, inputs: NoInputs
 ) -> StagePlan:
     """Train the two fighters' policies on dataset ``dataset_key`` (a prefix of a key will
-    do), resuming from the run's newest checkpoint, or starting from the networks of the
-    adversary's previous run where `train.warm_start` finds one (`warm_start_source`)."""
+    do), resuming from the run's newest checkpoint, or starting from the networks of run
+    `train.warm_from`, or else of the adversary's previous run where `train.warm_start` finds one
+    (`warm_start_source`)."""
     info = resolve_dataset(paths.db, dataset_key)
     with connect(paths.db) as con:
         teacher = distilled_tracker(con, info.dataset_key, config)
+        if teacher and config.warm_from:
+            raise BadInput(
+                "train.warm_from",
+                "a run distilled from a tracker (train.distill.from_tracker) starts from it",
+            )
         # A distilled run starts from the tracker, not from an earlier run's networks.
-        warm = None if teacher else warm_start_source(con, info.dataset_key, config)
+        if config.warm_from:
+            warm = named_warm_start(con, config.warm_from, config)
+        else:
+            warm = None if teacher else warm_start_source(con, info.dataset_key, config)
     spec = train_spec(config, info.dataset_key, warm, teacher)
     return StagePlan(
         spec,

@@ -17,13 +17,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import duckdb
+import numpy as np
 
 from models.humanoid.boxer import BoneLengths
 from models.maaip.networks import Policy
-from models.tracking.clips import TrackingData, tracking_data
+from models.matching import motion_database
+from models.tracking.clips import TrackingData, reference_clip, tracking_data
 from models.tracking.gate import GateRow, gate_of, play_clips
 from tasks.dataset.store import FootageClip, dataset_info, footage_clips, training_bones
 from tasks.errors import BadInput
+from tasks.opponent.matched import matched_streams
 from tasks.roles import ROLES
 from tasks.train.config import TrainConfig
 
@@ -49,6 +52,37 @@ def paired_tracking(
         return None
     qpos = ({c.name: c.qpos for c in runs}, {c.name: c.other_qpos for c in runs})
     return tracking_data(qpos, bones, fps=fps, key=key)
+
+
+def with_streams(data: TrackingData, config: TrainConfig) -> TrackingData:
+    """``data`` with `TrackConfig.matched_streams` matched streams of both fighters added
+    (`matched_streams`, on the default matcher, seeded by the run's seed), named "stream:k".
+
+    Raises:
+        BadInput: streams are asked for but no clip is long enough to match from.
+    """
+    count = config.track.matched_streams
+    if count == 0:
+        return data
+    try:
+        databases = tuple(
+            motion_database(data.clips[a], data.clips[1 - a], fps=data.fps) for a in range(2)
+        )
+    except ValueError as error:
+        raise BadInput(f"dataset {data.key}", f"train.track.matched_streams: {error}") from error
+    frames = max(2, round(config.track.matched_stream_s * data.fps))
+    streams = matched_streams(
+        databases, count=count, frames=frames, rng=np.random.default_rng([config.seed, 2])
+    )
+    clips = tuple(
+        data.clips[a]
+        + tuple(
+            reference_clip(f"stream:{k}", q, data.bones[a], fps=data.fps)
+            for k, q in enumerate(streams[a])
+        )
+        for a in range(2)
+    )
+    return dataclasses.replace(data, key=f"{data.key}+{count}streams", clips=clips)
 
 
 def footage_tracking(
