@@ -506,7 +506,7 @@ def test_a_run_on_a_later_dataset_of_the_adversary_starts_from_its_previous_netw
     assert code == 0, err
     (named,) = json.loads(out)
     assert any(f"started from the networks of run {cold['key'][:12]}" in n for n in named["notes"])
-    for run, said in (("0" * 12, "names no finished training run"), (previous[:12], "networks")):
+    for run, said in (("0" * 12, "matches no finished training run"), (previous[:12], "networks")):
         flags = [
             "--dataset",
             dataset_key,

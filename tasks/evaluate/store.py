@@ -13,7 +13,7 @@ from storage.records import newest_output, output_metrics
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import member_statistics
 from tasks.errors import BadInput
-from tasks.train.store import RunInfo, finished_runs
+from tasks.train.store import RunInfo, finished_run, finished_runs
 
 STAGE = "evaluate"
 # The tables the stage fills, in the order they are shown.
@@ -100,18 +100,15 @@ class ArtifactRow:
 
 def resolve_run(con: duckdb.DuckDBPyConnection, run: str) -> RunInfo:
     """The finished training run whose key starts with ``run``; BadInput if none or several."""
-    found = finished_runs(con, "p.key LIKE ? || '%'", [run])
-    if len(found) != 1:
-        problem = "matches no finished training run" if not found else "matches several runs"
-        raise BadInput(f"--run {run}", f"{problem}; see `ringside metrics --stage train`")
-    if found[0].objective != "maaip":
+    found = finished_run(con, run, "--run")
+    if found.objective != "maaip":
         raise BadInput(
             f"--run {run}",
-            f"is a {found[0].objective!r} run (train.objective), which follows clips and "
+            f"is a {found.objective!r} run (train.objective), which follows clips and "
             "fights no one; evaluate or export a MAAIP run (its clips: "
             "`ringside metrics --stage train`)",
         )
-    return found[0]
+    return found
 
 
 def compared_runs(con: duckdb.DuckDBPyConnection, run: RunInfo) -> list[RunInfo]:

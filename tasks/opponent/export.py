@@ -44,7 +44,7 @@ from tasks.opponent.folder import FORMAT, KINDS, MANIFEST
 from tasks.opponent.maaip import OnnxPolicy
 from tasks.roles import ROLES
 from tasks.train.config import TrainConfig
-from tasks.train.store import RunInfo, clips_finished, finished_runs
+from tasks.train.store import RunInfo, clips_finished, finished_run
 
 ONNX_OPSET = 17
 
@@ -155,11 +155,7 @@ def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
     (`train_policies`); ``run`` may be a prefix of the run key. BadInput if it matches no
     finished run or several."""
     with connect(db, read_only=True) as con:
-        found = finished_runs(con, "p.key LIKE ? || '%'", [run])
-        if len(found) != 1:
-            problem = "matches no finished training run" if not found else "matches several runs"
-            raise BadInput(f"--run {run}", f"{problem}; see `ringside metrics --stage train`")
-        info = found[0]
+        info = finished_run(con, run, "--run")
         metrics = output_metrics(con, "train", info.dataset_key, info.run_key)
     return load_trained(artifacts, info, metrics)
 

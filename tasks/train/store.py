@@ -57,20 +57,27 @@ def finished_runs(con: duckdb.DuckDBPyConnection, where: str, params: list) -> l
     return [RunInfo(*row[:4], json.loads(row[4])) for row in rows]
 
 
+def finished_run(con: duckdb.DuckDBPyConnection, run: str, setting: str) -> RunInfo:
+    """The finished training run whose key starts with ``run``; BadInput naming ``setting``
+    (the flag or setting that gave it) if it matches none or several."""
+    found = finished_runs(con, "p.key LIKE ? || '%'", [run])
+    if len(found) != 1:
+        problem = "matches no finished training run" if not found else "matches several runs"
+        raise BadInput(f"{setting} {run}", f"{problem}; see `ringside metrics --stage train`")
+    return found[0]
+
+
 def named_warm_start(con: duckdb.DuckDBPyConnection, run: str, config: TrainConfig) -> RunInfo:
     """The finished run ``run`` (a key or a prefix of one) that a run with `train.warm_from`
     starts from; BadInput when it names no finished run, several, or one of other networks."""
-    found = finished_runs(con, "p.key LIKE ? || '%'", [run])
-    if len(found) != 1:
-        problem = "names no finished training run" if not found else "names several runs"
-        raise BadInput(f"train.warm_from {run}", f"{problem}; see `ringside metrics --stage train`")
-    if not _fits(json.dumps(found[0].config), config):
+    found = finished_run(con, run, "train.warm_from")
+    if not _fits(found.config, config):
         raise BadInput(
             f"train.warm_from {run}",
-            f"run {found[0].run_key[:12]}'s networks are not this run's (objective "
-            f"{found[0].objective!r}, or other sizes)",
+            f"run {found.run_key[:12]}'s networks are not this run's (objective "
+            f"{found.objective!r}, or other sizes)",
         )
-    return found[0]
+    return found
 
 
 def tracker_run(con: duckdb.DuckDBPyConnection, run_key: str) -> RunInfo:
@@ -88,11 +95,10 @@ def dataset_tracker(con: duckdb.DuckDBPyConnection, dataset_key: str) -> RunInfo
     return found[-1] if found else None
 
 
-def _fits(stored: str, config: TrainConfig) -> bool:
-    """Whether a run made with settings ``stored`` (JSON) has networks of ``config``'s shapes
-    (a tracker's and MAAIP's policies see different observations)."""
+def _fits(settings: dict, config: TrainConfig) -> bool:
+    """Whether a run made with ``settings`` (its stored `train` config) has networks of
+    ``config``'s shapes (a tracker's and MAAIP's policies see different observations)."""
     try:
-        settings = json.loads(stored)
         theirs = build(TrainConfig, settings, section="train")
     except (ValueError, TypeError):  # settings of an older version that no longer exist
         return False
@@ -116,22 +122,15 @@ def warm_start_source(
     stays the same when the run is asked for again."""
     if not config.warm_start:
         return None
-    rows = con.execute(
-        """
-        SELECT p.key, p.video_id, p.iteration, p.artifact, o.config
-        FROM train_policies p
-        JOIN stage_outputs o ON o.stage = 'train' AND o.key = p.key AND o.video_id = p.video_id
-        JOIN datasets theirs ON theirs.dataset_key = p.video_id
-        JOIN datasets ours ON ours.dataset_key = ?
-        WHERE theirs.adversary = ours.adversary AND theirs.created_at < ours.created_at
-        ORDER BY o.created_at DESC, p.key
-        """,
-        [dataset_key],
-    ).fetchall()
+    earlier = (
+        "p.video_id IN (SELECT theirs.dataset_key FROM datasets theirs JOIN datasets ours "
+        "ON ours.dataset_key = ? WHERE theirs.adversary = ours.adversary "
+        "AND theirs.created_at < ours.created_at)"
+    )
     bones = training_bones(con, dataset_key)
-    for run_key, their_dataset, iteration, artifact, stored in rows:
-        if _fits(stored, config) and training_bones(con, their_dataset) == bones:
-            return RunInfo(run_key, their_dataset, iteration, artifact, json.loads(stored))
+    for found in reversed(finished_runs(con, earlier, [dataset_key])):  # the newest first
+        if _fits(found.config, config) and training_bones(con, found.dataset_key) == bones:
+            return found
     return None
 
 
