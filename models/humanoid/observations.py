@@ -44,6 +44,7 @@ Shape letters: T frames (or any leading batch shape), N = 15 bodies.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -131,6 +132,17 @@ class BodyState:
     def __getitem__(self, index) -> BodyState:
         """The state at some leading (time or batch) indices."""
         return BodyState(self.pos[index], self.rot[index], self.lin_vel[index], self.ang_vel[index])
+
+
+def stacked(states: Sequence[BodyState], axis: int = 1) -> BodyState:
+    """Several humanoids' states (each (B,)) as one, stacked on ``axis``: (B, 2) for both
+    fighters of a batch of arenas."""
+    return BodyState(
+        *(
+            np.stack([getattr(s, name) for s in states], axis=axis)
+            for name in ("pos", "rot", "lin_vel", "ang_vel")
+        )
+    )
 
 
 FRAME_WIDTH = 21  # world_frames' columns

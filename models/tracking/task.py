@@ -38,7 +38,7 @@ Shape letters: F frames of all clips, N environments, n of them, 2 agents, B bod
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 import numpy as np
@@ -47,7 +47,7 @@ from models.arena.config import EnvConfig
 from models.arena.env import ArenaEnv, StepResult, to_host
 from models.arena.mjcf import NUM_AGENTS
 from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV, heading_frame_of_matrix
-from models.humanoid.observations import SELF_DIM, BodyState, self_observation
+from models.humanoid.observations import SELF_DIM, BodyState, self_observation, stacked
 from models.tracking.clips import ClipLibrary, TrackingData, clip_library
 from models.tracking.config import TrackConfig
 from models.tracking.reward import (
@@ -194,13 +194,8 @@ class Tracker:
 
     def reference(self, flat: np.ndarray, ids: np.ndarray | slice = slice(None)) -> BodyState:
         """(n, 2) the reference frames ``flat`` (n, 2) of environments ``ids``, where placed."""
-        parts = [f.clip.states[flat[:, a]] for a, f in enumerate(self.libraries)]
-        shift = self.offset[ids][:, :, None, :]
-        pos = np.stack([p.pos for p in parts], axis=1) + shift
-        rot, lin, ang = (
-            np.stack([getattr(p, k) for p in parts], axis=1) for k in ("rot", "lin_vel", "ang_vel")
-        )
-        return BodyState(pos, rot, lin, ang)
+        both = stacked([f.clip.states[flat[:, a]] for a, f in enumerate(self.libraries)])
+        return replace(both, pos=both.pos + self.offset[ids][:, :, None, :])
 
     def next_frames(self, ids: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(n, 2) the flat index of each agent's next frame in environments ``ids``, as the

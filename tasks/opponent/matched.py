@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ
-from models.humanoid.observations import BodyState, self_observation
+from models.humanoid.observations import BodyState, self_observation, stacked
 from models.matching import MatchConfig, MotionDatabase, motion_database
 from models.tracking.clips import reference_clip
 from models.tracking.task import tracking_input
@@ -183,6 +183,22 @@ class MatchedTracker:
         self._turn[ids], self._shift[ids] = laying(seen.body[rows], db.library.clip.states[found])
         self._at[ids] = found
 
+    def start_at(self, frames: np.ndarray) -> None:
+        """Arenas 0 to len(``frames``) - 1 start at database ``frames``, where the footage has
+        them (no search made)."""
+        ids = np.arange(len(frames))
+        self._grow(len(ids))
+        self._at[ids], self._turn[ids], self._shift[ids] = frames, np.eye(3), 0.0
+        self._since[ids], self._fade[ids] = 0, 0
+
+    def play(self, seen: Seen) -> tuple[np.ndarray, BodyState]:
+        """The motion alone, no policy: after the searches due this step, the frame each
+        arena of ``seen`` plays next as qpos (B, 35) and as body states (B,)."""
+        ids = self._due(seen)
+        qpos, states = self._next_qpos(ids), self._next(ids)[0]
+        self._advance(ids)
+        return qpos, states
+
     def reset(self, seen: Seen) -> None:
         ids = np.asarray(seen.arenas, dtype=int)
         self._grow(int(ids.max()) + 1 if len(ids) else 0)
@@ -279,25 +295,17 @@ def matched_streams(
     ids = np.arange(count)
     players = [MatchedTracker(lambda x: np.zeros((len(x), 28)), db) for db in databases]
     start = databases[0].candidates[rng.integers(len(databases[0].candidates), size=count)]
-    bodies = []
     for player in players:
-        player._grow(count)
-        player._at[ids] = start
-        bodies.append(player.database.library.clip.states[start])
+        player.start_at(start)
+    bodies = [player.database.library.clip.states[start] for player in players]
     qpos = np.empty((2, count, frames, NQ))
     for t in range(frames):
-        both = BodyState(
-            *(
-                np.stack([getattr(b, f) for b in bodies], 1)
-                for f in ("pos", "rot", "lin_vel", "ang_vel")
-            )
-        )
+        both = stacked(bodies)
+        seen = [
+            Seen(ids, slot, both, np.zeros((count, 0)), np.zeros((count, 0))) for slot in (0, 1)
+        ]
         for slot, player in enumerate(players):
-            player._due(Seen(ids, slot, both, np.zeros((count, 0)), np.zeros((count, 0))))
-            qpos[slot, :, t] = player._next_qpos(ids)
-            bodies[slot] = player._next(ids)[0]
-        for player in players:
-            player._advance(ids)
+            qpos[slot, :, t], bodies[slot] = player.play(seen[slot])
     return qpos[0], qpos[1]
 
 
