@@ -45,10 +45,11 @@ demo: $(STAMP)
 	$(BIN)/ringside demo
 
 # Two processes, as CI's two cores: most tests wait on a server or a subprocess part of the
-# time. A file's tests stay on one process, in order, with their fixtures.
+# time. A file's tests stay on one process, in order, with their fixtures. The 30 slowest are
+# listed at the end, for keeping the suite inside its 20 minutes on CI.
 test: $(STAMP) browser postgres lint
 	$(BIN)/ringside assets pull --dev
-	$(BIN)/python -m pytest -n 2 --dist loadfile
+	$(BIN)/python -m pytest -n 2 --dist loadfile --durations=30
 
 # The tests too long for `make test` and CI: SIGKILL at 20 random moments of a pipeline run
 # (tests/test_kills.py), two pipeline workers (tests/test_workers.py) and a run killed on a
