@@ -161,18 +161,18 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
     (stored,) = query(
         data, "SELECT config FROM stage_outputs WHERE stage = 'train' AND key = ?", [key]
     )
-    assert not _fits(stored[0], TINY)
-    assert _fits(stored[0], dataclasses.replace(TINY, objective="track"))
+    settings = json.loads(stored[0])
+    assert not _fits(settings, TINY)
+    assert _fits(settings, dataclasses.replace(TINY, objective="track"))
     # Nor a tracker whose value reads the partner from one whose value does not, and a tracker
     # stored before that setting existed had one that did.
     partner = dataclasses.replace(
         TINY, objective="track", track=TrackConfig(value_sees_partner=True)
     )
-    assert not _fits(stored[0], partner)
-    older = json.loads(stored[0])
-    del older["track"]["value_sees_partner"]
-    assert _fits(json.dumps(older), partner)
-    assert not _fits(json.dumps(older), dataclasses.replace(TINY, objective="track"))
+    assert not _fits(settings, partner)
+    del settings["track"]["value_sees_partner"]
+    assert _fits(settings, partner)
+    assert not _fits(settings, dataclasses.replace(TINY, objective="track"))
 
     # MAAIP from the tracker: its policy distilled into the run's before the first iteration.
     distilled = [
