@@ -174,6 +174,21 @@ def test_tiles_find_people_the_whole_frame_misses(assets: Path, sample_video: Pa
     assert sum(tiles) > sum(whole)
 
 
+def test_a_person_across_two_tiles_is_one_detection(assets: Path):
+    """The single-person sample (1080x1920) on two tiles: the lower tile sees the person's legs,
+    cut at its top edge. Found at every detection frame, the person is one detection there,
+    not a second person (on an AMD EPYC the legs scored 0.50-0.90 and started a second track)."""
+    tiled = TiledDetector(BlazePoseDetector(assets / "pose_detection.tflite", num_threads=2), 2)
+    capture = cv2.VideoCapture(str(assets / "samples" / "single_person" / "cam01.mp4"))
+    found, frame = [], 0
+    while (read := capture.read())[0]:
+        if frame % 3 == 0:  # pose.detect_every
+            found.append(len(tiled(read[1])))
+        frame += 1
+    capture.release()
+    assert len(found) == 34 and set(found) == {1}, found
+
+
 def test_a_fighter_lost_for_a_while_is_still_one_fighter():
     red, blue = colour_of((30, 30, 200)), colour_of((200, 60, 30))
     # Track 0 (red) is lost from frame 20 to 29 and comes back as track 2 on its path.

@@ -23,6 +23,15 @@ def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     return np.divide(inter, union, out=np.zeros_like(inter, dtype=np.float64), where=union > 0)
 
 
+def covered_share(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(M,) share of one (4,) box's area that each of (M, 4) boxes covers; 0 for an empty box."""
+    top_left = np.maximum(box[:2], boxes[:, :2])
+    bottom_right = np.minimum(box[2:], boxes[:, 2:])
+    inter = np.prod(np.clip(bottom_right - top_left, 0, None), axis=1)
+    area = np.prod(np.clip(box[2:] - box[:2], 0, None))
+    return inter / area if area > 0 else np.zeros(len(boxes))
+
+
 def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:
     """Plain non-maximum suppression.
 
