@@ -404,6 +404,11 @@ def lift_shot(
                     "floor_penetration_mean_mm": float(sunk.mean() * 1000),
                 },
             )
+    if not any((~f.dropped).any() for f in lifted_fighters.values()):
+        # Every step refused after the camera was placed: the shot is left out like one whose
+        # fighters were never lifted, so that the video's refusal names why (tiny people on one
+        # CPU got a camera and no step, and the media stage failed on an empty motion).
+        return ShotLift(shot, None, {}, rejected, seen_frames, ())
     return ShotLift(shot, camera, lifted_fighters, rejected, seen_frames, ())
 
 
