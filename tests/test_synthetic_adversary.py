@@ -335,8 +335,11 @@ def test_the_evaluation_replays_the_held_out_clips_with_the_datasets_tracker(mad
         "WHERE key = ? AND policy = 'replay'",
         [after["key"]],
     )[0]
-    # The untrained tracker falls out of most clips early: what it tracked, windowed.
-    assert (real, simulated) == (held_out, len(windows)) and simulated > 0
+    # The untrained tracker falls out of the held-out clips (1.3 s each) early: what it tracked,
+    # windowed. Whether it holds any clip for a whole 1 s window hangs on the CPU's arithmetic
+    # (none on an AMD EPYC, even with a 5 m root limit; some elsewhere): the row counts what
+    # there is and, with too few, says so in words that are not NO_TRACKER's.
+    assert (real, simulated) == (held_out, len(windows))
     if simulated >= 5:
         assert reason is None and 0.0 <= auc <= 1.0
     else:
