@@ -130,3 +130,16 @@ def test_no_module_is_over_800_lines(layer):
         if (n := len(path.read_text().splitlines())) > 800
     ]
     assert long == []
+
+
+def test_opencv_is_the_design_cards_build_alone():
+    """One OpenCV wheel: another (opencv-python, as a dependency of a dev tool pulled in) writes
+    the same cv2/ folder, and which build runs would hang on pip's install order."""
+    from importlib.metadata import distributions
+
+    import cv2
+
+    installed = {d.metadata["Name"].lower() for d in distributions()}
+    opencv = sorted(n for n in installed if n.startswith("opencv"))
+    assert opencv == ["opencv-contrib-python-headless"], opencv
+    assert hasattr(cv2, "ximgproc"), "cv2 is not the contrib build"
