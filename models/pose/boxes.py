@@ -23,13 +23,22 @@ def box_iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     return np.divide(inter, union, out=np.zeros_like(inter, dtype=np.float64), where=union > 0)
 
 
-def covered_share(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """(M,) share of one (4,) box's area that each of (M, 4) boxes covers; 0 for an empty box."""
-    top_left = np.maximum(box[:2], boxes[:, :2])
-    bottom_right = np.minimum(box[2:], boxes[:, 2:])
-    inter = np.prod(np.clip(bottom_right - top_left, 0, None), axis=1)
-    area = np.prod(np.clip(box[2:] - box[:2], 0, None))
-    return inter / area if area > 0 else np.zeros(len(boxes))
+def intersections(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(A, B) intersection areas of (A, 4) and (B, 4) boxes."""
+    low = np.maximum(a[:, None, :2], b[None, :, :2])
+    high = np.minimum(a[:, None, 2:], b[None, :, 2:])
+    return np.prod(np.clip(high - low, 0, None), axis=2)
+
+
+def box_areas(boxes: np.ndarray) -> np.ndarray:
+    return np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)
+
+
+def covered_shares(boxes: np.ndarray) -> np.ndarray:
+    """(O, O) share of box i's area that box j covers, 0 on the diagonal."""
+    share = intersections(boxes, boxes) / box_areas(boxes)[:, None]
+    np.fill_diagonal(share, 0.0)
+    return share
 
 
 def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.pose.boxes import covered_share, nms
+from models.pose.boxes import covered_shares, nms
 from models.pose.types import Detection, Detector
 
 
@@ -69,7 +69,8 @@ class TiledDetector:
             return []
         boxes = np.array([d.box for d in found])
         kept = nms(boxes, np.array([d.score for d in found]), self.nms_iou)
-        cover = np.array([covered_share(boxes[i], boxes[kept]) for i in kept])  # i by j
-        apart = np.array([[tile[i] != tile[j] for j in kept] for i in kept])
+        cover = covered_shares(boxes[kept])  # i's area that j covers
+        tiles = np.array(tile)[kept]
+        apart = tiles[:, None] != tiles[None, :]
         part = apart & (cover > self.cut_cover) & (cover > cover.T)
         return [found[i] for i, p in zip(kept, part.any(axis=1), strict=True) if not (cut[i] and p)]

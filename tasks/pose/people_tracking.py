@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from models.pose.boxes import box_areas, covered_shares, intersections
 from models.pose.types import Detection
 from tasks.pose.config import TrackerConfig
 
@@ -473,7 +474,7 @@ class Tracker:
         matches |= self._associate(left, weak, boxes, colours)
         matches = self._one_track_per_body(matches, observations, boxes, colours)
 
-        occluded = _covered_share(boxes).max(axis=1, initial=0.0) > cfg.occlusion_overlap
+        occluded = covered_shares(boxes).max(axis=1, initial=0.0) > cfg.occlusion_overlap
         given = {o: self._live[k] for o, k in matches.items()}  # observation -> its track
         for o in sorted(given):
             self._observe(given[o], frame, observations[o], occluded[o])
@@ -651,28 +652,10 @@ def _check_colour(name: str, colour: np.ndarray) -> np.ndarray:
     return colour
 
 
-def _intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(A, B) intersection areas of (A, 4) and (B, 4) boxes."""
-    low = np.maximum(a[:, None, :2], b[None, :, :2])
-    high = np.minimum(a[:, None, 2:], b[None, :, 2:])
-    return np.prod(np.clip(high - low, 0, None), axis=2)
-
-
-def _area(boxes: np.ndarray) -> np.ndarray:
-    return np.prod(boxes[:, 2:] - boxes[:, :2], axis=1)
-
-
 def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(A, B) intersection over union of (A, 4) and (B, 4) boxes."""
-    inter = _intersection(a, b)
-    return inter / (_area(a)[:, None] + _area(b)[None, :] - inter)
-
-
-def _covered_share(boxes: np.ndarray) -> np.ndarray:
-    """(O, O) share of box i's area that box j covers, 0 on the diagonal."""
-    share = _intersection(boxes, boxes) / _area(boxes)[:, None]
-    np.fill_diagonal(share, 0.0)
-    return share
+    inter = intersections(a, b)
+    return inter / (box_areas(a)[:, None] + box_areas(b)[None, :] - inter)
 
 
 def same_body(a: Observation, b: Observation, config: TrackerConfig) -> bool:
