@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from models.arena.env import ArenaEnv
+from models.arena.pushes import random_pushes
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import axis_angle_matrix
 from models.humanoid.observations import BodyState
@@ -159,6 +160,81 @@ def test_a_reset_puts_each_agent_on_its_clip_frame_with_the_clips_velocities(dat
             np.testing.assert_allclose(getattr(states, name), getattr(ref, name), atol=1e-9)
 
 
+def test_together_starts_put_both_fighters_at_one_frame_of_one_footage_as_filmed(data):
+    """`TrackConfig.together_share`: that share of the starts has both agents at the same frame
+    of clip k where the footage has them (here agent 1 is agent 0's clip 1.5 m aside); the
+    others start at their slots, each on its own draw."""
+    aside = tuple(
+        dataclasses.replace(c, qpos=c.qpos + np.r_[0, 1.5, np.zeros(33)]) for c in data.clips[0]
+    )
+    pair = tracking_data(
+        ({c.name: c.qpos for c in data.clips[0]}, {c.name: c.qpos for c in aside}),
+        BONES,
+        fps=30.0,
+        key="clips:walk,punch aside",
+    )
+    with _env(64) as env:
+        tracker = Tracker(pair, TrackConfig(together_share=0.5), env.config)
+        tracker.reset(env, np.arange(64), np.random.default_rng(2))
+        together = (tracker.flat[:, 0] == tracker.flat[:, 1]) & ~tracker.offset.any(axis=(1, 2))
+        assert 16 <= together.sum() <= 48
+        for i, d in enumerate(env.datas):
+            pelvis = [d.qpos[agent.qpos][:3] for agent in env.index.agents]
+            if together[i]:
+                np.testing.assert_allclose(pelvis[1] - pelvis[0], [0, 1.5, 0], atol=1e-12)
+            else:  # at their slots, 4 m apart along y
+                np.testing.assert_allclose(pelvis[0][:2], tracker.slots[0, :2])
+                np.testing.assert_allclose(pelvis[1][:2], tracker.slots[1, :2])
+        # Clips that do not pair up frame for frame cannot start together.
+        short = tracking_data(
+            ({c.name: c.qpos for c in data.clips[0]}, {"walk": data.clips[0][0].qpos[:20]}),
+            BONES,
+            fps=30.0,
+            key="unpaired",
+        )
+        with pytest.raises(ValueError, match="do not pair up"):
+            Tracker(short, TrackConfig(together_share=0.5), env.config)
+
+
+def test_pushes_hit_each_fighter_at_their_rate_with_a_thrown_objects_momentum(data):
+    """`TrackConfig.push_every_s`: with a push every 0.2 s on average, each agent is hit in
+    about 1 in 6 of the 30 Hz steps, by 1-10 kg at 5 m/s (150-1500 N for a step), horizontally,
+    on one of its own bodies; a tracker given no generator (the gate's) is never pushed."""
+    config = TrackConfig(push_every_s=0.2)
+    with _env(32) as env:
+        body_ids = np.stack([agent.body_ids for agent in env.index.agents])
+        rng = np.random.default_rng(4)
+        hits = []
+        for _ in range(20):
+            pushes = random_pushes(
+                rng,
+                body_ids,
+                num_envs=32,
+                nbody=env.model.nbody,
+                chance=1 / 6,
+                mass_kg=(1.0, 10.0),
+                speed_mps=5.0,
+                step_s=1 / 30,
+            )
+            pushed = np.flatnonzero(np.abs(pushes).sum(-1).ravel())
+            force = np.linalg.norm(pushes.reshape(-1, 6)[pushed, :3], axis=1)
+            assert ((force >= 150 - 1e-9) & (force <= 1500 + 1e-9)).all()
+            assert not pushes[..., 2:].any()  # horizontal forces, no torque
+            per_agent = [np.abs(pushes[:, ids]).sum(axis=(1, 2)) > 0 for ids in body_ids]
+            # At most one body of each agent per step.
+            assert (np.count_nonzero(np.abs(pushes).sum(-1), axis=1) <= 2).all()
+            hits.append(np.stack(per_agent, 1))
+        share = np.mean(hits)
+        assert 0.11 < share < 0.23, share
+        tracker = Tracker(data, config, env.config, pushes=np.random.default_rng(0))
+        tracker.reset(env, np.arange(32), np.random.default_rng(0))
+        pushed = [tracker.step(env, np.zeros((32, 2, 28))).pushed for _ in range(10)]
+        assert 0.08 < np.mean(pushed) < 0.26
+        quiet = Tracker(data, config, env.config)  # no generator: no pushes
+        quiet.reset(env, np.arange(32), np.random.default_rng(0))
+        assert not quiet.step(env, np.zeros((32, 2, 28))).pushed.any()
+
+
 def test_hard_starts_fall_in_the_second_before_where_episodes_failed(data):
     with _env(64) as env:
         config = TrackConfig(hard_start_share=1.0, hard_start_window_s=0.5)
@@ -246,11 +322,11 @@ def _parameters(trainer: Trainer) -> torch.Tensor:
 
 @pytest.mark.parametrize("stepping", ["rollout", "warp"])
 def test_a_tracking_run_resumes_from_its_checkpoint_exactly(data, stepping):
-    # With hard starts, whose failure counts are part of the state.
+    # With hard starts and pushes, whose failure counts and generator are part of the state.
     config = dataclasses.replace(
         TINY,
         env=dataclasses.replace(TINY.env, stepping=stepping),
-        track=TrackConfig(hard_start_share=0.5),
+        track=TrackConfig(hard_start_share=0.5, push_every_s=0.5),
     )
     whole = Trainer(config, data)
     try:

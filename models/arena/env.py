@@ -355,13 +355,22 @@ class ArenaEnv:
 
     # ---------------------------------------------------------------- step
 
-    def step(self, actions: np.ndarray, puppet: Puppet | None = None) -> StepResult:
+    def step(
+        self,
+        actions: np.ndarray,
+        puppet: Puppet | None = None,
+        *,
+        pushes: np.ndarray | None = None,
+    ) -> StepResult:
         """Advance every environment by one policy step.
 
         Args:
             actions: (N, 2, 28) finite actions of agent 0 and agent 1 (MAAIP §4.2); a
                 puppet's are ignored.
             puppet: an agent to move through given poses instead (`models.arena.puppet`).
+            pushes: (N, nbody, 6) finite forces (N) and torques (N m) on each body's centre of
+                mass, in world axes (MuJoCo's xfrc_applied), held over the step's substeps
+                and gone after it: a push (`models.arena.pushes`). None: none.
 
         Returns:
             StepResult for every environment (module docstring: damage, falls, time-outs).
@@ -374,7 +383,12 @@ class ArenaEnv:
             ids = xp.asarray(self.index.actuators[agent], device=device(a))
             ctrl[:, ids] = targets[:, agent]
         paths = None if puppet is None else self._stepping.puppet_paths(puppet)
-        damage, floor = self._stepping.advance(ctrl, contacts=True, paths=paths)
+        if pushes is not None:
+            pushes = np.asarray(pushes, dtype=np.float64)
+            want = (self.num_envs, self.model.nbody, 6)
+            if pushes.shape != want or not np.isfinite(pushes).all():
+                raise ValueError(f"pushes must be finite with shape {want}, got {pushes.shape}")
+        damage, floor = self._stepping.advance(ctrl, contacts=True, paths=paths, pushes=pushes)
         # Where the worlds are: the host's copies, or with "warp" the device's tensors.
         frames, head_z, stable = self._stepping.measured()
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite

@@ -422,7 +422,10 @@ class Tracking:
         self.config = config
         self.key, self.bones = data.key, data.bones
         self.discriminators: tuple[Discriminator, ...] = ()
-        self.tracker = Tracker(data, config.track, config.env)
+        # The pushes' own generator (checkpointed with the tracker), so that turning them on
+        # leaves every other draw of a run as it was.
+        pushes = np.random.default_rng([config.seed, 3])
+        self.tracker = Tracker(data, config.track, config.env, pushes=pushes)
 
     def reset(
         self, env: ArenaEnv, ids: np.ndarray, rng: np.random.Generator

@@ -59,6 +59,24 @@ class TrackConfig:
         "a bout starts its fighters (`tasks.opponent.spar`) and as a matched opponent stands up "
         "again after a fall; the rest start with the clip's velocities (DeepMimic).",
     )
+    together_share: float = setting(
+        0.0,
+        "The share of episode starts made with both fighters together, as filmed: both agents "
+        "at the same frame of one clip of the footage (or one matched stream) and where it has "
+        "them, so that contact, clinches and punches that land are part of training; the rest "
+        "start each agent on its own clip at its slot (`separation_m`).",
+    )
+    push_every_s: float = setting(
+        0.0,
+        "The mean time (s) between random pushes on each training fighter (`models.arena."
+        "pushes`: an object thrown at a random body part; DReCon threw one about every "
+        "second); 0: none. Training only: the gate and the replays are never pushed.",
+    )
+    push_mass_min_kg: float = setting(1.0, "The lightest object a push throws (kg; DReCon: 1).")
+    push_mass_max_kg: float = setting(10.0, "The heaviest object a push throws (kg; DReCon: 10).")
+    push_speed_mps: float = setting(
+        5.0, "The speed (m/s) a push's object is thrown at (DReCon: 5)."
+    )
     hard_start_window_s: float = setting(
         1.0, "How far (s) before a failure a hard start may be drawn (`hard_start_share`)."
     )
@@ -117,6 +135,9 @@ class TrackConfig:
             "hard_start_window_s",
             "hard_start_memory_steps",
             "matched_stream_s",
+            "push_mass_min_kg",
+            "push_mass_max_kg",
+            "push_speed_mps",
             "gate_body_error_cm",
             "gate_root_error_cm",
         ):
@@ -126,6 +147,19 @@ class TrackConfig:
         if not 0 <= self.rest_start_share <= 1:
             raise ValueError(
                 f"train.track.rest_start_share must be between 0 and 1, got {self.rest_start_share}"
+            )
+        if not 0 <= self.together_share <= 1:
+            raise ValueError(
+                f"train.track.together_share must be between 0 and 1, got {self.together_share}"
+            )
+        if not (math.isfinite(self.push_every_s) and self.push_every_s >= 0):
+            raise ValueError(
+                f"train.track.push_every_s must be 0 or positive, got {self.push_every_s}"
+            )
+        if self.push_mass_min_kg > self.push_mass_max_kg:
+            raise ValueError(
+                f"train.track.push_mass_min_kg ({self.push_mass_min_kg}) must not exceed "
+                f"push_mass_max_kg ({self.push_mass_max_kg})"
             )
         if not 0 <= self.hard_start_share <= 1:
             raise ValueError(

@@ -24,8 +24,13 @@ The method, as physics-based character animation practises it:
 Both fighters of an arena track, each its own clip drawn independently: the physics steps both
 bodies anyway, so two agents double the samples for the same cost. Each clip is moved along the
 floor so that its start frame's pelvis is at y = -separation/2 (agent 0) or +separation/2
-(agent 1), heading kept, and they never meet. An arena's episode ends when either agent's
-does; the other agent's ending is then a time-out for it (bootstrapped), not a termination.
+(agent 1), heading kept, and they never meet; or, for `TrackConfig.together_share` of the
+starts, both agents start at one frame of one piece of footage (or one matched stream) where it
+has them, and meet as the fighters did. An arena's episode ends when either agent's does; the
+other agent's ending is then a time-out for it (bootstrapped), not a termination.
+
+In training, a Tracker given a generator for them pushes its fighters now and then
+(`TrackConfig.push_every_s`, `models.arena.pushes`), as DReCon did, so that it learns to recover.
 
 Which reference frame comes next is the task's frame source (`FrameSource`): by default the
 clip's next frame (`NextFrame`), so that the tracker plays each clip through; another source
@@ -46,6 +51,7 @@ import numpy as np
 from models.arena.config import EnvConfig
 from models.arena.env import ArenaEnv, StepResult, to_host
 from models.arena.mjcf import NUM_AGENTS
+from models.arena.pushes import random_pushes
 from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV, heading_frame_of_matrix
 from models.humanoid.observations import SELF_DIM, BodyState, self_observation, stacked
 from models.tracking.clips import ClipLibrary, TrackingData, clip_library
@@ -105,6 +111,7 @@ class TrackStep:
         reward: (N, 2) DeepMimic's reward (0 where unstable).
         terms: (N, 2, 4) its terms, REWARD_TERMS order.
         body_error, root_error: (N, 2) metres against the frame just reached.
+        pushed: (N, 2) which agents were pushed in the step (`TrackConfig.push_every_s`).
     """
 
     observation: np.ndarray
@@ -118,6 +125,7 @@ class TrackStep:
     terms: np.ndarray
     body_error: np.ndarray
     root_error: np.ndarray
+    pushed: np.ndarray
 
     @property
     def done(self) -> np.ndarray:
@@ -127,7 +135,9 @@ class TrackStep:
 class Tracker:
     """Tracking episodes of N arenas, both agents: which clip and frame each agent is at and
     where its clip was put (module docstring); ``source`` says which frame comes next
-    (`NextFrame` unless given). `state` and `load_state` checkpoint it."""
+    (`NextFrame` unless given); ``pushes`` is the generator of the random pushes of training
+    (`TrackConfig.push_every_s`; None: no pushes, as the gate and the replays play). `state`
+    and `load_state` checkpoint it."""
 
     def __init__(
         self,
@@ -136,6 +146,7 @@ class Tracker:
         env: EnvConfig,
         *,
         source: FrameSource | None = None,
+        pushes: np.random.Generator | None = None,
     ):
         if data.fps != env.policy_hz:
             raise ValueError(
@@ -145,6 +156,12 @@ class Tracker:
         num_envs = env.num_envs
         self.data, self.config = data, config
         self.libraries = tuple(clip_library(clips, fps=data.fps) for clips in data.clips)
+        if config.together_share > 0 and not self._paired():
+            raise ValueError(
+                f"train.track.together_share: the fighters' clips of {data.key!r} do not pair "
+                "up clip for clip (equal lengths), so they cannot start together"
+            )
+        self.pushes = pushes if config.push_every_s > 0 else None
         self.source: FrameSource = NextFrame() if source is None else source
         self.flat = np.zeros((num_envs, NUM_AGENTS), dtype=int)  # index into `libraries`
         self.offset = np.zeros((num_envs, NUM_AGENTS, 3))  # added to the clip's positions
@@ -155,11 +172,16 @@ class Tracker:
         # weight the hard starts (`TrackConfig.hard_start_share`).
         self.failures = [np.zeros(len(f.clip.qpos)) for f in self.libraries]
 
+    def _paired(self) -> bool:
+        """Whether clip k of agent 0 and of agent 1 are one piece of footage (equal lengths)."""
+        return np.array_equal(self.libraries[0].last, self.libraries[1].last)
+
     def state(self) -> dict:
         return {
             "flat": self.flat.copy(),
             "offset": self.offset.copy(),
             "failures": [f.copy() for f in self.failures],
+            "pushes": None if self.pushes is None else self.pushes.bit_generator.state,
         }
 
     def load_state(self, state: dict) -> None:
@@ -167,6 +189,8 @@ class Tracker:
         self.offset[:] = state["offset"]
         for mine, saved in zip(self.failures, state.get("failures", ()), strict=False):
             mine[:] = saved
+        if self.pushes is not None and state.get("pushes") is not None:
+            self.pushes.bit_generator.state = state["pushes"]
 
     def start_weights(self, agent: int) -> np.ndarray:
         """(len(startable),) the probability of each of agent ``agent``'s startable frames as an
@@ -229,13 +253,16 @@ class Tracker:
         frame but the last of every one of its clips (or at the first frame of ``clips`` (n, 2)),
         with the clip's velocities, placed at its slot. ``as_filmed``: each agent's clip k is
         one of the two fighters of one piece of footage (the same length), both agents start at
-        the same frame of it and where the footage has them. Returns their observations
-        (n, 2, 451)."""
+        the same frame of it and where the footage has them. Drawn starts are made so, together,
+        with `TrackConfig.together_share`. Returns their observations (n, 2, 451)."""
         ids = np.asarray(ids, dtype=int)
         qpos = np.empty((len(ids), NUM_AGENTS, NQ))
         qvel = np.empty((len(ids), NUM_AGENTS, NV))
-        if as_filmed and not np.array_equal(self.libraries[0].last, self.libraries[1].last):
+        if as_filmed and not self._paired():
             raise ValueError("as_filmed: the agents' clips must pair up, clip k of equal length")
+        together = np.full(len(ids), as_filmed)
+        if self.config.together_share > 0 and clips is None and not as_filmed:
+            together = rng.random(len(ids)) < self.config.together_share
         for a, f in enumerate(self.libraries):
             if clips is not None:
                 flat = f.index(np.asarray(clips)[:, a], 0)
@@ -245,11 +272,12 @@ class Tracker:
                 flat = rng.choice(f.startable, size=len(ids), p=self.start_weights(a))
             else:
                 flat = f.startable[rng.integers(len(f.startable), size=len(ids))]
+            if a == 1 and clips is None:
+                flat = np.where(together, self.flat[ids, 0], flat)
             self.flat[ids, a] = flat
-            if as_filmed:
-                self.offset[ids, a] = 0.0
-            else:
-                self.offset[ids, a] = self.slots[a] - f.clip.qpos[flat, :3] * [1, 1, 0]
+            offset = self.slots[a] - f.clip.qpos[flat, :3] * [1, 1, 0]
+            offset[together] = 0.0
+            self.offset[ids, a] = offset
             qpos[:, a] = f.clip.qpos[flat]
             qpos[:, a, :3] += self.offset[ids, a]
             qvel[:, a] = f.clip.qvel[flat]
@@ -273,7 +301,20 @@ class Tracker:
                 f"corrections must have shape ({env.num_envs}, 2, {NUM_ACTUATED}), "
                 f"got {corrections.shape}"
             )
-        result: StepResult = env.step(self.actions(corrections))
+        pushes = None
+        if self.pushes is not None:
+            step_s = 1.0 / env.config.policy_hz
+            pushes = random_pushes(
+                self.pushes,
+                np.stack([agent.body_ids for agent in env.index.agents]),
+                num_envs=env.num_envs,
+                nbody=env.model.nbody,
+                chance=min(1.0, step_s / self.config.push_every_s),
+                mass_kg=(self.config.push_mass_min_kg, self.config.push_mass_max_kg),
+                speed_mps=self.config.push_speed_mps,
+                step_s=step_s,
+            )
+        result: StepResult = env.step(self.actions(corrections), pushes=pushes)
         self.flat = self.next_frames()
         # The rewards are computed on the host (with "warp" the bodies come down from the device).
         body = result.body
@@ -318,4 +359,9 @@ class Tracker:
             terms=stacked,
             body_error=np.where(stable[:, None], body, np.nan),
             root_error=np.where(stable[:, None], root, np.nan),
+            pushed=np.zeros((env.num_envs, NUM_AGENTS), dtype=bool)
+            if pushes is None
+            else np.stack(
+                [pushes[:, agent.body_ids].any(axis=(1, 2)) for agent in env.index.agents], 1
+            ),
         )

@@ -58,9 +58,16 @@ class Stepping(Protocol):
         ...
 
     def advance(
-        self, ctrl: Array, *, contacts: bool, paths: PuppetPaths | None = None
+        self,
+        ctrl: Array,
+        *,
+        contacts: bool,
+        paths: PuppetPaths | None = None,
+        pushes: np.ndarray | None = None,
     ) -> tuple[Array, Array]:
-        """Hold ``ctrl`` (N, nu) for `EnvConfig.substeps` physics steps in every environment.
+        """Hold ``ctrl`` (N, nu), and ``pushes`` (N, nbody, 6: xfrc_applied, on the host) where
+        given, for `EnvConfig.substeps` physics steps in every environment; no applied force is
+        left on afterwards.
         With ``contacts``, also bring the kinematics and `measured` to the new state and return
         each agent's damage (N, 2) and floor touches (N, 2, bool); without, only step (the
         damage and touches are zeros). ``paths`` (`puppet_paths`) moves a puppet along its path

@@ -22,6 +22,8 @@ from models.arena.puppet import PuppetPaths
 from models.arena.stepping.host import HostWorlds, OnHost, stable_states
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_CTRL = mujoco.mjtState.mjSTATE_CTRL
+_PUSHED = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 
 
 class RolloutStepping(OnHost):
@@ -44,19 +46,37 @@ class RolloutStepping(OnHost):
             self._rollout = None
 
     def advance(
-        self, ctrl: np.ndarray, *, contacts: bool, paths: PuppetPaths | None = None
+        self,
+        ctrl: np.ndarray,
+        *,
+        contacts: bool,
+        paths: PuppetPaths | None = None,
+        pushes: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         assert self._rollout is not None, "the arena is closed"
         model, n, datas = self.model, self.config.num_envs, self.worlds.datas
         state = np.empty((n, self._nstate))
         for i, data in enumerate(datas):
             mujoco.mj_getState(model, data, state[i], _FULL)
-        control = np.repeat(ctrl[:, None, :], self.config.substeps, axis=1)
+        # A push rides in the control vector (ctrl, then xfrc_applied), so it is applied in the
+        # rollout's own substeps and nowhere else.
+        spec, held = _CTRL, ctrl
+        if pushes is not None:
+            spec, held = _PUSHED, np.concatenate([ctrl, pushes.reshape(n, -1)], axis=1)
+        control = np.repeat(held[:, None, :], self.config.substeps, axis=1)
         # The returned states lack the solver's warm start, so every call starts it cold
         # (zeros), whatever the MjData hold; within the call it carries over as in mj_step.
         states, sensordata = self._rollout.rollout(
-            model, self._scratch, state, control, initial_warmstart=np.zeros((n, model.nv))
+            model,
+            self._scratch,
+            state,
+            control,
+            control_spec=spec,
+            initial_warmstart=np.zeros((n, model.nv)),
         )
+        if pushes is not None:
+            for data in self._scratch:  # a rollout without pushes must not inherit them
+                data.xfrc_applied[:] = 0.0
         final = states[:, -1]
         if contacts:
             # One vectorised check of every world's qpos and qvel (per world it was 40 % of

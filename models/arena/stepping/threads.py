@@ -40,7 +40,12 @@ class ThreadsStepping(OnHost):
         return puppet_paths(self.model, self.worlds.index, self.worlds.datas, puppet, step_s)
 
     def advance(
-        self, ctrl: np.ndarray, *, contacts: bool, paths: PuppetPaths | None = None
+        self,
+        ctrl: np.ndarray,
+        *,
+        contacts: bool,
+        paths: PuppetPaths | None = None,
+        pushes: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         num_envs = self.config.num_envs
         damage = np.zeros((num_envs, NUM_AGENTS))
@@ -53,6 +58,8 @@ class ThreadsStepping(OnHost):
             for i in chunk:
                 data = datas[i]
                 data.ctrl[:] = ctrl[i]
+                if pushes is not None:
+                    data.xfrc_applied[:] = pushes[i]
                 for k in range(substeps):
                     if paths is not None:
                         move_puppet(model, data, paths, i, k * model.opt.timestep)
@@ -61,6 +68,8 @@ class ThreadsStepping(OnHost):
                         read_contacts(model, data, tables, damage[i], floor[i], force)
                 if paths is not None:
                     move_puppet(model, data, paths, i, substeps * model.opt.timestep)
+                if pushes is not None:
+                    data.xfrc_applied[:] = 0.0
             if contacts:
                 # In the worker, so that this work overlaps with the other workers' mj_step
                 # (which runs without the GIL); after the chunk's physics, which then runs back

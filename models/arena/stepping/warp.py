@@ -156,23 +156,27 @@ class WarpPhysics:
                 mjw.com_pos(self._model, self._data)
                 mjw.com_vel(self._model, self._data)
 
-    def advance(self, ctrl, substeps: int):
+    def advance(self, ctrl, substeps: int, pushes: np.ndarray | None = None):
         """Step every world ``substeps`` times holding ``ctrl`` (N, nu: a NumPy array, or a
-        torch tensor on the device), then bring its kinematics to the new state; the sensor
-        values after each substep, (N, substeps, nsensordata), as `mujoco.rollout` returns them,
-        a torch tensor on the device. WarpOverflow, in one line, if a world ran out of room for
-        its contacts or constraints."""
+        torch tensor on the device) and ``pushes`` (N, nbody, 6: xfrc_applied) where given, then
+        bring its kinematics to the new state; the sensor values after each substep, (N,
+        substeps, nsensordata), as `mujoco.rollout` returns them, a torch tensor on the device.
+        WarpOverflow, in one line, if a world ran out of room for its contacts or constraints."""
         import torch
 
         wp, mjw = _warp()
         d = self._data
         self.view("ctrl").copy_(torch.as_tensor(ctrl, device=self.torch_device))
+        if pushes is not None:
+            self.view("xfrc_applied").copy_(torch.as_tensor(pushes, device=self.torch_device))
         d.overflow.zero_()
         sensors = []
         with wp.ScopedDevice(self.device):
             for _ in range(substeps):
                 mjw.step(self._model, d)
                 sensors.append(wp.to_torch(d.sensordata).clone())
+        if pushes is not None:
+            self.view("xfrc_applied").zero_()
         # What `mujoco.mj_step` leaves a substep behind, brought to the new state.
         self.refresh()
         overflow = d.overflow.numpy() & self._fatal
@@ -325,9 +329,16 @@ class WarpStepping:
         self._measured, self._stale = None, True
         return self.measured()[0][rows]
 
-    def advance(self, ctrl, *, contacts: bool, paths: PuppetPaths | None = None):
+    def advance(
+        self,
+        ctrl,
+        *,
+        contacts: bool,
+        paths: PuppetPaths | None = None,
+        pushes: np.ndarray | None = None,
+    ):
         self._upload_dirty()
-        sensordata = self.physics.advance(ctrl, self.config.substeps)
+        sensordata = self.physics.advance(ctrl, self.config.substeps, pushes)
         self._measured, self._stale = None, True
         if not contacts:
             n = self.config.num_envs
