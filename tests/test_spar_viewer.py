@@ -257,8 +257,26 @@ def drive_viewer(url: str, screenshot: Path) -> dict[str, float]:
             assert abs(_wrap(settled - heading + TURN)) < HEADING_TOLERANCE, "turned by 90 deg"
 
             screenshot.parent.mkdir(parents=True, exist_ok=True)
-            shown = page.evaluate("() => window.spar.last")
-            png = page.screenshot(path=str(screenshot))
+            # The picture is of a state the page drew while the screenshot was taken, not
+            # necessarily the one read before it: taken when both fighters stood (pelvises over
+            # 0.6 m) and moved under 10 cm from before the screenshot to after it, so that the
+            # pelvises read are where they were drawn (a fallen opponent may lie with its trunks
+            # hidden, and a restart after a fall moves it a metre between two states).
+            for _ in range(50):
+                before = page.evaluate("() => window.spar.last")
+                png = page.screenshot(path=str(screenshot))
+                shown = page.evaluate("() => window.spar.last")
+                pelvises = [
+                    [np.array(f["bodies"]["pelvis"][:3]) for f in state["fighters"]]
+                    for state in (before, shown)
+                ]
+                upright = min(p[2] for state in pelvises for p in state) > 0.6
+                moved = max(np.linalg.norm(a - b) for a, b in zip(*pelvises, strict=True))
+                if upright and moved < 0.1:
+                    break
+                page.wait_for_timeout(100)
+            else:
+                raise AssertionError(f"no moment with both fighters standing still: {pelvises}")
             picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
             # Each fighter's colour (its trunks', its pelvis's geoms') round where its pelvis
             # projects, and none of the other's: in the 15 x 15 pixels there, measured 32 % for

@@ -312,6 +312,35 @@ def test_an_agent_whose_root_drifts_from_its_reference_ends_terminally(data):
     assert step.root_error[0, 0] > limit > step.root_error[1, 0]
 
 
+def test_an_anchored_tracker_moves_a_stray_reference_back_under_its_body(data):
+    """`TrackConfig.anchor_m`, in training: the same drift as above moves agent 0's reference
+    of environment 0 back under its pelvis (a root error of the step's own motion, no ending),
+    and leaves environment 1's, within the anchor, where it was; a tracker not anchored (the
+    gate's) ends the episode as above."""
+    config = TrackConfig(anchor_m=0.3)
+    with _env(2) as env:
+        tracker = Tracker(data, config, env.config, anchored=True)
+        tracker.reset(env, np.arange(2), np.random.default_rng(0), clips=np.array([[1, 1]] * 2))
+        qpos = np.stack([[d.qpos[a.qpos] for a in env.index.agents] for d in env.datas])
+        qvel = np.stack([[d.qvel[a.qvel] for a in env.index.agents] for d in env.datas])
+        qpos[0, 0, 1] += config.root_limit_m + 0.1
+        qpos[1, 0, 1] += config.anchor_m - 0.1
+        env.set_states(np.arange(2), qpos, qvel)
+        before = tracker.offset.copy()
+        step = tracker.step(env, np.zeros((2, 2, 28)))
+        assert not step.terminal.any() and not step.done.any()
+        moved = tracker.offset - before
+        assert moved[0, 0, 1] == pytest.approx(config.root_limit_m + 0.1, abs=0.05)
+        assert moved[0, 0, 2] == 0.0 and not moved[0, 1].any() and not moved[1].any()
+        assert step.root_error[0, 0] < 0.05
+        assert step.root_error[1, 0] > config.anchor_m - 0.15
+    with _env(2) as env:
+        loose = Tracker(data, config, env.config)
+        loose.reset(env, np.arange(2), np.random.default_rng(0), clips=np.array([[1, 1]] * 2))
+        env.set_states(np.arange(2), qpos, qvel)
+        assert loose.step(env, np.zeros((2, 2, 28))).terminal[0, 0]
+
+
 # ---------------------------------------------------------------- training
 
 

@@ -425,7 +425,7 @@ class Tracking:
         # The pushes' own generator (checkpointed with the tracker), so that turning them on
         # leaves every other draw of a run as it was.
         pushes = np.random.default_rng([config.seed, 3])
-        self.tracker = Tracker(data, config.track, config.env, pushes=pushes)
+        self.tracker = Tracker(data, config.track, config.env, pushes=pushes, anchored=True)
 
     def reset(
         self, env: ArenaEnv, ids: np.ndarray, rng: np.random.Generator

@@ -37,6 +37,15 @@ class TrackConfig:
         "An agent whose pelvis is further than this (m) from its reference's ends its episode, "
         "terminally (early termination), as does a fall (EnvConfig's rule).",
     )
+    anchor_m: float = setting(
+        0.0,
+        "In training, a reference whose pelvis strays further than this (m, along the floor) "
+        "from the simulated pelvis is moved back under it, as the matched opponent's motion is in "
+        "a bout (`MatchConfig.anchor_m`; DReCon keeps its kinematic root within 0.5 m of the "
+        "simulated body), so that a fighter left behind by its motion learns to catch up instead "
+        "of ending its episode at `root_limit_m`. 0: never. The gate and the replays never move "
+        "their references.",
+    )
     separation_m: float = setting(
         4.0,
         "Each episode places agent 0's clip with its start frame's pelvis at y = -separation/2 "
@@ -152,6 +161,8 @@ class TrackConfig:
             raise ValueError(
                 f"train.track.together_share must be between 0 and 1, got {self.together_share}"
             )
+        if not (math.isfinite(self.anchor_m) and self.anchor_m >= 0):
+            raise ValueError(f"train.track.anchor_m must be 0 or positive, got {self.anchor_m}")
         if not (math.isfinite(self.push_every_s) and self.push_every_s >= 0):
             raise ValueError(
                 f"train.track.push_every_s must be 0 or positive, got {self.push_every_s}"

@@ -30,7 +30,9 @@ has them, and meet as the fighters did. An arena's episode ends when either agen
 other agent's ending is then a time-out for it (bootstrapped), not a termination.
 
 In training, a Tracker given a generator for them pushes its fighters now and then
-(`TrackConfig.push_every_s`, `models.arena.pushes`), as DReCon did, so that it learns to recover.
+(`TrackConfig.push_every_s`, `models.arena.pushes`), as DReCon did, so that it learns to recover;
+and one told to anchor (`TrackConfig.anchor_m`) moves a reference that strays from its body back
+under it, as the matched opponent's motion is moved in a bout.
 
 Which reference frame comes next is the task's frame source (`FrameSource`): by default the
 clip's next frame (`NextFrame`), so that the tracker plays each clip through; another source
@@ -136,8 +138,9 @@ class Tracker:
     """Tracking episodes of N arenas, both agents: which clip and frame each agent is at and
     where its clip was put (module docstring); ``source`` says which frame comes next
     (`NextFrame` unless given); ``pushes`` is the generator of the random pushes of training
-    (`TrackConfig.push_every_s`; None: no pushes, as the gate and the replays play). `state`
-    and `load_state` checkpoint it."""
+    (`TrackConfig.push_every_s`; None: no pushes, as the gate and the replays play); with
+    ``anchored`` the references are moved back under bodies they strayed from
+    (`TrackConfig.anchor_m`; training only, too). `state` and `load_state` checkpoint it."""
 
     def __init__(
         self,
@@ -147,6 +150,7 @@ class Tracker:
         *,
         source: FrameSource | None = None,
         pushes: np.random.Generator | None = None,
+        anchored: bool = False,
     ):
         if data.fps != env.policy_hz:
             raise ValueError(
@@ -162,6 +166,7 @@ class Tracker:
                 "up clip for clip (equal lengths), so they cannot start together"
             )
         self.pushes = pushes if config.push_every_s > 0 else None
+        self.anchor_m = config.anchor_m if anchored else 0.0
         self.source: FrameSource = NextFrame() if source is None else source
         self.flat = np.zeros((num_envs, NUM_AGENTS), dtype=int)  # index into `libraries`
         self.offset = np.zeros((num_envs, NUM_AGENTS, 3))  # added to the clip's positions
@@ -319,6 +324,12 @@ class Tracker:
         # The rewards are computed on the host (with "warp" the bodies come down from the device).
         body = result.body
         sim = BodyState(*(to_host(x) for x in (body.pos, body.rot, body.lin_vel, body.ang_vel)))
+        if self.anchor_m > 0:
+            back = sim.pos[:, :, 0] - self.reference(self.flat).pos[:, :, 0]
+            back[..., 2] = 0.0
+            with np.errstate(invalid="ignore"):  # an unstable environment's pelvis is not finite
+                far = np.linalg.norm(back, axis=-1) > self.anchor_m
+            self.offset[far] += back[far]
         ref = self.reference(self.flat)
         sim_com = np.stack(
             [
