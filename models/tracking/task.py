@@ -324,13 +324,14 @@ class Tracker:
         # The rewards are computed on the host (with "warp" the bodies come down from the device).
         body = result.body
         sim = BodyState(*(to_host(x) for x in (body.pos, body.rot, body.lin_vel, body.ang_vel)))
+        ref = self.reference(self.flat)
         if self.anchor_m > 0:
-            back = sim.pos[:, :, 0] - self.reference(self.flat).pos[:, :, 0]
+            back = sim.pos[:, :, 0] - ref.pos[:, :, 0]
             back[..., 2] = 0.0
             with np.errstate(invalid="ignore"):  # an unstable environment's pelvis is not finite
                 far = np.linalg.norm(back, axis=-1) > self.anchor_m
             self.offset[far] += back[far]
-        ref = self.reference(self.flat)
+            ref.pos[far] += back[far][:, None]  # the reference as laid again, not made twice
         sim_com = np.stack(
             [
                 centre_of_mass(sim[:, a], f.clip.body_mass, f.clip.body_com)
