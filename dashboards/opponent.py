@@ -356,11 +356,14 @@ def evaluation_page() -> None:
     st.caption(
         "A fresh classifier tells 1-second windows of the adversary's held-out footage from a "
         "simulated fighter's; its AUC on windows it never trained on, with a bootstrap 95 % "
-        "interval: 0.5, it cannot tell them apart; 1, it always can."
+        "interval: 0.5, it cannot tell them apart; 1, it always can. Reference 'replay' is "
+        "the tracker replaying that footage (its physically valid version); policy 'train' is "
+        "the reference's own train split, the level a perfect answer reaches. The feature gap: "
+        "the window features' mean difference in the reference's standard deviations."
     )
     classifier = pd.DataFrame(tables["classifier"])
     if not classifier.empty:
-        st.table(numbers_table(classifier.set_index("policy")))
+        st.table(numbers_table(classifier.set_index(["reference", "policy"])))
     st.subheader("Style, per statistic")
     style = pd.DataFrame(tables["style"])
     if not style.empty:

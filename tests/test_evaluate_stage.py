@@ -105,8 +105,14 @@ def test_evaluate_fills_every_table_caches_and_reruns_identically(capsys, sample
             assert r["real"] == pytest.approx(real[r["statistic"]])
 
     # The two-sample test: the held-out footage against each simulated fighter, or NULL and why.
-    two_sample = {r["policy"]: r for r in tables["classifier"]}
-    assert list(two_sample) == sorted([*TWO_SAMPLE_POLICIES, "replay"])
+    against = {(r["reference"], r["policy"]): r for r in tables["classifier"]}
+    assert sorted(against) == sorted(
+        [*(("footage", p) for p in (*TWO_SAMPLE_POLICIES, "replay", "train"))]
+        + [("replay", p) for p in (*TWO_SAMPLE_POLICIES, "train")]
+    )
+    two_sample = {p: r for (ref, p), r in against.items() if ref == "footage"}
+    # No tracker on the dataset: nothing is judged against its replay.
+    assert all(r["reason"] == NO_TRACKER for (ref, _), r in against.items() if ref == "replay")
     # No tracker was trained on the sample's dataset, so nothing replays its footage.
     assert two_sample["replay"]["auc"] is None and two_sample["replay"]["simulated_windows"] == 0
     heldout = query(
@@ -290,7 +296,7 @@ def test_the_stage_on_held_out_footage_gives_known_answers(sample_run, run_key, 
     )
     config = EvaluateConfig(episodes=4, episode_frames=60, video_seconds=0)
     out = stage.evaluate(inputs, config)
-    rows = {r.policy: r for r in out.rows["evaluate_classifier"]}
+    rows = {r.policy: r for r in out.rows["evaluate_classifier"] if r.reference == "footage"}
     still = rows["still"]
     assert (still.real_windows, still.simulated_windows) == (60, 8)
     assert still.auc >= 0.95 and still.auc_low >= 0.9, still
@@ -302,9 +308,11 @@ def test_the_stage_on_held_out_footage_gives_known_answers(sample_run, run_key, 
     same = footage_windows(
         [(c.qpos, c.other_qpos, c.bones) for c in _walk_seconds(walk, 60, 2)], 30
     )
-    (itself,), metrics = stage.two_sample_rows(
-        heldout, {"adversary": same}, fps=30.0, seed=config.seed
+    references = {"footage": real, "replay": NO_TRACKER}
+    rows, metrics = stage.two_sample_rows(
+        references, references, {"adversary": same}, seed=config.seed
     )
+    itself = rows[0]
     assert (itself.real_windows, itself.simulated_windows) == (60, 60)
     assert itself.auc == classifier_test(real, same, seed=config.seed).auc
     assert abs(itself.auc - 0.5) < 0.15 and itself.auc_low < 0.5 < itself.auc_high

@@ -319,7 +319,10 @@ def test_the_evaluation_replays_the_held_out_clips_with_the_datasets_tracker(mad
     tiny = [*TINY_TRAIN_FLAGS, "--train-iterations", "2"]
     run = cli("train", "--dataset", key, *tiny)["key"]
     before = cli("evaluate", "--run", run, *TINY_EVALUATE_FLAGS)
-    sql = "SELECT real_windows, simulated_windows, reason FROM evaluate_classifier WHERE key = ?"
+    sql = (
+        "SELECT real_windows, simulated_windows, reason FROM evaluate_classifier "
+        "WHERE reference = 'footage' AND key = ?"
+    )
     held_out, simulated, reason = query(data, sql + " AND policy = 'replay'", [before["key"]])[0]
     assert held_out >= 5 and (simulated, reason) == (0, NO_TRACKER)
 
@@ -328,11 +331,11 @@ def test_the_evaluation_replays_the_held_out_clips_with_the_datasets_tracker(mad
     assert after["state"] == "done" and after["key"] != before["key"]
     paths = data_paths(data)
     inputs = load_inputs(paths.db, paths.artifacts, run, (), tracker)
-    windows = _replay(inputs.tracker, inputs.heldout)
+    windows = _replay(inputs.tracker, inputs.heldout, "held-out")
     auc, real, simulated, reason = query(
         data,
         "SELECT auc, real_windows, simulated_windows, reason FROM evaluate_classifier "
-        "WHERE key = ? AND policy = 'replay'",
+        "WHERE reference = 'footage' AND key = ? AND policy = 'replay'",
         [after["key"]],
     )[0]
     # The untrained tracker falls out of the held-out clips (1.3 s each) early: what it tracked,
@@ -349,7 +352,26 @@ def test_the_evaluation_replays_the_held_out_clips_with_the_datasets_tracker(mad
     (still,) = query(
         data,
         "SELECT auc, auc_low, real_windows, simulated_windows FROM evaluate_classifier "
-        "WHERE key = ? AND policy = 'still'",
+        "WHERE reference = 'footage' AND key = ? AND policy = 'still'",
         [after["key"]],
     )
     assert still[0] >= 0.95 and still[1] >= 0.95 and still[2:] == (held_out, 8), still
+    # The levels a perfect answer reaches: the train footage against the held-out footage is
+    # measured; the replay of the train clips against the replay of the held-out clips, and every
+    # fighter against that replay, are measured where the replays give the test its windows.
+    rows = query(
+        data,
+        "SELECT reference, policy, auc, feature_gap, real_windows, reason "
+        "FROM evaluate_classifier WHERE key = ?",
+        [after["key"]],
+    )
+    by = {(r[0], r[1]): r[2:] for r in rows}
+    level = by["footage", "train"]
+    assert level[0] is not None and level[1] >= 0 and level[2] == held_out and level[3] is None
+    for policy in ("adversary", "untrained", "still", "train"):
+        auc, gap, replayed, why = by["replay", policy]
+        assert replayed == len(windows)
+        if replayed >= 5:
+            assert why is None and 0.0 <= auc <= 1.0 and gap >= 0
+        else:
+            assert auc is None and why.startswith(f"the replay gives {replayed} window")

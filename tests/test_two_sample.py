@@ -18,7 +18,7 @@ from models.humanoid.stance import guard_pose
 from tasks import deepmimic
 from tasks.dataset.store import FootageClip
 from tasks.evaluate.bouts import Bouts
-from tasks.evaluate.stage import NO_TRACKER, TWO_SAMPLE_POLICIES, two_sample_rows
+from tasks.evaluate.stage import NO_HELD_OUT, NO_TRACKER, TWO_SAMPLE_POLICIES, two_sample_rows
 from tasks.evaluate.two_sample import (
     FEATURES,
     FOLDS,
@@ -27,6 +27,7 @@ from tasks.evaluate.two_sample import (
     auc,
     bout_windows,
     classifier_test,
+    feature_gap,
     footage_windows,
     frame_features,
     gap_closed,
@@ -302,60 +303,116 @@ def test_bouts_and_footage_of_one_motion_give_the_same_windows(clips):
 
 def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
     walk = clips["walk"]
-    heldout = tuple(
-        FootageClip("video", q, np.tile(q[0], (len(q), 1)), BONES)
-        for q in (np.concatenate([walk] * 4),)  # one clip, 156 frames: 5 windows
+    heldout = (
+        FootageClip("video", q := np.concatenate([walk] * 4), np.tile(q[0], (len(q), 1)), BONES),
     )
+    real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], FPS)  # 5 windows
     rng = np.random.default_rng(0)
     simulated = {
         "adversary": rng.normal(size=(20, 120)),
         "untrained": rng.normal(size=(3, 120)),
         "still": np.zeros((20, 120)),
-        "replay": NO_TRACKER,
     }
-    rows, metrics = two_sample_rows(heldout, simulated, fps=FPS, seed=0)
-    by_policy = {row.policy: row for row in rows}
-    assert list(by_policy) == [*TWO_SAMPLE_POLICIES, "replay"]
-    adversary = by_policy["adversary"]
+    references = {"footage": real, "replay": NO_TRACKER}
+    levels = {"footage": np.concatenate([real] * 2), "replay": NO_TRACKER}
+    rows, metrics = two_sample_rows(references, levels, simulated, seed=0)
+    by = {(row.reference, row.policy): row for row in rows}
+    assert list(by) == [
+        *(("footage", p) for p in (*TWO_SAMPLE_POLICIES, "replay", "train")),
+        *(("replay", p) for p in (*TWO_SAMPLE_POLICIES, "train")),
+    ]
+    adversary = by["footage", "adversary"]
     assert (adversary.real_windows, adversary.simulated_windows, adversary.reason) == (5, 20, None)
-    assert adversary.telltales == telltales(
-        footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], FPS),
-        simulated["adversary"],
-    )
+    assert adversary.telltales == telltales(real, simulated["adversary"])
+    assert adversary.feature_gap == feature_gap(real, simulated["adversary"])
     assert adversary.auc_low <= adversary.auc <= adversary.auc_high
     assert metrics["two_sample_auc"] == adversary.auc
     assert metrics["two_sample_auc_low"] == adversary.auc_low
-    untrained = by_policy["untrained"]
+    assert metrics["feature_gap"] == adversary.feature_gap
+    untrained = by["footage", "untrained"]
     assert (untrained.auc, untrained.auc_low, untrained.auc_high) == (None, None, None)
-    assert untrained.telltales is None
+    assert untrained.telltales is None and untrained.feature_gap is None
     assert (untrained.real_windows, untrained.simulated_windows) == (5, 3)
     assert "the bouts give 3 windows" in untrained.reason
     assert "two_sample_auc_untrained" not in metrics
-    assert metrics["two_sample_auc_still"] == by_policy["still"].auc
-    replay = by_policy["replay"]
+    assert metrics["two_sample_auc_still"] == by["footage", "still"].auc
+    # The real-against-real level: the train footage (here the held-out windows twice).
+    level = by["footage", "train"]
+    assert metrics["two_sample_auc_train"] == level.auc and level.feature_gap == pytest.approx(0)
+    replay = by["footage", "replay"]
     assert (replay.auc, replay.real_windows, replay.simulated_windows) == (None, 5, 0)
     assert replay.reason == NO_TRACKER
-    assert "two_sample_gap_closed" not in metrics  # nothing replayed: the gap has no end
+    assert all(by["replay", p].reason == NO_TRACKER for p in (*TWO_SAMPLE_POLICIES, "train"))
+    # Nothing replayed: neither gap has an end.
+    assert "two_sample_gap_closed" not in metrics and "feature_gap_closed" not in metrics
+    assert not any("vs_replay" in name for name in metrics)
 
-    # A replay measured: the share of the gap between still and replay the adversary closes.
-    real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], FPS)
+    # A replay measured: the share of the gap between still and replay the adversary closes,
+    # on the AUC and on the feature gap; every fighter judged against the replay as well.
     close = np.concatenate([real] * 4) * rng.normal(1.0, 0.01, size=(20, real.shape[1]))
-    replayed = {**simulated, "replay": close}
-    rows, metrics = two_sample_rows(heldout, replayed, fps=FPS, seed=0)
-    replay = {row.policy: row for row in rows}["replay"]
+    replayed = {"footage": real, "replay": close}
+    rows, metrics = two_sample_rows(
+        replayed, {"footage": real, "replay": close[:10]}, simulated, seed=0
+    )
+    by = {(row.reference, row.policy): row for row in rows}
+    replay = by["footage", "replay"]
     assert replay.reason is None and replay.simulated_windows == 20
     assert metrics["two_sample_auc_replay"] == replay.auc
     assert replay.auc < metrics["two_sample_auc_still"]
     assert metrics["two_sample_gap_closed"] == pytest.approx(
         gap_closed(metrics["two_sample_auc"], metrics["two_sample_auc_still"], replay.auc)
     )
-    few = {**simulated, "replay": np.zeros((4, 120))}
-    rows, _ = two_sample_rows(heldout, few, fps=FPS, seed=0)
-    assert rows[-1].reason == "the replay gives 4 windows of 1 s; the test needs 5"
+    assert metrics["feature_gap_closed"] == pytest.approx(
+        gap_closed(metrics["feature_gap"], metrics["feature_gap_still"], replay.feature_gap)
+    )
+    against = by["replay", "adversary"]
+    assert (against.real_windows, against.simulated_windows) == (20, 20)
+    assert metrics["two_sample_auc_vs_replay"] == against.auc
+    assert against.feature_gap == feature_gap(close, simulated["adversary"])
+    assert metrics["two_sample_auc_vs_replay_train"] == by["replay", "train"].auc
+    assert by["replay", "untrained"].reason.startswith("the bouts give 3 windows")
 
-    rows, metrics = two_sample_rows((), simulated, fps=FPS, seed=0)
+    rows, _ = two_sample_rows(
+        {"footage": real, "replay": np.zeros((4, 120))}, levels, simulated, seed=0
+    )
+    by = {(row.reference, row.policy): row for row in rows}
+    assert by["footage", "replay"].reason == "the replay gives 4 windows of 1 s; the test needs 5"
+    assert by["replay", "still"].reason == by["footage", "replay"].reason
+    rows, _ = two_sample_rows(
+        references, {"footage": real[:2], "replay": NO_TRACKER}, simulated, seed=0
+    )
+    by = {(row.reference, row.policy): row for row in rows}
+    assert (
+        by["footage", "train"].reason
+        == "the train footage gives 2 windows of 1 s; the test needs 5"
+    )
+
+    rows, metrics = two_sample_rows(
+        {"footage": NO_HELD_OUT, "replay": NO_TRACKER}, levels, simulated, seed=0
+    )
     assert metrics == {} and all(row.auc is None for row in rows)
     assert rows[0].reason.startswith("no held-out footage")
-    short = (FootageClip("video", walk, np.tile(walk[0], (len(walk), 1)), BONES),)
-    rows, _ = two_sample_rows(short, simulated, fps=FPS, seed=0)
+    short = footage_windows([(walk, np.tile(walk[0], (len(walk), 1)), BONES)], FPS)
+    rows, _ = two_sample_rows({"footage": short, "replay": NO_TRACKER}, levels, simulated, seed=0)
     assert rows[0].reason == "the held-out footage gives 1 window of 1 s; the test needs 5"
+
+
+def test_the_feature_gap_is_the_mean_standardised_difference_of_means():
+    rng = np.random.default_rng(3)
+    reference = rng.normal([0.0, 10.0, 5.0], [1.0, 2.0, 0.0], size=(400, 3))
+    reference[:, 2] = 5.0  # constant over the reference: no scale, left out
+    moved = reference + [0.5, -4.0, 7.0]
+    sd = reference[:, :2].std(axis=0)
+    assert feature_gap(reference, moved) == pytest.approx((0.5 / sd[0] + 4.0 / sd[1]) / 2)
+    assert feature_gap(reference, reference) == 0.0
+    # Graded where the AUC saturates: both told apart (nearly) always, one twice as far.
+    far, further = reference + [6.0, 0, 0], reference + [12.0, 0, 0]
+    for moved_far in (far, further):
+        assert classifier_test(reference, moved_far, seed=0).auc > 0.9999
+    assert feature_gap(reference, further) == pytest.approx(2 * feature_gap(reference, far))
+    with pytest.raises(ValueError, match="constant in every feature"):
+        feature_gap(np.ones((5, 3)), moved)
+    with pytest.raises(ValueError, match="non-empty"):
+        feature_gap(reference, np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="finite"):
+        feature_gap(reference, np.full((2, 3), np.nan))

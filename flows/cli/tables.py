@@ -50,32 +50,46 @@ CLASSIFIED = {
     "untrained": "untrained",
     "still": "standing still",
     "replay": "tracker replaying the footage",
+    "train": "its own train split (real against real)",
 }
 
 
-def classifier_line(rows: list[dict], gap_closed: float | None = None) -> str:
-    """The held-out two-sample test in one line: each fighter's AUC and its 95 % interval, or
-    why it was not measured, and the share of the still-to-replay gap the adversary closes
-    (the evaluation's ``two_sample_gap_closed``) when measured."""
-    found = {r["policy"]: r for r in rows}
-    measured = [p for p in CLASSIFIED if p in found and found[p]["auc"] is not None]
+def classifier_lines(rows: list[dict], metrics: dict[str, float]) -> list[str]:
+    """The held-out two-sample test in a line per reference: each fighter's AUC and its 95 %
+    interval against the held-out footage (or why it was not measured), then against the
+    tracker's replay of it, each beside the reference's own train split; then the feature gap;
+    and the share of the still-to-replay gap the adversary closes on each figure, when
+    measured."""
     head = "moves like its footage? held-out classifier AUC, 0.5 = indistinguishable, 1 = always"
-    if not measured:
-        reason = next((r["reason"] for r in rows if r["reason"]), "no evaluation rows")
-        return f"{head} told apart: not measured ({reason})"
-    parts = [
-        f"{CLASSIFIED[p]} {found[p]['auc']:.2f} [{found[p]['auc_low']:.2f}, "
-        f"{found[p]['auc_high']:.2f}]"
-        for p in measured
-    ]
-    line = f"{head} told apart: {', '.join(parts)}"
-    if "replay" not in measured and "replay" in found and found["replay"]["reason"]:
-        line += f"; no replay ({found['replay']['reason']})"
-    if gap_closed is not None:
-        line += (
-            f"; the trained adversary closes {100 * gap_closed:.0f} % of the still-to-replay gap"
-        )
-    return line
+    lines = []
+    for reference, intro in (("footage", f"{head} told apart"), ("replay", "  against the replay")):
+        found = {r["policy"]: r for r in rows if r.get("reference", "footage") == reference}
+        measured = [p for p in CLASSIFIED if p in found and found[p]["auc"] is not None]
+        if not measured:
+            reason = next((r["reason"] for r in found.values() if r["reason"]), "no rows")
+            lines.append(f"{intro}: not measured ({reason})")
+            continue
+        parts = [
+            f"{CLASSIFIED[p]} {found[p]['auc']:.2f} [{found[p]['auc_low']:.2f}, "
+            f"{found[p]['auc_high']:.2f}]"
+            for p in measured
+        ]
+        line = f"{intro}: {', '.join(parts)}"
+        if reference == "footage" and "replay" not in measured and "replay" in found:
+            line += f"; no replay ({found['replay']['reason']})"
+        if reference == "footage" and "two_sample_gap_closed" in metrics:
+            closed = metrics["two_sample_gap_closed"]
+            line += (
+                f"; the trained adversary closes {100 * closed:.0f} % of the still-to-replay gap"
+            )
+        lines.append(line)
+        if reference == "footage":
+            gaps = ", ".join(f"{CLASSIFIED[p]} {found[p]['feature_gap']:.2f}" for p in measured)
+            line = f"  feature gap, mean |difference| in the footage's SDs, 0 = alike: {gaps}"
+            if "feature_gap_closed" in metrics:
+                line += f"; closes {100 * metrics['feature_gap_closed']:.0f} % of the gap"
+            lines.append(line)
+    return lines
 
 
 def print_opponent(paths: DataPaths, evaluated) -> None:
@@ -116,7 +130,8 @@ def print_opponent(paths: DataPaths, evaluated) -> None:
         f"(untrained {number('style_score_untrained')}, standing still "
         f"{number('style_score_still')})"
     )
-    print(f"  {classifier_line(classifier, metrics.get('two_sample_gap_closed'))}")
+    for line in classifier_lines(classifier, metrics):
+        print(f"  {line}")
     print(f"  motion as BVH: ringside export-motion --run {run_key[:12]}")
     print(f"  all of it: ringside evaluate --run {run_key[:12]}   or   ringside dashboard")
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from flows.cli.environment import flow_server
 from flows.cli.parser import overrides
-from flows.cli.tables import classifier_line, pivot, print_summary, print_table
+from flows.cli.tables import classifier_lines, pivot, print_summary, print_table
 from storage.paths import DataPaths
 
 
@@ -165,7 +165,9 @@ def evaluate_command(args, paths: DataPaths) -> int:
     names = {p: "style_score" + ("" if p == "adversary" else f"_{p}") for p in policies}
     scores = ", ".join(f"{p} {number(metrics.get(names[p]))}" for p in policies)
     print(f"style_score (lower is closer): {scores}")
-    print(f"\n{classifier_line(tables['classifier'], metrics.get('two_sample_gap_closed'))}")
+    print()
+    for line in classifier_lines(tables["classifier"], metrics):
+        print(line)
     print("\nboxing (MSc thesis §6.1)")
     boxing = pivot(tables["boxing"], "metric", "policy", lambda r: number(r["value"]))
     print_table([{p: "" for p in policies} | r for r in boxing], ["metric", *policies])

@@ -45,6 +45,11 @@ class EvaluateConfig:
         "Seconds of the evaluation episodes, played one after another, rendered to an H.264 "
         "MP4 (MuJoCo's renderer through EGL); 0 renders none.",
     )
+    tracker: str = setting(
+        "",
+        "The tracker run (train.objective track; a key prefix will do) that replays the "
+        "held-out footage for the two-sample test; empty: the dataset's newest.",
+    )
 
     def __post_init__(self) -> None:
         for name in ("episodes", "episode_frames", "heading_episodes", "heading_frames"):
@@ -59,6 +64,8 @@ class EvaluateConfig:
                 "evaluate.punch_target_radius_m must be a positive number of metres, got "
                 f"{radius!r}"
             )
+        if not isinstance(self.tracker, str):
+            raise ValueError(f"evaluate.tracker must be a run key prefix, got {self.tracker!r}")
         seconds = self.video_seconds
         if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds >= 0):
             raise ValueError(

@@ -80,6 +80,7 @@ from tasks.evaluate.two_sample import (
     WINDOW_S,
     bout_windows,
     classifier_test,
+    feature_gap,
     footage_windows,
     gap_closed,
     replay_windows,
@@ -112,6 +113,12 @@ NO_TRACKER = (
     "no finished tracker run on the dataset to replay its held-out clips "
     "(`ringside train --dataset KEY --train-objective track` makes one)"
 )
+NO_HELD_OUT = (
+    "no held-out footage: the dataset's validation split (the last "
+    "dataset.validation_fraction of each video) holds no interaction clip of at least "
+    "dataset.min_clip_s"
+)
+NO_TRAIN = "no train footage: the dataset's train split holds no interaction clip"
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,6 +133,8 @@ class EvaluateInputs:
         compared: other finished runs on the dataset (damage_min/max, heading).
         heldout: the adversary's held-out footage (`footage_clips`).
         tracker: the dataset's newest tracker run (`dataset_tracker`), which replays it.
+        train_footage: the adversary's train footage: the level the held-out footage and its
+            replay are told apart from their train split at.
     """
 
     run: TrainedPolicy
@@ -135,6 +144,7 @@ class EvaluateInputs:
     compared: tuple[TrainedPolicy, ...] = ()
     heldout: tuple[FootageClip, ...] = ()
     tracker: TrainedPolicy | None = None
+    train_footage: tuple[FootageClip, ...] = ()
 
 
 def load_inputs(
@@ -157,6 +167,7 @@ def load_inputs(
         demos = load_demonstrations(con, info.dataset_key)
         real = real_statistics(con, info.dataset_key)
         heldout = tuple(footage_clips(con, info.dataset_key, split="validation"))
+        train_footage = tuple(footage_clips(con, info.dataset_key, split="train"))
         dataset = build(
             DatasetConfig, dataset_info(con, info.dataset_key).config, section="dataset"
         )
@@ -167,6 +178,7 @@ def load_inputs(
         punch=dataset.punch,
         compared=tuple(load_trained(artifacts, i, metrics[i.run_key]) for i in others),
         heldout=heldout,
+        train_footage=train_footage,
         tracker=None
         if tracker is None
         else load_trained(artifacts, tracker, metrics[tracker.run_key]),
@@ -268,12 +280,12 @@ def _windows(count: int) -> str:
     return f"{count} window" + ("" if count == 1 else "s")
 
 
-def _replay(tracker: TrainedPolicy, heldout: tuple[FootageClip, ...]) -> np.ndarray:
-    """(W, D) windows of the adversary in ``tracker``'s replay of the held-out clips: agent 0
-    tracking the adversary's clip, agent 1 the opponent's, both where the footage has them, from
-    each clip's first frame (`play_clips`)."""
+def _replay(tracker: TrainedPolicy, clips: tuple[FootageClip, ...], split: str) -> np.ndarray:
+    """(W, D) windows of the adversary in ``tracker``'s replay of footage ``clips`` (of the
+    dataset's ``split``): agent 0 tracking the adversary's clip, agent 1 the opponent's, both
+    where the footage has them, from each clip's first frame (`play_clips`)."""
     hz = float(tracker.config.env.policy_hz)
-    data = paired_tracking(heldout, tracker.bones, fps=hz, key="held-out")
+    data = paired_tracking(clips, tracker.bones, fps=hz, key=split)
     if data is None:
         return np.zeros((0, len(WINDOW_FEATURES)))
     # In the physics the adversary's bouts are judged in (`mujoco_stepping`).
@@ -282,63 +294,109 @@ def _replay(tracker: TrainedPolicy, heldout: tuple[FootageClip, ...]) -> np.ndar
     return replay_windows(played, hz)
 
 
+Windows = np.ndarray | str  # (W, D) window vectors, or why there are none
+
+# How each side's windows are named where there are too few of them.
+_MADE = {
+    ("footage", "real"): "the held-out footage gives",
+    ("footage", "train"): "the train footage gives",
+    ("replay", "real"): "the replay gives",
+    ("replay", "train"): "the replay of the train clips gives",
+    "replay": "the replay gives",
+    "bouts": "the bouts give",
+}
+
+
+def _why_not(windows: Windows, made: str) -> str | None:
+    """Why ``windows`` cannot take part in a test, or None when they can."""
+    if isinstance(windows, str):
+        return windows
+    if len(windows) < FOLDS:
+        return f"{made} {_windows(len(windows))} of {WINDOW_S:g} s; the test needs {FOLDS}"
+    return None
+
+
+def classifier_row(
+    reference: str, real: Windows, policy: str, windows: Windows, *, seed: int
+) -> ClassifierRow:
+    """One fighter's ``windows`` tested against the ``real`` windows of ``reference``
+    ('footage' or 'replay'), or NULL and why not."""
+    counts = tuple(0 if isinstance(w, str) else len(w) for w in (real, windows))
+    made = _MADE[(reference, "train")] if policy == "train" else _MADE.get(policy, _MADE["bouts"])
+    reason = _why_not(real, _MADE[(reference, "real")]) or _why_not(windows, made)
+    if reason is not None:
+        return ClassifierRow(policy, None, None, None, *counts, reason, reference=reference)
+    assert not isinstance(real, str) and not isinstance(windows, str)
+    result = classifier_test(real, windows, seed=seed)
+    return ClassifierRow(
+        policy,
+        result.auc,
+        result.low,
+        result.high,
+        *counts,
+        None,
+        telltales(real, windows),
+        reference=reference,
+        feature_gap=feature_gap(real, windows),
+    )
+
+
+# Each reference's metric names: its AUCs and feature gaps, suffixed by the policy.
+_METRIC = {
+    "footage": ("two_sample_auc", "feature_gap"),
+    "replay": ("two_sample_auc_vs_replay", "feature_gap_vs_replay"),
+}
+
+
 def two_sample_rows(
-    heldout: tuple[FootageClip, ...],
-    simulated: dict[str, np.ndarray | str],
+    references: dict[str, Windows],
+    levels: dict[str, Windows],
+    simulated: dict[str, Windows],
     *,
-    fps: float,
     seed: int,
 ) -> tuple[list[ClassifierRow], dict[str, float]]:
-    """The two-sample test's rows (one per policy of ``simulated``: its windows, or why it has
-    none) and metrics: the held-out footage's windows against each policy's, or NULL and why;
-    and the share of the gap between the still guard and the replay the adversary closes."""
-    real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], fps)
+    """The two-sample test's rows and metrics.
+
+    Args:
+        references: the held-out windows each fighter is judged against, or why there are
+            none: 'footage' (the adversary's held-out footage) and 'replay' (the tracker's
+            replay of the held-out clips).
+        levels: the same of the train split ('footage': the train footage; 'replay': the
+            tracker's replay of the train clips), tested as policy 'train': the level a
+            perfect answer would reach.
+        simulated: each simulated fighter's bout windows (`TWO_SAMPLE_POLICIES`), or why none.
+
+    Against the footage, the replay is tested too. The metrics: each measured row's AUC and
+    feature gap (`_METRIC`, the policy a suffix, none for the adversary; the adversary's interval
+    too), and the share of the still-to-replay gap the adversary closes against the footage, on
+    the AUC (``two_sample_gap_closed``) and on the feature gap (``feature_gap_closed``).
+    """
     rows, metrics = [], {}
-    for policy, windows in simulated.items():
-        counts = (len(real), 0 if isinstance(windows, str) else len(windows))
-        if not heldout:
-            reason = (
-                "no held-out footage: the dataset's validation split (the last "
-                "dataset.validation_fraction of each video) holds no interaction clip of at least "
-                "dataset.min_clip_s"
-            )
-        elif len(real) < FOLDS:
-            reason = (
-                f"the held-out footage gives {_windows(len(real))} of {WINDOW_S:g} s; the test "
-                f"needs {FOLDS}"
-            )
-        elif isinstance(windows, str):
-            reason = windows
-        elif len(windows) < FOLDS:
-            made = "the replay gives" if policy == "replay" else "the bouts give"
-            reason = f"{made} {_windows(len(windows))} of {WINDOW_S:g} s; the test needs {FOLDS}"
-        else:
-            result = classifier_test(real, windows, seed=seed)
-            rows.append(
-                ClassifierRow(
-                    policy,
-                    result.auc,
-                    result.low,
-                    result.high,
-                    *counts,
-                    None,
-                    telltales(real, windows),
-                )
-            )
+    for reference, (auc_name, gap_name) in _METRIC.items():
+        fighters = dict(simulated)
+        if reference == "footage":
+            fighters["replay"] = references["replay"]
+        fighters["train"] = levels[reference]
+        for policy, windows in fighters.items():
+            row = classifier_row(reference, references[reference], policy, windows, seed=seed)
+            rows.append(row)
+            if row.auc is None:
+                continue
             suffix = "" if policy == "adversary" else f"_{policy}"
-            metrics[f"two_sample_auc{suffix}"] = result.auc
+            metrics[f"{auc_name}{suffix}"] = row.auc
+            metrics[f"{gap_name}{suffix}"] = row.feature_gap
             if policy == "adversary":
-                metrics["two_sample_auc_low"] = result.low
-                metrics["two_sample_auc_high"] = result.high
-            continue
-        rows.append(ClassifierRow(policy, None, None, None, *counts, reason))
-    closed = gap_closed(
-        metrics.get("two_sample_auc"),
-        metrics.get("two_sample_auc_still"),
-        metrics.get("two_sample_auc_replay"),
-    )
-    if closed is not None:
-        metrics["two_sample_gap_closed"] = closed
+                metrics[f"{auc_name}_low"] = row.auc_low
+                metrics[f"{auc_name}_high"] = row.auc_high
+    for name, figure in (
+        ("two_sample_gap_closed", "two_sample_auc"),
+        ("feature_gap_closed", "feature_gap"),
+    ):
+        closed = gap_closed(
+            metrics.get(figure), metrics.get(f"{figure}_still"), metrics.get(f"{figure}_replay")
+        )
+        if closed is not None:
+            metrics[name] = closed
     return rows, metrics
 
 
@@ -377,14 +435,27 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
         if policy == "adversary":
             adversary_boxing = measured
 
-    simulated: dict[str, np.ndarray | str] = {
+    simulated: dict[str, Windows] = {
         p: bout_windows(model, bouts[POLICIES[p][0]], POLICIES[p][1]) for p in TWO_SAMPLE_POLICIES
     }
-    simulated["replay"] = (
-        NO_TRACKER if inputs.tracker is None else _replay(inputs.tracker, inputs.heldout)
+    hz = bouts["trained"].policy_hz
+    held_out, train = (
+        footage_windows([(c.qpos, c.other_qpos, c.bones) for c in clips], hz) if clips else why
+        for clips, why in ((inputs.heldout, NO_HELD_OUT), (inputs.train_footage, NO_TRAIN))
     )
+    tracker = inputs.tracker
+    references = {
+        "footage": held_out,
+        "replay": NO_TRACKER if tracker is None else _replay(tracker, inputs.heldout, "held-out"),
+    }
+    levels = {
+        "footage": train,
+        "replay": NO_TRACKER
+        if tracker is None
+        else _replay(tracker, inputs.train_footage, "train"),
+    }
     two_sample, two_sample_metrics = two_sample_rows(
-        inputs.heldout, simulated, fps=bouts["trained"].policy_hz, seed=config.seed
+        references, levels, simulated, seed=config.seed
     )
     notes = []
     if "two_sample_auc" not in two_sample_metrics:

@@ -77,8 +77,11 @@ class BoxingRow:
 
 @dataclass(frozen=True)
 class ClassifierRow:
-    """An ``evaluate_classifier`` row: the two-sample test of one simulated fighter, or NULL
-    and the reason it could not be made."""
+    """An ``evaluate_classifier`` row: the two-sample test of one fighter's windows against a
+    reference ('footage': the adversary's held-out footage; 'replay': the tracker's replay of
+    it), or NULL and the reason it could not be made. Policy 'train' is the reference's own
+    train split (train footage, or the replay of the train clips): the real-against-real level,
+    what a perfect answer would score."""
 
     policy: str
     auc: float | None
@@ -88,6 +91,8 @@ class ClassifierRow:
     simulated_windows: int
     reason: str | None
     telltales: str | None = None
+    reference: str = "footage"
+    feature_gap: float | None = None
 
 
 @dataclass(frozen=True)

@@ -72,7 +72,7 @@ def evaluate_plan(
     with connect(paths.db, read_only=True) as con:
         compared = tuple(other.run_key for other in compared_runs(con, info))
         adversary = dataset_info(con, info.dataset_key).adversary
-        tracker = dataset_tracker(con, info.dataset_key)
+        tracker = dataset_tracker(con, info.dataset_key, config.tracker, "evaluate.tracker")
     tracker_key = None if tracker is None else tracker.run_key
     spec = evaluate_spec(config, info.run_key, compared, tracker_key)
     return StagePlan(

@@ -52,8 +52,13 @@ training folds of the other side more than its own, and such a set tested agains
 below 0.5 (0.34-0.37 on DeepMimic's walk looped 80 times). An interval below 0.5 says "not told
 apart", never "more like the footage than the footage".
 
+A graded figure beside the AUC (`feature_gap`): the mean, over the window features, of the
+absolute difference between the two sides' means in the reference windows' standard deviations.
+The AUC saturates at 1 once any one feature tells the sides apart (the tracker's replay scored
+1.00 on its ankles alone); the feature gap keeps falling as more of the motion comes right.
+
 `gap_closed` gives the share of the gap between the still guard and the tracker replaying the
-footage that a policy closes.
+footage that a policy closes, on either figure.
 
 Shape letters: T frames, F per-frame features, W windows, D = 2 F.
 """
@@ -435,17 +440,44 @@ def telltales(real: np.ndarray, simulated: np.ndarray, count: int = TELLTALES) -
     return ", ".join(f"{WINDOW_FEATURES[i]} {d[i]:+.2f}" for i in order)
 
 
-def gap_closed(
-    auc: float | None, still_auc: float | None, replay_auc: float | None
-) -> float | None:
-    """The share of the gap between the still guard and the replay that a policy closes:
-    (still_auc - auc) / (still_auc - replay_auc); 0 scores as the still guard, 1 as the tracker
-    replaying the footage (the best a physics body can do), below 0 worse than standing still,
-    above 1 better than the replay. None when a figure is missing or the still guard is not
-    told apart better than the replay (the gap is not positive)."""
-    if auc is None or still_auc is None or replay_auc is None:
+def feature_gap(reference: np.ndarray, simulated: np.ndarray) -> float:
+    """How far ``simulated`` windows (W, D) are from ``reference`` windows (W', D): the mean over
+    the D window features of |mean difference| / the reference's standard deviation, 0 when
+    the means agree. The reference's spread is the yardstick for every fighter compared with it,
+    so their figures share one scale. Features constant over the reference (no spread to measure
+    by) are left out.
+
+    Raises:
+        ValueError: windows that are not finite (n, D) arrays of one D, an empty side, or a
+            reference constant in every feature.
+    """
+    r = np.asarray(reference, dtype=np.float64)
+    f = np.asarray(simulated, dtype=np.float64)
+    if r.ndim != 2 or f.ndim != 2 or r.shape[1] != f.shape[1] or not (len(r) and len(f)):
+        raise ValueError(
+            f"reference and simulated must be non-empty (n, D) windows of one D, got {r.shape} "
+            f"and {f.shape}"
+        )
+    if not (np.isfinite(r).all() and np.isfinite(f).all()):
+        raise ValueError("reference and simulated must be finite")
+    spread = r.std(axis=0)
+    kept = spread > 1e-12
+    if not kept.any():
+        raise ValueError("reference windows are constant in every feature: nothing to scale by")
+    gap = np.abs(r.mean(axis=0) - f.mean(axis=0))[kept] / spread[kept]
+    return float(gap.mean())
+
+
+def gap_closed(figure: float | None, still: float | None, replay: float | None) -> float | None:
+    """The share of the gap between the still guard and the replay that a policy closes, on a
+    figure where lower is closer (an AUC, a `feature_gap`): (still - figure) / (still -
+    replay); 0 scores as the still guard, 1 as the tracker replaying the footage (the best a
+    physics body can do), below 0 worse than standing still, above 1 better than the replay.
+    None when a figure is missing or the still guard is not further off than the replay (the
+    gap is not positive)."""
+    if figure is None or still is None or replay is None:
         return None
-    gap = still_auc - replay_auc
+    gap = still - replay
     if not gap > 0:
         return None
-    return (still_auc - auc) / gap
+    return (still - figure) / gap

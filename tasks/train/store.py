@@ -86,10 +86,22 @@ def tracker_run(con: duckdb.DuckDBPyConnection, run_key: str) -> RunInfo:
     return found
 
 
-def dataset_tracker(con: duckdb.DuckDBPyConnection, dataset_key: str) -> RunInfo | None:
+def dataset_tracker(
+    con: duckdb.DuckDBPyConnection, dataset_key: str, named: str = "", setting: str = ""
+) -> RunInfo | None:
     """The newest finished tracker run (train.objective 'track') on dataset ``dataset_key``:
     the one evaluation replays the held-out clips with and a MAAIP run distils
-    (`train.distill.from_tracker`); None if there is none."""
+    (`train.distill.from_tracker`); None if there is none. With ``named`` (a key prefix, given
+    by ``setting``), that run: BadInput when it is not a tracker run on the dataset."""
+    if named:
+        found = finished_run(con, named, setting)
+        if found.objective != "track" or found.dataset_key != dataset_key:
+            raise BadInput(
+                f"{setting} {named}",
+                f"is not a tracker run on dataset {dataset_key[:12]} (its objective is "
+                f"{found.objective!r}, its dataset {found.dataset_key[:12]})",
+            )
+        return found
     runs = finished_runs(con, "p.video_id = ?", [dataset_key])
     found = [r for r in runs if r.objective == "track"]
     return found[-1] if found else None
