@@ -377,3 +377,53 @@ def test_a_tracker_trains_on_matched_streams_beside_its_footage(footage):
         with_streams(short, config)
     with pytest.raises(ValueError, match="matched_streams must be >= 0"):
         replace(TRACK.track, matched_streams=-1)
+
+
+def test_the_evaluation_matches_both_fighters_from_their_own_footage(
+    tmp_path, tracker_policy, footage
+):
+    """The evaluate stage's matched pair (`tasks.evaluate.stage.matched_pair`): the tracker's
+    torch policy playing each fighter's own footage, as `simulate` runs any pair; the same
+    actions as the exported ONNX opponent's, and a bout that runs."""
+    from tasks.evaluate.stage import matched_pair
+    from tasks.opponent.export import MatchedFootage
+
+    run = TrainedPolicy("k" * 64, "d" * 64, 2, TRACK, tracker_policy, BONES, {})
+    mine = MatchedFootage(tuple(footage), ())
+    theirs = MatchedFootage(tuple((n, other, own) for n, own, other in footage), ())
+    pair = matched_pair(run, (mine, theirs))
+    # Each plays its own fighter's footage: agent 1's database holds the partners' frames.
+    for agent, played in enumerate((mine, theirs)):
+        library = pair[agent].database.library
+        assert library.num_clips == 2
+        np.testing.assert_allclose(library.clip.qpos[: len(played.clips[0][1])], played.clips[0][1])
+    observation = np.random.default_rng(0).normal(size=(3, 451)).astype(np.float32)
+    onnx = load_opponent(run.export(0, tmp_path / "matched", footage=mine)).controller
+    np.testing.assert_allclose(pair[0].policy(observation), onnx.policy(observation), atol=1e-5)
+    walk = footage[0][1]
+    q1 = facing(walk, 1.5)[:1]
+    zero = np.zeros((1, NV))
+    start = ReferenceMotions(
+        walk[:1].copy(), zero, q1, zero, stance=np.stack([walk[0, 7:], q1[0, 7:]])
+    )
+    bouts = simulate(
+        pair, reference=start, bones=BONES, env_config=TRACK.env, episodes=2, frames=20, seed=0
+    )
+    assert (bouts.steps >= 5).all() and np.isfinite(bouts.qpos[0, : bouts.frames[0]]).all()
+
+
+def test_the_evaluation_never_matches_from_held_out_footage():
+    """`held_out_overlap` names the matched clips that share a step with a held-out clip."""
+    from tasks.dataset.store import FootageClip
+    from tasks.evaluate.stage import held_out_overlap
+    from tasks.opponent.export import MatchedFootage
+
+    q = np.zeros((30, NQ))
+    heldout = (FootageClip("v" * 16, q, q, BoneLengths(), start_step=100),)
+    video = "v" * 12
+    apart = MatchedFootage(
+        ((f"{video}@40", q, q), (f"{video}@130", q, q), (f"w{video[1:]}@100", q, q)), ()
+    )
+    assert held_out_overlap((apart,), heldout) == []
+    touching = MatchedFootage(((f"{video}@71", q, q), (f"{video}@129", q, q)), ())
+    assert held_out_overlap((apart, touching), heldout) == [f"{video}@71", f"{video}@129"]

@@ -375,3 +375,7 @@ def test_the_evaluation_replays_the_held_out_clips_with_the_datasets_tracker(mad
             assert why is None and 0.0 <= auc <= 1.0 and gap >= 0
         else:
             assert auc is None and why.startswith(f"the replay gives {replayed} window")
+    # The matched pair plays the train clips the 2-iteration tracker finished: none, or some.
+    auc, _, _, why = by["footage", "matched"]
+    assert (auc is None) == (why is not None)
+    assert why is None or why.startswith(("no matched opponent: --run", "the bouts give"))

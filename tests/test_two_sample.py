@@ -18,7 +18,7 @@ from models.humanoid.stance import guard_pose
 from tasks import deepmimic
 from tasks.dataset.store import FootageClip
 from tasks.evaluate.bouts import Bouts
-from tasks.evaluate.stage import NO_HELD_OUT, NO_TRACKER, TWO_SAMPLE_POLICIES, two_sample_rows
+from tasks.evaluate.stage import NO_HELD_OUT, NO_TRACKER, two_sample_rows
 from tasks.evaluate.two_sample import (
     FEATURES,
     FOLDS,
@@ -318,8 +318,8 @@ def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
     rows, metrics = two_sample_rows(references, levels, simulated, seed=0)
     by = {(row.reference, row.policy): row for row in rows}
     assert list(by) == [
-        *(("footage", p) for p in (*TWO_SAMPLE_POLICIES, "replay", "train")),
-        *(("replay", p) for p in (*TWO_SAMPLE_POLICIES, "train")),
+        *(("footage", p) for p in (*simulated, "replay", "train")),
+        *(("replay", p) for p in (*simulated, "train")),
     ]
     adversary = by["footage", "adversary"]
     assert (adversary.real_windows, adversary.simulated_windows, adversary.reason) == (5, 20, None)
@@ -342,7 +342,7 @@ def test_the_stage_rows_hold_the_auc_or_null_and_why(clips):
     replay = by["footage", "replay"]
     assert (replay.auc, replay.real_windows, replay.simulated_windows) == (None, 5, 0)
     assert replay.reason == NO_TRACKER
-    assert all(by["replay", p].reason == NO_TRACKER for p in (*TWO_SAMPLE_POLICIES, "train"))
+    assert all(by["replay", p].reason == NO_TRACKER for p in (*simulated, "train"))
     # Nothing replayed: neither gap has an end.
     assert "two_sample_gap_closed" not in metrics and "feature_gap_closed" not in metrics
     assert not any("vs_replay" in name for name in metrics)
@@ -416,3 +416,47 @@ def test_the_feature_gap_is_the_mean_standardised_difference_of_means():
         feature_gap(reference, np.zeros((0, 3)))
     with pytest.raises(ValueError, match="finite"):
         feature_gap(reference, np.full((2, 3), np.nan))
+
+
+def test_the_cli_says_each_reference_its_level_and_the_gaps_closed(clips):
+    """`classifier_lines`: a line against the footage (with the train footage's level and the
+    share of the gap closed), one for the feature gap, one against the replay."""
+    import dataclasses
+
+    from flows.cli.tables import classifier_lines
+
+    walk = clips["walk"]
+    real = footage_windows([(np.concatenate([walk] * 4), np.tile(walk[0], (156, 1)), BONES)], FPS)
+    rng = np.random.default_rng(1)
+    close = np.concatenate([real] * 4) * rng.normal(1.0, 0.01, size=(20, real.shape[1]))
+    simulated = {
+        "adversary": close[:10] * 1.05,
+        "untrained": NO_TRACKER,
+        "still": np.zeros((8, 120)),
+    }
+    rows, metrics = two_sample_rows(
+        {"footage": real, "replay": close}, {"footage": real, "replay": close}, simulated, seed=0
+    )
+    lines = classifier_lines([dataclasses.asdict(r) for r in rows], metrics)
+    by = {(r.reference, r.policy): r for r in rows}
+    assert len(lines) == 3
+    footage, gaps, replay = lines
+    assert f"trained {by['footage', 'adversary'].auc:.2f} [" in footage
+    assert (
+        f"its own train split (real against real) {metrics['two_sample_auc_train']:.2f}" in footage
+    )
+    assert "untrained" not in footage  # not measured: no row to show
+    assert f"the trained adversary closes {100 * metrics['two_sample_gap_closed']:.0f} %" in footage
+    assert f"standing still {metrics['feature_gap_still']:.2f}" in gaps
+    assert f"closes {100 * metrics['feature_gap_closed']:.0f} % of the gap" in gaps
+    assert replay.startswith("  against the replay: trained ")
+    assert f"{metrics['two_sample_auc_vs_replay_train']:.2f}" in replay
+    none = two_sample_rows(
+        {"footage": NO_HELD_OUT, "replay": NO_TRACKER},
+        {"footage": real, "replay": NO_TRACKER},
+        simulated,
+        seed=0,
+    )[0]
+    lines = classifier_lines([dataclasses.asdict(r) for r in none], {})
+    assert lines[0].endswith(f"told apart: not measured ({NO_HELD_OUT})")
+    assert lines[1] == f"  against the replay: not measured ({NO_TRACKER})"

@@ -49,6 +49,7 @@ CLASSIFIED = {
     "adversary": "trained",
     "untrained": "untrained",
     "still": "standing still",
+    "matched": "matched opponent",
     "replay": "tracker replaying the footage",
     "train": "its own train split (real against real)",
 }
@@ -77,19 +78,25 @@ def classifier_lines(rows: list[dict], metrics: dict[str, float]) -> list[str]:
         line = f"{intro}: {', '.join(parts)}"
         if reference == "footage" and "replay" not in measured and "replay" in found:
             line += f"; no replay ({found['replay']['reason']})"
-        if reference == "footage" and "two_sample_gap_closed" in metrics:
-            closed = metrics["two_sample_gap_closed"]
-            line += (
-                f"; the trained adversary closes {100 * closed:.0f} % of the still-to-replay gap"
-            )
+        if reference == "footage":
+            line += _closed(metrics, "two_sample_gap_closed", "of the still-to-replay gap")
         lines.append(line)
         if reference == "footage":
             gaps = ", ".join(f"{CLASSIFIED[p]} {found[p]['feature_gap']:.2f}" for p in measured)
             line = f"  feature gap, mean |difference| in the footage's SDs, 0 = alike: {gaps}"
-            if "feature_gap_closed" in metrics:
-                line += f"; closes {100 * metrics['feature_gap_closed']:.0f} % of the gap"
-            lines.append(line)
+            lines.append(line + _closed(metrics, "feature_gap_closed", "of the gap"))
     return lines
+
+
+def _closed(metrics: dict[str, float], name: str, what: str) -> str:
+    """The shares of the still-to-replay gap the trained adversary and the matched opponent
+    close (metric ``name``, suffixed), as a clause; empty when neither was measured."""
+    said = [
+        f"the {who} closes {100 * metrics[name + suffix]:.0f} % {what}"
+        for who, suffix in (("trained adversary", ""), ("matched opponent", "_matched"))
+        if name + suffix in metrics
+    ]
+    return "; " + ", ".join(said) if said else ""
 
 
 def print_opponent(paths: DataPaths, evaluated) -> None:
@@ -123,7 +130,8 @@ def print_opponent(paths: DataPaths, evaluated) -> None:
     print(
         f"  bouts ended by a fall, per simulated minute: {number('falls_per_min')} "
         f"(untrained {number('falls_per_min_untrained')}, "
-        f"standing still in its guard {number('falls_per_min_still')})"
+        f"standing still in its guard {number('falls_per_min_still')}, matched opponent "
+        f"{number('falls_per_min_matched')})"
     )
     print(
         f"  style score, 0 = the footage's statistics, lower is closer: {number('style_score')} "

@@ -23,10 +23,15 @@ same tables:
    like the footage" figure: the AUC, with its bootstrap interval, of a fresh classifier telling
    1-second windows of the adversary's held-out footage (the dataset's validation interaction
    clips, `footage_clips`) from the trained adversary's, the untrained policy's and the still
-   guard's bout windows, and from the dataset's newest tracker run replaying the held-out clips
-   ('replay', `dataset_tracker`: the best a physics body has done), with the share of the gap
-   between the still guard and the replay that the adversary closes. Where a test cannot be made
-   (no held-out footage, too few windows, no tracker run) its row holds NULL and the reason.
+   guard's bout windows, from the matched opponent's ('matched': the dataset's tracker playing
+   each fighter's own train footage as the motion matcher picks it, both fighters matched), and
+   from the dataset's tracker run (`evaluate.tracker`, else its newest) replaying the held-out
+   clips ('replay', `dataset_tracker`: the best a physics body has done), with the share of the
+   gap between the still guard and the replay that the adversary closes. Each fighter is tested
+   again against that replay, both references beside their own train split (the level a perfect
+   answer reaches), and beside each AUC stands the feature gap, a graded figure. Where a test
+   cannot be made (no held-out footage, too few windows, no tracker run) its row holds NULL and
+   the reason.
 6. The adversary's opponent folder (`export_opponent`: ONNX policy, MJCF, manifest) with
    onnxruntime's parity against torch on observations recorded in the bouts, and the first
    `evaluate.video_seconds` of the trained episodes, played one after another, rendered to MP4
@@ -37,6 +42,7 @@ same tables:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -48,6 +54,7 @@ from models.arena.mjcf import arena_mjcf
 from models.arena.starts import ReferenceMotions
 from models.humanoid.kinematics import NUM_ACTUATED
 from models.maaip.networks import Policy, make_networks
+from models.matching import MatchConfig
 from models.tracking.gate import play_clips
 from storage.artifacts import artifact_name
 from storage.db import connect
@@ -58,6 +65,7 @@ from tasks.dataset.config import DatasetConfig, PunchConfig
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import FootageClip, dataset_info, footage_clips
+from tasks.errors import BadInput
 from tasks.evaluate.bouts import Bouts, HeadingTask, mujoco_stepping, simulate
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.metrics import boxing_metrics, label_fighter, style_rows, style_score
@@ -88,9 +96,16 @@ from tasks.evaluate.two_sample import (
 )
 from tasks.media import render_bout
 from tasks.opponent.controller import Controller
-from tasks.opponent.export import TrainedPolicy, load_trained, onnx_max_abs_diff
+from tasks.opponent.export import (
+    MatchedFootage,
+    TrainedPolicy,
+    load_trained,
+    matched_footage,
+    onnx_max_abs_diff,
+)
 from tasks.opponent.folder import KINDS, MANIFEST, load_opponent
 from tasks.opponent.maaip import KIND, OnnxPolicy, TorchPolicy
+from tasks.opponent.matched import MatchedTracker, motion_file, motion_of
 from tasks.opponent.still import StillGuard
 from tasks.runner import StageOutput
 from tasks.train.config import TrainConfig
@@ -99,16 +114,20 @@ from tasks.train.tracker import paired_tracking
 
 __all__ = ["STAGE", "EvaluateInputs", "evaluate", "load_inputs"]
 
-# The simulated fighters compared with the adversary: (bouts, agent).
+# The simulated fighters compared with the adversary: (bouts, agent). 'matched' is the
+# dataset's tracker as the matched opponent (both fighters matched, each from its own fighter's
+# train footage), where there is a tracker that finished some of it.
 POLICIES = {
     "adversary": ("trained", 0),
     "untrained": ("untrained", 0),
     "opponent": ("trained", 1),
     "still": ("still", 0),
+    "matched": ("matched", 0),
+    "matched_partner": ("matched", 1),
 }
 # The simulated fighters the two-sample test compares with the adversary's held-out footage,
 # besides the tracker replaying it ('replay').
-TWO_SAMPLE_POLICIES = ("adversary", "untrained", "still")
+TWO_SAMPLE_POLICIES = ("adversary", "untrained", "still", "matched")
 NO_TRACKER = (
     "no finished tracker run on the dataset to replay its held-out clips "
     "(`ringside train --dataset KEY --train-objective track` makes one)"
@@ -135,6 +154,8 @@ class EvaluateInputs:
         tracker: the dataset's newest tracker run (`dataset_tracker`), which replays it.
         train_footage: the adversary's train footage: the level the held-out footage and its
             replay are told apart from their train split at.
+        matched: what each fighter of the matched pair plays (`matched_footage`: the train
+            clips of its fighter the tracker finished), or why there is no matched pair.
     """
 
     run: TrainedPolicy
@@ -145,6 +166,7 @@ class EvaluateInputs:
     heldout: tuple[FootageClip, ...] = ()
     tracker: TrainedPolicy | None = None
     train_footage: tuple[FootageClip, ...] = ()
+    matched: tuple[MatchedFootage, MatchedFootage] | str = NO_TRACKER
 
 
 def load_inputs(
@@ -171,17 +193,28 @@ def load_inputs(
         dataset = build(
             DatasetConfig, dataset_info(con, info.dataset_key).config, section="dataset"
         )
+    replayer = (
+        None if tracker is None else load_trained(artifacts, tracker, metrics[tracker.run_key])
+    )
+    evaluated = load_trained(artifacts, info, metrics[info.run_key])
+    played: tuple[MatchedFootage, MatchedFootage] | str = NO_TRACKER
+    if replayer is not None and replayer.bones != evaluated.bones:
+        played = "no matched opponent: the tracker's humanoids are not the evaluated run's"
+    elif replayer is not None:
+        try:
+            played = (matched_footage(db, replayer, 0), matched_footage(db, replayer, 1))
+        except BadInput as error:
+            played = f"no matched opponent: {error}"
     return EvaluateInputs(
-        run=load_trained(artifacts, info, metrics[info.run_key]),
+        run=evaluated,
         reference=demos.reference,
         real=real,
         punch=dataset.punch,
         compared=tuple(load_trained(artifacts, i, metrics[i.run_key]) for i in others),
         heldout=heldout,
         train_footage=train_footage,
-        tracker=None
-        if tracker is None
-        else load_trained(artifacts, tracker, metrics[tracker.run_key]),
+        tracker=replayer,
+        matched=played,
     )
 
 
@@ -368,8 +401,9 @@ def two_sample_rows(
 
     Against the footage, the replay is tested too. The metrics: each measured row's AUC and
     feature gap (`_METRIC`, the policy a suffix, none for the adversary; the adversary's interval
-    too), and the share of the still-to-replay gap the adversary closes against the footage, on
-    the AUC (``two_sample_gap_closed``) and on the feature gap (``feature_gap_closed``).
+    too), and the share of the still-to-replay gap the adversary (and, suffixed, the matched
+    opponent) closes against the footage, on the AUC (``two_sample_gap_closed``) and on the
+    feature gap (``feature_gap_closed``).
     """
     rows, metrics = [], {}
     for reference, (auc_name, gap_name) in _METRIC.items():
@@ -392,12 +426,63 @@ def two_sample_rows(
         ("two_sample_gap_closed", "two_sample_auc"),
         ("feature_gap_closed", "feature_gap"),
     ):
-        closed = gap_closed(
-            metrics.get(figure), metrics.get(f"{figure}_still"), metrics.get(f"{figure}_replay")
-        )
-        if closed is not None:
-            metrics[name] = closed
+        for suffix in ("", "_matched"):
+            closed = gap_closed(
+                metrics.get(f"{figure}{suffix}"),
+                metrics.get(f"{figure}_still"),
+                metrics.get(f"{figure}_replay"),
+            )
+            if closed is not None:
+                metrics[f"{name}{suffix}"] = closed
     return rows, metrics
+
+
+def held_out_overlap(
+    played: tuple[MatchedFootage, ...], heldout: tuple[FootageClip, ...]
+) -> list[str]:
+    """The clips of ``played`` that share a step of footage with a ``heldout`` clip (by video and
+    steps; `FootageClip.name` is "video@start"): none, or the held-out windows are not held
+    out."""
+    spans = [(c.video_id[:12], c.start_step, c.start_step + len(c.qpos)) for c in heldout]
+    found = []
+    for footage in played:
+        for name, qpos, _ in footage.clips:
+            video, _, start = name.rpartition("@")
+            first, end = int(start), int(start) + len(qpos)
+            if any(v == video and first < e and s < end for v, s, e in spans):
+                found.append(name)
+    return found
+
+
+def _acting(policy: Policy, agent: int) -> Callable[[np.ndarray], np.ndarray]:
+    """Agent ``agent``'s mean action of ``policy`` as a function of observations, taken as
+    float32 as in training."""
+
+    def act(observation: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            given = torch.from_numpy(np.asarray(observation, dtype=np.float32))
+            return policy(given, agent, None).double().numpy()
+
+    return act
+
+
+def matched_pair(
+    tracker: TrainedPolicy, played: tuple[MatchedFootage, MatchedFootage]
+) -> tuple[MatchedTracker, MatchedTracker]:
+    """Both fighters as matched opponents (`tasks.opponent.matched`, the matcher's default
+    settings, as `ringside export --matched` writes them): ``tracker``'s policy playing each
+    fighter's own footage of ``played``."""
+    hz = float(tracker.config.env.policy_hz)
+    pair = []
+    for agent, footage in enumerate(played):
+        database = motion_of(
+            motion_file(footage.clips, hz),
+            tracker.bones[agent],
+            tracker.bones[1 - agent],
+            MatchConfig(),
+        )
+        pair.append(MatchedTracker(_acting(tracker.policy, agent), database))
+    return pair[0], pair[1]
 
 
 def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
@@ -412,9 +497,26 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
         ),
         "still": _bouts(_still_pair(inputs.reference), run, inputs.reference, **size),
     }
+    if not isinstance(inputs.matched, str):
+        overlap = held_out_overlap(inputs.matched, inputs.heldout)
+        if overlap:
+            raise ValueError(f"the matched opponent would play held-out footage: {overlap}")
+        tracker = inputs.tracker
+        assert tracker is not None
+        bouts["matched"] = simulate(
+            matched_pair(tracker, inputs.matched),
+            reference=inputs.reference,
+            bones=tracker.bones,
+            env_config=tracker.config.env,
+            episodes=config.episodes,
+            frames=config.episode_frames,
+            seed=config.seed,
+        )
     model = mujoco.MjModel.from_xml_string(arena_mjcf(run.bones, timestep=run.config.env.timestep))
     style, boxing, scores, fighters = [], [], {}, {}
     for policy, (which, agent) in POLICIES.items():
+        if which not in bouts:
+            continue
         fighter = label_fighter(
             bouts[which], agent, model=model, bones=run.bones[agent], punch=inputs.punch
         )
@@ -436,7 +538,10 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
             adversary_boxing = measured
 
     simulated: dict[str, Windows] = {
-        p: bout_windows(model, bouts[POLICIES[p][0]], POLICIES[p][1]) for p in TWO_SAMPLE_POLICIES
+        p: bout_windows(model, bouts[POLICIES[p][0]], POLICIES[p][1])
+        if POLICIES[p][0] in bouts
+        else str(inputs.matched)
+        for p in TWO_SAMPLE_POLICIES
     }
     hz = bouts["trained"].policy_hz
     held_out, train = (
@@ -528,6 +633,14 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
         "falls_per_min": trained.falls_per_min,
         "falls_per_min_untrained": bouts["untrained"].falls_per_min,
         "falls_per_min_still": bouts["still"].falls_per_min,
+        **(
+            {
+                "falls_per_min_matched": bouts["matched"].falls_per_min,
+                "style_score_matched": scores["matched"],
+            }
+            if "matched" in bouts
+            else {}
+        ),
         "episode_length_s": float(trained.steps.mean()) / trained.policy_hz,
         "damage_received_n": float(trained.damage[:, 0].mean()),
         "damage_dealt_n": float(trained.damage[:, 1].mean()),
