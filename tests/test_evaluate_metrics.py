@@ -216,3 +216,56 @@ def test_bouts_start_standing_in_the_guard_and_a_still_guard_stays_up(assets):
     for agent, start in enumerate((0, 35)):
         np.testing.assert_allclose(first[:, start + 7 : start + 35], np.tile(guard[agent], (6, 1)))
     assert not bouts.fell.any() and (bouts.steps == 4 * config.policy_hz).all()
+
+
+def test_footage_is_labelled_as_a_fighter_and_rated_per_window(assets):
+    """`footage_bouts` lays footage in the arena so `label_fighter` reads it as a simulated
+    fighter; `window_rates` counts each 1-s window's punches and steps; `rate_interval` gives
+    their mean and its bootstrap interval. DeepMimic's punch three times over (its partner
+    0.7 m ahead) and its walk four times (3 m ahead)."""
+    import mujoco
+    from test_matching import facing
+
+    from models.arena.mjcf import arena_index, arena_mjcf
+    from models.humanoid.boxer import BoneLengths
+    from tasks.dataset.config import PunchConfig
+    from tasks.deepmimic import clip_path, load_deepmimic, retarget
+    from tasks.evaluate.metrics import footage_bouts, label_fighter, rate_interval, window_rates
+
+    punch, walk = (
+        np.concatenate([retarget(load_deepmimic(clip_path(assets, n)))] * k)
+        for n, k in (("punch", 3), ("walk", 4))
+    )
+    model = mujoco.MjModel.from_xml_string(arena_mjcf((BoneLengths(), BoneLengths())))
+    clips = [(punch, facing(punch, 0.7)), (walk, facing(walk, 3.0))]
+    bouts = footage_bouts(model, clips, 30)
+    index = arena_index(model)
+    assert list(bouts.frames) == [len(punch), len(walk)] and bouts.policy_hz == 30
+    np.testing.assert_array_equal(bouts.qpos[1, : len(walk)][:, index.agents[0].qpos], walk)
+    np.testing.assert_array_equal(bouts.qpos[0, : len(punch)][:, index.agents[1].qpos], clips[0][1])
+    assert np.isnan(bouts.qpos[1, len(walk) :]).all()
+
+    fighter = label_fighter(bouts, 0, model=model, bones=BoneLengths(), punch=PunchConfig())
+    peaks = [p.peak for p in fighter.punches[0]]
+    # The one punch of the clip, once in each copy (65 frames); the walk throws none and steps.
+    assert len(peaks) == 3 and set(np.diff(peaks)) == {65} and not fighter.punches[1]
+    assert len(fighter.steps[1]) >= 4
+
+    rates = window_rates(fighter, bouts, 1.0)
+    windows = [len(punch) // 30, len(walk) // 30]  # whole windows only: 6 and 5
+    assert [len(v) for v in rates.values()] == [sum(windows)] * 2
+    expected = np.zeros(sum(windows))
+    for peak in peaks:
+        if peak < windows[0] * 30:
+            expected[peak // 30] += 60.0
+    np.testing.assert_array_equal(rates["punches_per_min"], expected)
+    stepped = [s.touch_down for e in (0, 1) for s in fighter.steps[e]]
+    assert rates["steps_per_min"].sum() / 60 <= len(stepped)
+
+    mean, low, high = rate_interval(rates["steps_per_min"], seed=0)
+    assert mean == rates["steps_per_min"].mean()
+    assert rates["steps_per_min"].min() <= low <= mean <= high <= rates["steps_per_min"].max()
+    assert rate_interval(rates["steps_per_min"], seed=0) == (mean, low, high)
+    assert rate_interval(np.full(4, 60.0), seed=0) == (60.0, 60.0, 60.0)
+    with pytest.raises(ValueError, match="no windows"):
+        rate_interval(np.zeros(0), seed=0)

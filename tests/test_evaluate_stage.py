@@ -83,7 +83,11 @@ def test_evaluate_fills_every_table_caches_and_reruns_identically(capsys, sample
         assert any(note.startswith("heading table: not available") for note in summary["notes"])
 
     statistics = {*RATES, *SHARES, *STYLE_DISTRIBUTIONS}
-    for policy in POLICIES:
+    # No tracker on the sample's dataset: no matched pair, in no table.
+    simulated = [p for p, (bouts, _) in POLICIES.items() if bouts != "matched"]
+    for table in ("style", "boxing"):
+        assert {r["policy"] for r in tables[table]} <= {*simulated, "footage"}
+    for policy in simulated:
         rows = [r for r in tables["style"] if r["policy"] == policy]
         assert {r["statistic"] for r in rows} == statistics
         assert all(0.0 <= r["distance"] <= 1.0 for r in rows)
@@ -303,6 +307,13 @@ def test_the_stage_on_held_out_footage_gives_known_answers(sample_run, run_key, 
     assert out.metrics["two_sample_auc_still"] == still.auc
     assert out.metrics["two_sample_auc"] == rows["adversary"].auc
     assert rows["replay"].reason == NO_TRACKER and "two_sample_gap_closed" not in out.metrics
+    # The held-out footage's rates, labelled as a fighter's: the walk steps (DeepMimic's walk is
+    # two steps a 1.27 s cycle, 95 a minute; the labeller finds 7 of the 8 in four cycles) and
+    # never punches.
+    boxing = {(r.policy, r.metric): r.value for r in out.rows["evaluate_boxing"]}
+    assert boxing["footage", "punches_per_min"] == 0.0 == boxing["footage", "punches_per_min_high"]
+    low, mean, high = (boxing["footage", f"steps_per_min{s}"] for s in ("_low", "", "_high"))
+    assert 60 <= low <= mean <= high <= 130 and out.metrics["footage_steps_per_min"] == mean
 
     real = footage_windows([(c.qpos, c.other_qpos, c.bones) for c in heldout], 30)
     same = footage_windows(

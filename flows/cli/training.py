@@ -168,9 +168,12 @@ def evaluate_command(args, paths: DataPaths) -> int:
     print()
     for line in classifier_lines(tables["classifier"], metrics):
         print(line)
-    print("\nboxing (MSc thesis §6.1)")
+    print(
+        "\nboxing (MSc thesis §6.1); footage: the held-out footage's, its 95 % interval _low-_high"
+    )
     boxing = pivot(tables["boxing"], "metric", "policy", lambda r: number(r["value"]))
-    print_table([{p: "" for p in policies} | r for r in boxing], ["metric", *policies])
+    shown = [*policies, "footage"]
+    print_table([{p: "" for p in shown} | r for r in boxing], ["metric", *shown])
     print("\nartifacts")
     print_table(tables["artifacts"], ["name", "artifact"])
     return 0

@@ -51,7 +51,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-from scipy.stats import wasserstein_distance
+from scipy.stats import bootstrap, wasserstein_distance
 
 from models.arena.mjcf import DEFAULT_PREFIXES, arena_index
 from models.humanoid.boxer import DEFAULT_STATURE, BoneLengths
@@ -296,6 +296,7 @@ def boxing_metrics(
     out = {
         "simulated_min": minutes,
         "punches_per_min": fighter.statistics.scalars["punches_per_min"],
+        "steps_per_min": fighter.statistics.scalars["steps_per_min"],
         **punch_summary(scores),
         "falls_per_min": float(bouts.fell[:, agent].sum()) / minutes if minutes else 0.0,
         "time_in_guard_pct": 100.0
@@ -392,3 +393,82 @@ def style_score(rows: Sequence[StyleRow]) -> float:
     if not rows:
         raise ValueError("style_score needs at least one compared statistic")
     return float(np.mean([row.distance for row in rows]))
+
+
+# --------------------------------------------------------------------------
+# The held-out footage's rates, with their intervals
+# --------------------------------------------------------------------------
+
+RATE_LEVEL = 0.95
+RATE_RESAMPLES = 1000
+
+
+def footage_bouts(
+    model: mujoco.MjModel, clips: Sequence[tuple[np.ndarray, np.ndarray]], fps: int
+) -> Bouts:
+    """Footage as `Bouts` of one episode per clip, so that it is labelled as a simulated
+    fighter is: ``clips`` of (the fighter's qpos (T, 35), the other fighter's at the same
+    frames), laid in arena ``model`` as agents 0 and 1, at ``fps``."""
+    if not clips:
+        raise ValueError("clips: no footage to label")
+    index = arena_index(model)
+    longest = max(len(q) for q, _ in clips)
+    qpos = np.full((len(clips), longest, model.nq), np.nan)
+    for e, (own, other) in enumerate(clips):
+        qpos[e, : len(own)] = model.qpos0
+        qpos[e, : len(own), index.agents[0].qpos] = own
+        qpos[e, : len(own), index.agents[1].qpos] = other
+    frames = np.array([len(q) for q, _ in clips])
+    none = np.zeros((len(clips), 2), dtype=bool)
+    return Bouts(
+        qpos=qpos,
+        frames=frames,
+        steps=frames - 1,
+        damage=np.zeros((len(clips), 2)),
+        fell=none,
+        unstable=none[:, 0],
+        start_frames=np.zeros(len(clips), dtype=int),
+        observations=np.zeros((0, 2, 0), dtype=np.float32),
+        tasks=None,
+        task_return=None,
+        policy_hz=fps,
+    )
+
+
+def window_rates(fighter: FighterBouts, bouts: Bouts, window_s: float) -> dict[str, np.ndarray]:
+    """(W,) punches (by their peak) and steps (by their touch-down) per minute in each window of
+    ``window_s`` of the bouts' episodes, cut every ``window_s`` from each episode's start, whole
+    windows only (as the two-sample test cuts them): "punches_per_min", "steps_per_min"."""
+    frames = round(window_s * bouts.policy_hz)
+    out: dict[str, list[np.ndarray]] = {"punches_per_min": [], "steps_per_min": []}
+    for e in range(bouts.episodes):
+        count = int(bouts.frames[e]) // frames
+        events = {
+            "punches_per_min": [p.peak for p in fighter.punches[e]],
+            "steps_per_min": [s.touch_down for s in fighter.steps[e]],
+        }
+        for name, at in events.items():
+            found = np.bincount(np.asarray(at, dtype=int) // frames, minlength=count)[:count]
+            out[name].append(found * 60.0 / window_s)
+    return {name: np.concatenate(parts) for name, parts in out.items()}
+
+
+def rate_interval(per_window: np.ndarray, seed: int) -> tuple[float, float, float]:
+    """The mean of per-window rates (W,) and its percentile bootstrap interval (`RATE_LEVEL`,
+    `RATE_RESAMPLES` resamples of the windows; scipy's `bootstrap`); a single window or a
+    constant rate gives the mean as its own interval."""
+    x = np.asarray(per_window, dtype=np.float64)
+    if not len(x):
+        raise ValueError("per_window: no windows")
+    mean = float(x.mean())
+    if len(x) < 2 or np.ptp(x) == 0:
+        return mean, mean, mean
+    found = bootstrap(
+        (x,),
+        np.mean,
+        n_resamples=RATE_RESAMPLES,
+        confidence_level=RATE_LEVEL,
+        method="percentile",
+        rng=np.random.default_rng(seed),
+    )
+    return mean, float(found.confidence_interval.low), float(found.confidence_interval.high)

@@ -68,7 +68,15 @@ from tasks.dataset.store import FootageClip, dataset_info, footage_clips
 from tasks.errors import BadInput
 from tasks.evaluate.bouts import Bouts, HeadingTask, mujoco_stepping, simulate
 from tasks.evaluate.config import EvaluateConfig
-from tasks.evaluate.metrics import boxing_metrics, label_fighter, style_rows, style_score
+from tasks.evaluate.metrics import (
+    boxing_metrics,
+    footage_bouts,
+    label_fighter,
+    rate_interval,
+    style_rows,
+    style_score,
+    window_rates,
+)
 from tasks.evaluate.motion_files import BOUTS, bouts_npz
 from tasks.evaluate.store import (
     DAMAGE_TASKS,
@@ -485,6 +493,29 @@ def matched_pair(
     return pair[0], pair[1]
 
 
+def held_out_rates(
+    heldout: tuple[FootageClip, ...],
+    model: mujoco.MjModel,
+    punch: PunchConfig,
+    fps: int,
+    *,
+    seed: int,
+) -> dict[str, float]:
+    """The held-out footage's punches and steps per minute, labelled as a simulated fighter's
+    are (`label_fighter` on the footage laid in arena ``model``), each the mean over its 1-s
+    windows with that mean's bootstrap interval (``_low``, ``_high``): what a fighter's rates
+    are compared with. Empty without held-out footage a window long."""
+    if not heldout:
+        return {}
+    footage = footage_bouts(model, [(c.qpos, c.other_qpos) for c in heldout], fps)
+    labelled = label_fighter(footage, 0, model=model, bones=heldout[0].bones, punch=punch)
+    out = {}
+    for name, per_window in window_rates(labelled, footage, WINDOW_S).items():
+        if len(per_window):
+            out[name], out[f"{name}_low"], out[f"{name}_high"] = rate_interval(per_window, seed)
+    return out
+
+
 def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
     """The evaluate stage's rows, metrics and files (the exported opponent, the video, the
     bouts' motion) for run ``inputs.run`` (module docstring)."""
@@ -513,6 +544,7 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
             seed=config.seed,
         )
     model = mujoco.MjModel.from_xml_string(arena_mjcf(run.bones, timestep=run.config.env.timestep))
+    hz = bouts["trained"].policy_hz
     style, boxing, scores, fighters = [], [], {}, {}
     for policy, (which, agent) in POLICIES.items():
         if which not in bouts:
@@ -536,6 +568,8 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
         boxing += [BoxingRow(policy, name, value) for name, value in measured.items()]
         if policy == "adversary":
             adversary_boxing = measured
+    footage_rates = held_out_rates(inputs.heldout, model, inputs.punch, hz, seed=config.seed)
+    boxing += [BoxingRow("footage", name, value) for name, value in footage_rates.items()]
 
     simulated: dict[str, Windows] = {
         p: bout_windows(model, bouts[POLICIES[p][0]], POLICIES[p][1])
@@ -543,7 +577,6 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
         else str(inputs.matched)
         for p in TWO_SAMPLE_POLICIES
     }
-    hz = bouts["trained"].policy_hz
     held_out, train = (
         footage_windows([(c.qpos, c.other_qpos, c.bones) for c in clips], hz) if clips else why
         for clips, why in ((inputs.heldout, NO_HELD_OUT), (inputs.train_footage, NO_TRAIN))
@@ -637,6 +670,7 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
             {
                 "falls_per_min_matched": bouts["matched"].falls_per_min,
                 "style_score_matched": scores["matched"],
+                "style_score_matched_partner": scores["matched_partner"],
             }
             if "matched" in bouts
             else {}
@@ -647,6 +681,7 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
         "unstable_episodes": float(unstable),
         "video_frames": float(video[1]) if video is not None else 0.0,
         **two_sample_metrics,
+        **{f"footage_{name}": value for name, value in footage_rates.items()},
     }
     for name in ("punch_accuracy_pct", "foot_skating_cm_per_frame", "time_in_guard_pct"):
         if name in adversary_boxing:
