@@ -20,6 +20,7 @@ from tasks.dataset.labels import (
     frame_labels,
     label_punches,
     label_steps,
+    touch_downs,
 )
 from tasks.dataset.statistics import DISTRIBUTIONS, FighterStatistics, combine, fighter_statistics
 
@@ -376,6 +377,22 @@ def test_label_steps_by_hand():
         label_steps(contacts * 2, feet)
     with pytest.raises(ValueError, match="feet"):
         label_steps(contacts, feet[:, :, :2])
+
+
+def test_touch_downs_count_landings_whose_lift_off_the_clip_cut():
+    """The same contacts as above: the left foot's landing at 2, whose lift-off came before the
+    clip, counts (label_steps leaves it out); a flight shorter than ``min_off`` does not, and
+    the right foot, still in the air at the end, has not landed."""
+    on, off = True, False
+    left = [off, off, on, on, off, off, off, on, on, off, on, on]
+    right = [on, on, on, off, off, on, on, on, on, on, off, off]
+    contacts = np.array([left, right]).T
+    assert touch_downs(contacts, 1).tolist() == [2, 5, 7, 10]
+    assert touch_downs(contacts, 2).tolist() == [2, 5, 7]
+    assert touch_downs(contacts, 3).tolist() == [7]
+    assert touch_downs(np.ones((5, 2), bool), 1).tolist() == []
+    with pytest.raises(ValueError, match="contacts"):
+        touch_downs(contacts * 2, 1)
 
 
 # --------------------------------------------------------------------------

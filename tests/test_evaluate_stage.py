@@ -308,8 +308,9 @@ def test_the_stage_on_held_out_footage_gives_known_answers(sample_run, run_key, 
     assert out.metrics["two_sample_auc"] == rows["adversary"].auc
     assert rows["replay"].reason == NO_TRACKER and "two_sample_gap_closed" not in out.metrics
     # The held-out footage's rates, labelled as a fighter's: the walk steps (DeepMimic's walk is
-    # two steps a 1.27 s cycle, 95 a minute; the labeller finds 7 of the 8 in four cycles) and
-    # never punches.
+    # two steps a 1.27 s cycle, 95 a minute; each 1-s clip's touch-downs are counted, also those
+    # whose lift-off the clip cut, and one in a clip's first or last two frames is not seen:
+    # 75 a minute here) and never punches.
     boxing = {(r.policy, r.metric): r.value for r in out.rows["evaluate_boxing"]}
     assert boxing["footage", "punches_per_min"] == 0.0 == boxing["footage", "punches_per_min_high"]
     low, mean, high = (boxing["footage", f"steps_per_min{s}"] for s in ("_low", "", "_high"))

@@ -150,7 +150,10 @@ def evaluate_command(args, paths: DataPaths) -> int:
             ],
             ["run_key", "motion_prior", "agent", "normalized_return", "episodes", "frames"],
         )
-    policies = list(POLICIES)
+    # Only the fighters evaluated: the matched pair is there only where the dataset has a
+    # tracker that finished some of its train footage.
+    evaluated = {r["policy"] for r in tables["style"]}
+    policies = [p for p in POLICIES if p in evaluated]
     print("\nstyle: simulated value (distance to the adversary's real one, 0-1)")
     style = pivot(
         tables["style"],

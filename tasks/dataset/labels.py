@@ -58,6 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.humanoid.kinematics import heading_frame
+from models.humanoid.motion import runs
 from models.pose.types import BLAZEPOSE_33
 from tasks.dataset.config import THESIS_ARM_M, PunchConfig
 
@@ -465,6 +466,32 @@ def frame_labels(punches: list[Punch], frames: int) -> np.ndarray:
 # --------------------------------------------------------------------------
 # Steps
 # --------------------------------------------------------------------------
+
+
+def touch_downs(contacts: np.ndarray, min_off: int) -> np.ndarray:
+    """The frames at which either foot lands after at least ``min_off`` frames off the floor,
+    sorted; unlike `label_steps`, a landing whose lift-off the clip cut off counts, so that a
+    rate measured over short clips is not biased low by their starts (a foot is in the air for
+    a third of a walk).
+
+    Args:
+        contacts: (T, 2) bool (or 0/1), whether the (left, right) foot is on the floor.
+        min_off: the shortest flight that counts; a foot off the floor at only the clip's
+            first frames (an edge of the contact detector's speed window) does not.
+    """
+    c = np.asarray(contacts)
+    if c.ndim != 2 or c.shape[1] != len(FEET) or not np.isin(c, (0, 1)).all():
+        raise ValueError(
+            f"contacts must be a bool (or 0/1) array of shape (T, 2) (left, right), got "
+            f"{c.dtype} {c.shape}"
+        )
+    found = [
+        stop
+        for column in c.astype(bool).T
+        for start, stop in runs(~column)
+        if stop < len(column) and stop - start >= min_off
+    ]
+    return np.sort(np.asarray(found, dtype=int))
 
 
 def label_steps(contacts: np.ndarray, feet: np.ndarray) -> list[Step]:

@@ -58,7 +58,15 @@ from models.humanoid.boxer import DEFAULT_STATURE, BoneLengths
 from models.humanoid.compiled import keypoint_positions
 from models.pose.types import BLAZEPOSE_33
 from tasks.dataset.config import PunchConfig
-from tasks.dataset.labels import HANDS, KINDS, Punch, Step, label_punches, label_steps
+from tasks.dataset.labels import (
+    HANDS,
+    KINDS,
+    Punch,
+    Step,
+    label_punches,
+    label_steps,
+    touch_downs,
+)
 from tasks.dataset.statistics import (
     DISTRIBUTIONS,
     FighterStatistics,
@@ -66,6 +74,7 @@ from tasks.dataset.statistics import (
     fighter_statistics,
 )
 from tasks.evaluate.bouts import Bouts
+from tasks.lift.config import LiftConfig
 from tasks.lift.lifting import detect_contacts
 from tasks.lift.metrics import foot_skating_cm_per_frame, sole_points
 
@@ -436,16 +445,19 @@ def footage_bouts(
 
 
 def window_rates(fighter: FighterBouts, bouts: Bouts, window_s: float) -> dict[str, np.ndarray]:
-    """(W,) punches (by their peak) and steps (by their touch-down) per minute in each window of
-    ``window_s`` of the bouts' episodes, cut every ``window_s`` from each episode's start, whole
-    windows only (as the two-sample test cuts them): "punches_per_min", "steps_per_min"."""
+    """(W,) punches (by their peak) and steps (by their touch-down, `touch_downs`: also a step
+    whose lift-off came before the episode, as in short footage clips) per minute in each window
+    of ``window_s`` of the bouts' episodes, cut every ``window_s`` from each episode's start,
+    whole windows only (as the two-sample test cuts them): "punches_per_min", "steps_per_min"."""
     frames = round(window_s * bouts.policy_hz)
+    min_off = LiftConfig().contact_min_frames
     out: dict[str, list[np.ndarray]] = {"punches_per_min": [], "steps_per_min": []}
     for e in range(bouts.episodes):
         count = int(bouts.frames[e]) // frames
+        contacts = detect_contacts(fighter.keypoints[e], fps=bouts.policy_hz)
         events = {
             "punches_per_min": [p.peak for p in fighter.punches[e]],
-            "steps_per_min": [s.touch_down for s in fighter.steps[e]],
+            "steps_per_min": touch_downs(contacts, min_off),
         }
         for name, at in events.items():
             found = np.bincount(np.asarray(at, dtype=int) // frames, minlength=count)[:count]

@@ -495,24 +495,31 @@ def matched_pair(
 
 def held_out_rates(
     heldout: tuple[FootageClip, ...],
-    model: mujoco.MjModel,
     punch: PunchConfig,
     fps: int,
     *,
+    timestep: float,
     seed: int,
 ) -> dict[str, float]:
     """The held-out footage's punches and steps per minute, labelled as a simulated fighter's
-    are (`label_fighter` on the footage laid in arena ``model``), each the mean over its 1-s
-    windows with that mean's bootstrap interval (``_low``, ``_high``): what a fighter's rates
-    are compared with. Empty without held-out footage a window long."""
-    if not heldout:
-        return {}
-    footage = footage_bouts(model, [(c.qpos, c.other_qpos) for c in heldout], fps)
-    labelled = label_fighter(footage, 0, model=model, bones=heldout[0].bones, punch=punch)
+    are (`label_fighter` on the footage, each clip laid in an arena of its fighter's own bones,
+    as `footage_windows` compiles them: another body's legs would lift its feet off the floor
+    or sink them), each the mean over its 1-s windows with that mean's bootstrap interval
+    (``_low``, ``_high``): what a fighter's rates are compared with. Empty without held-out
+    footage a window long."""
+    per_window: dict[str, list[np.ndarray]] = {}
+    for bones in dict.fromkeys(c.bones for c in heldout):
+        model = mujoco.MjModel.from_xml_string(arena_mjcf((bones, bones), timestep=timestep))
+        clips = [(c.qpos, c.other_qpos) for c in heldout if c.bones == bones]
+        footage = footage_bouts(model, clips, fps)
+        labelled = label_fighter(footage, 0, model=model, bones=bones, punch=punch)
+        for name, rates in window_rates(labelled, footage, WINDOW_S).items():
+            per_window.setdefault(name, []).append(rates)
     out = {}
-    for name, per_window in window_rates(labelled, footage, WINDOW_S).items():
-        if len(per_window):
-            out[name], out[f"{name}_low"], out[f"{name}_high"] = rate_interval(per_window, seed)
+    for name, parts in per_window.items():
+        rates = np.concatenate(parts)
+        if len(rates):
+            out[name], out[f"{name}_low"], out[f"{name}_high"] = rate_interval(rates, seed)
     return out
 
 
@@ -568,7 +575,9 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
         boxing += [BoxingRow(policy, name, value) for name, value in measured.items()]
         if policy == "adversary":
             adversary_boxing = measured
-    footage_rates = held_out_rates(inputs.heldout, model, inputs.punch, hz, seed=config.seed)
+    footage_rates = held_out_rates(
+        inputs.heldout, inputs.punch, hz, timestep=run.config.env.timestep, seed=config.seed
+    )
     boxing += [BoxingRow("footage", name, value) for name, value in footage_rates.items()]
 
     simulated: dict[str, Windows] = {
