@@ -1,11 +1,16 @@
 """The live sparring server under load: step time, loopback round trip and lateness per session.
 
-    python benchmarks/spar_server.py
+    python benchmarks/spar_server.py [--kind maaip|matched]
 
 Starts a real `ringside spar-server` subprocess on a port the system picks (`--port 0`,
-`--max-sessions 32`) on an opponent folder made as the tests make theirs (tests/opponents.py:
-an untrained policy exported as agent 1, standing in its guard; speed does not depend on how
-well it boxes). Then 1, 4, 8, 16 and 32 concurrent sessions, all in "commands" mode, each a
+`--max-sessions 32`) on an opponent folder made as the tests make theirs (tests/opponents.py).
+`--kind maaip` (the default): an untrained policy exported as agent 1, standing in its guard.
+`--kind matched`: the matched opponent, a tracker of the stage's default network size trained
+two iterations, playing DeepMimic's walk and punch as the motion matcher picks them every 0.1 s
+(it falls and restarts often, and each restart is a step of its own: a heavier load than a
+trained one's). Speed does not depend on how well either boxes.
+
+Then 1, 4, 8, 16 and 32 concurrent sessions, all in "commands" mode, each a
 WebSocket client in this process, on one asyncio loop (the clients take CPU from the server on
 this 2-core machine): every step a session sends a `command` (a slowly turning heading at
 0.3 m/s, so the partner circles near the opponent) with a fresh `seq`, and takes each pose's
@@ -25,11 +30,13 @@ after their 30 Hz slot had passed), and the longest wait from hello to welcome (
 creation). Then the states' mean size, a step's and its JSON encoding's time measured in this
 process, how many sessions hold real time (late share under
 1 %), and, last,
-``spar_round_trip_p99_1_session: <ms> ms``.
+``spar_round_trip_p99_1_session: <ms> ms`` (``spar_round_trip_p99_1_session_matched`` for the
+matched kind).
 """
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import json
 import math
@@ -51,7 +58,13 @@ sys.path.insert(0, str(REPO / "examples"))
 # As `ringside` sets it (flows/cli/environment.py).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from opponents import guard_opponents, spar_server  # noqa: E402
+from opponents import (  # noqa: E402
+    guard_opponents,
+    matched_opponent,
+    spar_server,
+    walk_punch_footage,
+    walk_tracker,
+)
 from spar_client import percentiles_ms, round_trips  # noqa: E402
 from websockets.asyncio.client import connect  # noqa: E402
 from websockets.exceptions import ConnectionClosed  # noqa: E402
@@ -171,13 +184,27 @@ async def load(url: str, count: int) -> list[dict]:
     return await asyncio.gather(*(session(url, n, ready) for n in range(count)))
 
 
+def opponent_folder(kind: str, assets: Path, root: Path) -> Path:
+    """The served opponent of ``kind`` (module docstring), made under ``root``."""
+    if kind == "maaip":
+        return guard_opponents(assets, root)[1]
+    from models.maaip.config import NetworkConfig
+
+    footage = walk_punch_footage(assets)
+    policy = walk_tracker(footage[0][1], hidden=",".join(map(str, NetworkConfig().hidden_sizes)))
+    return matched_opponent(root / "matched", footage, policy)
+
+
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--kind", choices=("maaip", "matched"), default="maaip")
+    kind = parser.parse_args().kind
     assets = data_paths().assets
     pull(assets, dev=True, log=lambda _line: None)
     rows = {}
     sizes: list[int] = []
     with tempfile.TemporaryDirectory(prefix="ringside-spar-server-") as tmp:
-        _, opponent = guard_opponents(assets, Path(tmp))
+        opponent = opponent_folder(kind, assets, Path(tmp))
         step_ms, encode_ms, size = step_and_encoding_ms(opponent)
         most = str(max(SESSIONS))
         with spar_server(opponent, Path(tmp) / "data", "--max-sessions", most) as (url, _, _):
@@ -198,7 +225,8 @@ def main() -> None:
                 }
                 sizes.extend(b for r in results for b in r["bytes"])
     print(
-        f"ringside spar-server, commands mode at {RATE_HZ:.0f} Hz, {SECONDS:.0f} s measured per "
+        f"ringside spar-server, the {kind} opponent, commands mode at {RATE_HZ:.0f} Hz, "
+        f"{SECONDS:.0f} s measured per "
         f"session count after {WARMUP_S:.0f} s of warm-up, {os.cpu_count()} CPUs, loopback"
     )
     print(
@@ -223,7 +251,8 @@ def main() -> None:
         f"concurrent session{'s' * (most != 1)} of {', '.join(map(str, SESSIONS))} tried"
         + ("" if holding == [c for c in SESSIONS if c <= most] else f" (held at: {holding})")
     )
-    print(f"spar_round_trip_p99_1_session: {rows[1]['trip']['p99']:.1f} ms")
+    name = "spar_round_trip_p99_1_session" + ("_matched" if kind == "matched" else "")
+    print(f"{name}: {rows[1]['trip']['p99']:.1f} ms")
 
 
 if __name__ == "__main__":

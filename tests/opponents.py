@@ -20,12 +20,14 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import pytest
 import torch
+from scipy.spatial.transform import Rotation
 from websockets.asyncio.client import connect
 
 from flows.serve import stop_process
@@ -35,9 +37,11 @@ from models.humanoid.stance import guard_pose
 from models.maaip.config import NetworkConfig, PPOConfig
 from models.maaip.networks import Policy, make_networks
 from models.maaip.trainer import Trainer
+from models.matching import MatchConfig
 from models.tracking.clips import tracking_data
+from tasks.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.errors import BadInput
-from tasks.opponent.export import export_opponent
+from tasks.opponent.export import export_matched, export_opponent
 from tasks.opponent.folder import load_opponent
 from tasks.train.config import TrainConfig
 from tasks.train.data import clip_demonstrations
@@ -55,14 +59,14 @@ TRACK = TrainConfig(
 )
 
 
-def walk_tracker(walk: np.ndarray) -> Policy:
-    """A tracker trained two iterations (`TRACK`) on ``walk`` (T, 35) at 30 Hz, both agents on
-    the default bones (its normaliser has seen data); in eval mode."""
+def walk_tracker(walk: np.ndarray, hidden: str = "32,32") -> Policy:
+    """A tracker trained two iterations (`TRACK`, its network ``hidden``) on ``walk`` (T, 35) at
+    30 Hz, both agents on the default bones (its normaliser has seen data); in eval mode."""
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     bones = (BoneLengths(), BoneLengths())
     data = tracking_data(({"walk": walk}, {"walk": walk}), bones, fps=30.0, key="clips:walk")
-    trainer = Trainer(TRACK, data)
+    trainer = Trainer(replace(TRACK, network=NetworkConfig(hidden=hidden)), data)
     try:
         for _ in range(2):
             trainer.iterate()
@@ -70,6 +74,48 @@ def walk_tracker(walk: np.ndarray) -> Policy:
         trainer.close()
         torch.set_num_threads(before)
     return trainer.nets.policy.eval()
+
+
+def facing(qpos: np.ndarray, gap_m: float) -> np.ndarray:
+    """qpos (T, 35) of a partner holding the first frame of ``qpos``, ``gap_m`` ahead of its
+    pelvis along its facing and turned to face it."""
+    first = qpos[0].copy()
+    turn = Rotation.from_euler("z", np.pi)
+    root = Rotation.from_quat(first[3:7], scalar_first=True)
+    ahead = root.apply([1.0, 0.0, 0.0]) * [1.0, 1.0, 0.0]
+    first[:2] += gap_m * ahead[:2] / np.linalg.norm(ahead[:2])
+    first[3:7] = (turn * root).as_quat(scalar_first=True)
+    return np.tile(first, (len(qpos), 1))
+
+
+def walk_punch_footage(assets: Path) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """A fighter's footage for the matched opponent: DeepMimic's walk with its partner 4 m ahead
+    (out of reach all the clip) and its punch with the partner 0.7 m ahead, on the default
+    bones: (name, the fighter's qpos, the partner's) each."""
+    walk = retarget(load_deepmimic(clip_path(assets, "walk")))
+    punch = retarget(load_deepmimic(clip_path(assets, "punch")))
+    return [("walk", walk, facing(walk, 4.0)), ("punch", punch, facing(punch, 0.7))]
+
+
+def matched_opponent(
+    out: Path,
+    footage: list[tuple[str, np.ndarray, np.ndarray]],
+    policy: Policy,
+    matcher: MatchConfig = MatchConfig(),  # noqa: B008 (frozen, so a safe default)
+) -> Path:
+    """The matched opponent's folder ``out``: tracker ``policy`` (`walk_tracker`) as agent 0
+    playing ``footage`` (`walk_punch_footage`) on the default bones, stepped as `TRACK`."""
+    facts = {"dataset_key": "none", "run_key": "tracker", "iteration": 2, "metrics": {}}
+    return export_matched(
+        out,
+        policy=policy,
+        agent=0,
+        bones=(BoneLengths(), BoneLengths()),
+        env=TRACK.env,
+        clips=footage,
+        matcher=matcher,
+        facts=facts,
+    )
 
 
 def broken_copy(root: Path, folder: Path, name: str, change) -> Path:

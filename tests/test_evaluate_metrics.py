@@ -224,7 +224,7 @@ def test_footage_is_labelled_as_a_fighter_and_rated_per_window(assets):
     their mean and its bootstrap interval. DeepMimic's punch three times over (its partner
     0.7 m ahead) and its walk four times (3 m ahead)."""
     import mujoco
-    from test_matching import facing
+    from opponents import facing
 
     from models.arena.mjcf import arena_index, arena_mjcf
     from models.humanoid.boxer import BoneLengths

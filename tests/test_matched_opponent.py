@@ -17,13 +17,16 @@ import pytest
 from opponents import (
     TRACK,
     broken_copy,
+    facing,
+    matched_opponent,
     refused,
     served_states,
     spar_server,
     spar_without_torch,
+    walk_punch_footage,
     walk_tracker,
 )
-from test_matching import facing, turned
+from test_matching import turned
 
 from models.arena.starts import ReferenceMotions
 from models.humanoid.boxer import BoneLengths
@@ -33,10 +36,9 @@ from models.maaip.networks import Policy
 from models.matching import MatchConfig, motion_database
 from models.tracking.clips import reference_clip
 from storage.files import sha256_file
-from tasks.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.evaluate.bouts import simulate
 from tasks.opponent.controller import Seen
-from tasks.opponent.export import TrainedPolicy, export_matched, policy_onnx
+from tasks.opponent.export import TrainedPolicy, policy_onnx
 from tasks.opponent.folder import load_opponent
 from tasks.opponent.matched import MatchedTracker, matched_streams
 from tasks.opponent.still import StillGuard
@@ -48,9 +50,7 @@ FIELDS = tuple(BodyState.__dataclass_fields__)
 
 @pytest.fixture(scope="module")
 def footage(assets) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    walk = retarget(load_deepmimic(clip_path(assets, "walk")))
-    punch = retarget(load_deepmimic(clip_path(assets, "punch")))
-    return [("walk", walk, facing(walk, 4.0)), ("punch", punch, facing(punch, 0.7))]
+    return walk_punch_footage(assets)
 
 
 @pytest.fixture(scope="module")
@@ -60,16 +60,11 @@ def tracker_policy(footage) -> Policy:
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory, tracker_policy, footage):
-    facts = {"dataset_key": "none", "run_key": "tracker", "iteration": 2, "metrics": {}}
-    return export_matched(
+    return matched_opponent(
         tmp_path_factory.mktemp("matched") / "walk-punch",
-        policy=tracker_policy,
-        agent=0,
-        bones=BONES,
-        env=TRACK.env,
-        clips=footage,
-        matcher=MatchConfig(search_every=3, blend_steps=4),
-        facts=facts,
+        footage,
+        tracker_policy,
+        MatchConfig(search_every=3, blend_steps=4),
     )
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from opponents import facing
 from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths
@@ -23,18 +24,6 @@ from tasks.deepmimic import clip_path, load_deepmimic, retarget
 
 BONES = BoneLengths()
 FPS = 30.0
-
-
-def facing(qpos: np.ndarray, gap_m: float) -> np.ndarray:
-    """qpos (T, 35) of a partner holding the first frame of ``qpos``, ``gap_m`` ahead of its
-    pelvis along its facing and turned to face it."""
-    first = qpos[0].copy()
-    turn = Rotation.from_euler("z", np.pi)
-    root = Rotation.from_quat(first[3:7], scalar_first=True)
-    ahead = root.apply([1.0, 0.0, 0.0]) * [1.0, 1.0, 0.0]
-    first[:2] += gap_m * ahead[:2] / np.linalg.norm(ahead[:2])
-    first[3:7] = (turn * root).as_quat(scalar_first=True)
-    return np.tile(first, (len(qpos), 1))
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,13 @@ import cv2
 import numpy as np
 import pytest
 from conftest import REPO
-from opponents import guard_opponents, spar_server
+from opponents import (
+    guard_opponents,
+    matched_opponent,
+    spar_server,
+    walk_punch_footage,
+    walk_tracker,
+)
 
 CHROMIUM = Path("/usr/bin/chromium")
 SCREENSHOT = REPO / "data" / "test-artifacts" / "spar" / "viewer.png"
@@ -313,3 +319,52 @@ def test_the_viewer_draws_both_fighters_and_steers_the_partner(viewer_url: str):
     measured = drive_viewer(viewer_url, SCREENSHOT)
     print(measured)  # shown with -s, or when it fails
     assert measured["turn_s"] < TURN_WITHIN_S
+
+
+MATCHED_SCREENSHOT = SCREENSHOT.with_name("viewer-matched.png")
+
+
+@pytest.mark.skipif(
+    not CHROMIUM.exists(), reason=f"Debian's chromium is not installed ({CHROMIUM}): `make setup`"
+)
+def test_the_viewer_serves_the_matched_opponent(assets: Path, tmp_path: Path):
+    """The same page on the matched opponent (a tiny tracker playing DeepMimic's walk and punch
+    as the matcher picks them, tests/opponents.py): it draws the opponent's simulated bodies at
+    about 30 states a second, the partner turns a quarter on a key press, and nothing errs."""
+    from playwright.sync_api import sync_playwright
+
+    footage = walk_punch_footage(assets)
+    folder = matched_opponent(tmp_path / "matched", footage, walk_tracker(footage[0][1]))
+    data = tmp_path / "data"
+    (data / "assets").mkdir(parents=True)
+    (data / "assets" / "three").symlink_to(assets / "three", target_is_directory=True)
+    env = {k: v for k, v in os.environ.items() if k != "RINGSIDE_ASSETS"}
+    with spar_server(folder, data, env=env) as served, sync_playwright() as playwright:
+        browser = playwright.chromium.launch(
+            executable_path=str(CHROMIUM), args=["--no-sandbox", "--enable-unsafe-swiftshader"]
+        )
+        try:
+            page = browser.new_page(viewport={"width": 960, "height": 600})
+            problems: list[str] = []
+            page.on("console", lambda m: m.type == "error" and problems.append(m.text))
+            page.on("pageerror", lambda error: problems.append(str(error)))
+            page.goto(served.viewer)
+            page.wait_for_function("() => window.spar && window.spar.states >= 5", timeout=60_000)
+            first = page.evaluate("() => window.spar.last")
+            page.wait_for_timeout(1000)
+            later = page.evaluate("() => window.spar.last")
+            assert later["step"] - first["step"] >= 20, "about 30 states a second"
+            shift = np.linalg.norm(_bodies(later, "opponent") - _bodies(first, "opponent"), axis=1)
+            assert shift.max() > 0.01, f"the matched opponent's bodies stood still: {shift}"
+            target = _wrap(page.evaluate("() => window.spar.heading") - TURN)
+            pressed = time.monotonic()
+            page.keyboard.press("ArrowRight")
+            while abs(_wrap(page.evaluate(PARTNER)["heading"] - target)) >= HEADING_TOLERANCE:
+                assert time.monotonic() - pressed < TURN_WITHIN_S, "the partner did not turn"
+                page.wait_for_timeout(5)
+            MATCHED_SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(MATCHED_SCREENSHOT))
+            assert page.inner_text("#status").startswith("connected")
+            assert page.evaluate("() => window.spar.errors") == [] and problems == [], problems
+        finally:
+            browser.close()
