@@ -270,7 +270,9 @@ class MotionDatabase:
 
     def nearest(self, query: np.ndarray, playing: np.ndarray) -> np.ndarray:
         """(B,) the candidate frame nearest to each raw query (B, D) other than those near the
-        frame it plays (``playing`` (B,); -1 for none), by the KD-tree."""
+        frame it plays (``playing`` (B,); -1 for none), by the KD-tree. Where every candidate
+        is near it (footage of a second or two: every candidate is in the played clip), the
+        nearest candidate of all: the only motion there is."""
         points = self.weighted(query)
         playing = np.asarray(playing, dtype=int)
         # At most 2 skip + 1 candidates are near the played frame, so the nearest 2 skip + 2
@@ -279,11 +281,8 @@ class MotionDatabase:
         _, found = self._tree.query(points, k=k)
         found = self.candidates[np.asarray(found).reshape(len(points), k)]
         allowed = self._allowed(found, playing)
-        first = np.argmax(allowed, axis=1)
-        picked = found[np.arange(len(points)), first]
-        if not allowed.any(axis=1).all():
-            raise ValueError("no candidate frame outside the played neighbourhood: too few frames")
-        return picked
+        first = np.where(allowed.any(axis=1), np.argmax(allowed, axis=1), 0)
+        return found[np.arange(len(points)), first]
 
     def nearest_brute(self, query: np.ndarray, playing: np.ndarray) -> np.ndarray:
         """`nearest` by comparing each query with every candidate."""
@@ -292,9 +291,8 @@ class MotionDatabase:
         space = self.weighted(self.features[self.candidates])
         distance = cdist(points, space, "sqeuclidean")
         found = np.broadcast_to(self.candidates, distance.shape)
-        distance[~self._allowed(found, playing)] = np.inf
-        if not np.isfinite(distance.min(axis=1)).all():
-            raise ValueError("no candidate frame outside the played neighbourhood: too few frames")
+        allowed = self._allowed(found, playing)
+        distance = np.where(allowed | ~allowed.any(axis=1, keepdims=True), distance, np.inf)
         return self.candidates[np.argmin(distance, axis=1)]
 
 

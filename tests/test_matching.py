@@ -122,6 +122,21 @@ def test_a_search_leaves_out_the_played_neighbourhood_and_frames_without_a_futur
     assert not (same & (np.abs(found - frames) <= skip)).any()
 
 
+def test_footage_shorter_than_the_neighbourhood_matches_within_it(clips):
+    """The walk alone (1.3 s: 9 candidates, all within `skip_frames` of one another, as in the
+    demo's 1.4 s sample): a search while it plays finds the nearest frame of all, as one that
+    plays nothing does, by both searches, instead of failing mid-bout."""
+    (walk, _), (partner, _) = clips
+    alone = motion_database([walk], [partner], fps=FPS)
+    frames = alone.candidates
+    assert np.ptp(frames) <= alone.config.skip_frames
+    query = alone.features[frames[::-1]]
+    found = alone.nearest(query, frames)
+    np.testing.assert_array_equal(found, alone.nearest(query, np.full(len(frames), -1)))
+    np.testing.assert_array_equal(found, alone.nearest_brute(query, frames))
+    np.testing.assert_array_equal(found, frames[::-1])
+
+
 def test_bad_clips_are_refused_naming_what_is_wrong(clips):
     own, partners = clips
     with pytest.raises(ValueError, match="clip 'walk': .* frames, its partner's"):
