@@ -8,9 +8,11 @@ by eye.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -60,19 +62,47 @@ def _wrap(angle: float) -> float:
     return math.atan2(math.sin(angle), math.cos(angle))
 
 
-@pytest.fixture
-def viewer_url(assets: Path, tmp_path: Path) -> str:
-    """The viewer's URL as `ringside spar-server` on agent 0 prints it, with a token, on a data
-    directory of its own whose assets hold only three.js (linked from the pulled ones)."""
-    agent0, _ = guard_opponents(assets, tmp_path / "opponents")
-    data = tmp_path / "data"
+@contextlib.contextmanager
+def served_viewer(folder: Path, assets: Path, root: Path, *more: str) -> Iterator:
+    """`ringside spar-server FOLDER MORE` (`spar_server`) on a data directory ``root/data`` of
+    its own whose assets hold only three.js (linked from the pulled ones)."""
+    data = root / "data"
     (data / "assets").mkdir(parents=True)
     (data / "assets" / "three").symlink_to(assets / "three", target_is_directory=True)
     # The suite shares its assets through RINGSIDE_ASSETS: the server must find three.js under
     # --data instead.
     env = {k: v for k, v in os.environ.items() if k != "RINGSIDE_ASSETS"}
+    with spar_server(folder, data, *more, env=env) as served:
+        yield served
+
+
+@contextlib.contextmanager
+def viewer_page() -> Iterator:
+    """A page of headless Chromium and the list its console errors and page errors go to."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(
+            executable_path=str(CHROMIUM), args=["--no-sandbox", "--enable-unsafe-swiftshader"]
+        )
+        try:
+            # Small: Chromium draws WebGL in software here, and a large canvas slows the page's
+            # handling of states and keys (at 1280x800 a command's round trip took 0.26 s).
+            page = browser.new_page(viewport={"width": 960, "height": 600})
+            problems: list[str] = []
+            page.on("console", lambda m: m.type == "error" and problems.append(m.text))
+            page.on("pageerror", lambda error: problems.append(str(error)))
+            yield page, problems
+        finally:
+            browser.close()
+
+
+@pytest.fixture
+def viewer_url(assets: Path, tmp_path: Path) -> str:
+    """The viewer's URL as `ringside spar-server` on agent 0 prints it, with a token."""
+    agent0, _ = guard_opponents(assets, tmp_path / "opponents")
     # With a token, so that the viewer's way of sending it is tested.
-    with spar_server(agent0, data, "--token", TOKEN, env=env) as served:
+    with served_viewer(agent0, assets, tmp_path, "--token", TOKEN) as served:
         port = served.url.split(":")[2].split("/")[0]
         assert served.viewer == f"http://127.0.0.1:{port}/?token={TOKEN}", served
         yield served.viewer
@@ -130,185 +160,171 @@ def _share(pixels: np.ndarray, colour: tuple[float, ...]) -> float:
 def drive_viewer(url: str, screenshot: Path) -> dict[str, float]:
     """Open the viewer at ``url`` (its ``?token=`` included), check it draws and steers;
     what it measured."""
-    from playwright.sync_api import sync_playwright
-
     measured = {}
     origin = url.split("?")[0]
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(
-            executable_path=str(CHROMIUM), args=["--no-sandbox", "--enable-unsafe-swiftshader"]
-        )
+    with viewer_page() as (page, problems):
+        # Everything the page loads comes from the server: no CDN.
+        elsewhere: list[str] = []
+
+        def only_the_server(route):
+            if route.request.url.startswith(origin):
+                return route.continue_()
+            elsewhere.append(route.request.url)
+            return route.abort()
+
+        page.route("**/*", only_the_server)
+        # Without the token: refused, and the page says so.
+        page.goto(origin)
+        page.wait_for_function(REFUSED, timeout=30_000)
+        assert page.evaluate("() => window.spar.errors")[0].startswith("unauthorized: ")
+        assert "1008" in page.inner_text("#status")
+        page.goto(url)
+        page.wait_for_function("() => window.spar && window.spar.states >= 5", timeout=60_000)
+
+        # The opponent is simulated: its bodies move from step to step, if only a little.
+        first = page.evaluate("() => window.spar.last")
+        page.wait_for_timeout(1000)
+        later = page.evaluate("() => window.spar.last")
+        assert later["step"] - first["step"] >= 20, "about 30 states a second"
+        shift = np.linalg.norm(_bodies(later, "opponent") - _bodies(first, "opponent"), axis=1)
+        measured["opponent_moved_m"] = float(shift.max())
+        assert shift.max() > 1e-3, f"the opponent's bodies stood still: {shift}"
+
+        # Two presses up: 0.5 m/s straight at the opponent, 1.2 m ahead, into it.
+        heading = page.evaluate(PARTNER)["heading"]
+        commanded = page.evaluate("() => window.spar.heading")
+        assert abs(_wrap(heading - commanded)) < HEADING_TOLERANCE, "starts where it faces"
+        walked = [page.evaluate(TIMED_PELVIS)]  # (server time, pelvis x, y)
+        page.keyboard.press("ArrowUp")
+        page.keyboard.press("ArrowUp")
+        pressed = time.monotonic()
+        assert page.evaluate("() => window.spar.speed") == 0.5
+        # Polled until the page has drawn WALK_S of walking on the server's clock: the
+        # distance is checked against the server's time, not the page's (whose waits ran
+        # long on CI's loaded machine: 1.04 m walked in what the page took for 1.5 s).
+        while True:
+            page.wait_for_timeout(20)
+            walked.append(page.evaluate(TIMED_PELVIS))
+            moving = [t for t, *_ in walked if _off(walked, t, commanded)[0] > 1e-3]
+            if moving and walked[-1][0] - moving[0] >= WALK_S:
+                break
+            if time.monotonic() - pressed > TURN_WITHIN_S + WALK_S:
+                raise AssertionError(f"the partner did not walk: {walked[-1]} {walked[0]}")
+        along, across = _off(walked, walked[-1][0], commanded)
+        measured |= {"partner_along_m": along, "partner_across_m": across}
+        # 0.5 m/s from some time between the last state drawn before it moved and the
+        # first drawn moving; the partner is kinematic: the opponent in its way does not
+        # hold it up.
+        before = max(t for t, *_ in walked if t < moving[0])
+        least, most = (0.5 * (walked[-1][0] - t) for t in (moving[0], before))
+        assert least - 0.02 <= along <= most + 0.02 and abs(across) < 0.1, walked
+        # Walked into, the opponent is shoved over (within 2 to 3 s here). Whether it
+        # takes damage on the way is up to where the two first touch (legs, gloves and
+        # arms are not hit), so the damage is checked against the states, not for being
+        # there.
         try:
-            # Small: Chromium draws WebGL in software here, and a large canvas slows the page's
-            # handling of states and keys (at 1280x800 a command's round trip took 0.26 s).
-            page = browser.new_page(viewport={"width": 960, "height": 600})
-            problems: list[str] = []
-            page.on("console", lambda m: m.type == "error" and problems.append(m.text))
-            page.on("pageerror", lambda error: problems.append(str(error)))
-            # Everything the page loads comes from the server: no CDN.
-            elsewhere: list[str] = []
+            page.wait_for_function(FELL, timeout=5_000)
+        except Exception as error:  # Playwright's TimeoutError
+            raise AssertionError(f"the opponent never fell: {page.evaluate(SEEN)}") from error
+        page.keyboard.press("s")
+        assert page.evaluate("() => window.spar.speed") == 0
+        # It stops: over 0.5 s of the server's clock it stays put, within the wall ceiling.
+        stopping, pressed = [page.evaluate(TIMED_PELVIS)], time.monotonic()
+        while True:
+            page.wait_for_timeout(20)
+            stopping.append(page.evaluate(TIMED_PELVIS))
+            t = stopping[-1][0]
+            since = [row[1:] for row in stopping if row[0] >= t - 0.5]
+            if t - stopping[0][0] >= 0.5 and np.ptp(since, axis=0).max() < 0.02:
+                break
+            assert time.monotonic() - pressed < TURN_WITHIN_S + 0.5, f"no stop: {stopping}"
 
-            def only_the_server(route):
-                if route.request.url.startswith(origin):
-                    return route.continue_()
-                elsewhere.append(route.request.url)
-                return route.abort()
+        # The numbers: each fighter's damage summed and its falls as the server counts
+        # them, and the opponent's row flashed for its fall (and any damage).
+        numbers = page.evaluate(NUMBERS)  # at once: a state may come in between calls
+        for role, seen in numbers.items():
+            measured |= {f"{role}_damage_n": seen["total"], f"{role}_falls": seen["falls"]}
+            assert seen["shown"] == [f"{seen['total']:.0f}", str(seen["falls"])], seen
+        flashed = numbers["opponent"]["flashed"]
+        assert "fell" in flashed, flashed
+        assert ("hit" in flashed) == (numbers["opponent"]["total"] > 0), flashed
 
-            page.route("**/*", only_the_server)
-            # Without the token: refused, and the page says so.
-            page.goto(origin)
-            page.wait_for_function(REFUSED, timeout=30_000)
-            assert page.evaluate("() => window.spar.errors")[0].startswith("unauthorized: ")
-            assert "1008" in page.inner_text("#status")
-            page.goto(url)
-            page.wait_for_function("() => window.spar && window.spar.states >= 5", timeout=60_000)
+        # A quarter turn to the right: the partner's own heading gets there, turning at the
+        # welcome's `max_turn_rate` on the server's clock.
+        heading = page.evaluate(PARTNER)["heading"]
+        target = _wrap(commanded - TURN)
+        pressed = time.monotonic()
+        page.keyboard.press("ArrowRight")
+        assert page.evaluate("() => window.spar.heading") == pytest.approx(target, abs=1e-9)
+        drawn = [page.evaluate(TIMED_HEADING)]  # (server time, heading) as the page polls
+        while abs(_wrap(drawn[-1][1] - target)) >= HEADING_TOLERANCE:
+            if time.monotonic() - pressed > TURN_WITHIN_S:
+                raise AssertionError(
+                    f"the partner's heading was {drawn[-1][1]:.3f} rad {TURN_WITHIN_S} s "
+                    f"after the key press, not {target:.3f} (from {heading:.3f})"
+                )
+            page.wait_for_timeout(5)
+            drawn.append(page.evaluate(TIMED_HEADING))
+        measured["turn_s"] = time.monotonic() - pressed
+        # From the last state drawn on the old heading to the first on the new one: the
+        # quarter turn's 0.5 s, give or take a gap between the states the page drew (0.1 s
+        # apart here: it draws in software).
+        turning = [t for t, h in drawn if abs(_wrap(h - heading)) < 1e-3]
+        rate = page.evaluate("() => window.spar.welcome.max_turn_rate")
+        gap = max(np.diff([t for t, _ in drawn]), default=0.0)
+        measured["turn_server_s"] = drawn[-1][0] - (turning[-1] if turning else drawn[0][0])
+        least = (TURN - HEADING_TOLERANCE) / rate if turning else 0.0  # not a jump
+        assert least <= measured["turn_server_s"] <= TURN / rate + 2 * gap + 1e-6, drawn
+        page.wait_for_timeout(300)
+        settled = page.evaluate(PARTNER)["heading"]
+        assert abs(_wrap(settled - target)) < HEADING_TOLERANCE, f"overshot to {settled}"
+        assert abs(_wrap(settled - heading + TURN)) < HEADING_TOLERANCE, "turned by 90 deg"
 
-            # The opponent is simulated: its bodies move from step to step, if only a little.
-            first = page.evaluate("() => window.spar.last")
-            page.wait_for_timeout(1000)
-            later = page.evaluate("() => window.spar.last")
-            assert later["step"] - first["step"] >= 20, "about 30 states a second"
-            shift = np.linalg.norm(_bodies(later, "opponent") - _bodies(first, "opponent"), axis=1)
-            measured["opponent_moved_m"] = float(shift.max())
-            assert shift.max() > 1e-3, f"the opponent's bodies stood still: {shift}"
+        screenshot.parent.mkdir(parents=True, exist_ok=True)
+        # The picture is of a state the page drew while the screenshot was taken, not
+        # necessarily the one read before it: taken when both fighters stood (pelvises over
+        # 0.6 m) and moved under 10 cm from before the screenshot to after it, so that the
+        # pelvises read are where they were drawn (a fallen opponent may lie with its trunks
+        # hidden, and a restart after a fall moves it a metre between two states).
+        for _ in range(50):
+            before = page.evaluate("() => window.spar.last")
+            png = page.screenshot(path=str(screenshot))
+            shown = page.evaluate("() => window.spar.last")
+            pelvises = [
+                [np.array(f["bodies"]["pelvis"][:3]) for f in state["fighters"]]
+                for state in (before, shown)
+            ]
+            upright = min(p[2] for state in pelvises for p in state) > 0.6
+            moved = max(np.linalg.norm(a - b) for a, b in zip(*pelvises, strict=True))
+            if upright and moved < 0.1:
+                break
+            page.wait_for_timeout(100)
+        else:
+            raise AssertionError(f"no moment with both fighters standing still: {pelvises}")
+        picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+        # Each fighter's colour (its trunks', its pelvis's geoms') round where its pelvis
+        # projects, and none of the other's: in the 15 x 15 pixels there, measured 32 % for
+        # the opponent, its forearm across its trunks, and 100 % for the partner.
+        welcome = page.evaluate("() => window.spar.welcome")
+        pelvis = welcome["bodies"].index("pelvis")
+        colours = {
+            f["role"]: {tuple(g["rgba"][:3]) for g in f["geoms"] if g["body"] == pelvis}.pop()
+            for f in welcome["fighters"]
+        }
+        assert len({int(np.argmax(c)) for c in colours.values()}) == 2, colours
+        at = {f["role"]: np.array(f["bodies"]["pelvis"][:3]) for f in shown["fighters"]}
+        for role, point in at.items():
+            column, row = _pixel(point, np.stack(list(at.values())), picture.shape[1::-1])
+            patch = picture[row - 7 : row + 8, column - 7 : column + 8].reshape(-1, 3)
+            share = {who: _share(patch, colour) for who, colour in colours.items()}
+            measured[f"{role}_colour_share"] = share[role]
+            others = [s for who, s in share.items() if who != role]
+            assert share[role] > 0.2 and max(others) == 0, (role, column, row, share)
 
-            # Two presses up: 0.5 m/s straight at the opponent, 1.2 m ahead, into it.
-            heading = page.evaluate(PARTNER)["heading"]
-            commanded = page.evaluate("() => window.spar.heading")
-            assert abs(_wrap(heading - commanded)) < HEADING_TOLERANCE, "starts where it faces"
-            walked = [page.evaluate(TIMED_PELVIS)]  # (server time, pelvis x, y)
-            page.keyboard.press("ArrowUp")
-            page.keyboard.press("ArrowUp")
-            pressed = time.monotonic()
-            assert page.evaluate("() => window.spar.speed") == 0.5
-            # Polled until the page has drawn WALK_S of walking on the server's clock: the
-            # distance is checked against the server's time, not the page's (whose waits ran
-            # long on CI's loaded machine: 1.04 m walked in what the page took for 1.5 s).
-            while True:
-                page.wait_for_timeout(20)
-                walked.append(page.evaluate(TIMED_PELVIS))
-                moving = [t for t, *_ in walked if _off(walked, t, commanded)[0] > 1e-3]
-                if moving and walked[-1][0] - moving[0] >= WALK_S:
-                    break
-                if time.monotonic() - pressed > TURN_WITHIN_S + WALK_S:
-                    raise AssertionError(f"the partner did not walk: {walked[-1]} {walked[0]}")
-            along, across = _off(walked, walked[-1][0], commanded)
-            measured |= {"partner_along_m": along, "partner_across_m": across}
-            # 0.5 m/s from some time between the last state drawn before it moved and the
-            # first drawn moving; the partner is kinematic: the opponent in its way does not
-            # hold it up.
-            before = max(t for t, *_ in walked if t < moving[0])
-            least, most = (0.5 * (walked[-1][0] - t) for t in (moving[0], before))
-            assert least - 0.02 <= along <= most + 0.02 and abs(across) < 0.1, walked
-            # Walked into, the opponent is shoved over (within 2 to 3 s here). Whether it
-            # takes damage on the way is up to where the two first touch (legs, gloves and
-            # arms are not hit), so the damage is checked against the states, not for being
-            # there.
-            try:
-                page.wait_for_function(FELL, timeout=5_000)
-            except Exception as error:  # Playwright's TimeoutError
-                raise AssertionError(f"the opponent never fell: {page.evaluate(SEEN)}") from error
-            page.keyboard.press("s")
-            assert page.evaluate("() => window.spar.speed") == 0
-            # It stops: over 0.5 s of the server's clock it stays put, within the wall ceiling.
-            stopping, pressed = [page.evaluate(TIMED_PELVIS)], time.monotonic()
-            while True:
-                page.wait_for_timeout(20)
-                stopping.append(page.evaluate(TIMED_PELVIS))
-                t = stopping[-1][0]
-                since = [row[1:] for row in stopping if row[0] >= t - 0.5]
-                if t - stopping[0][0] >= 0.5 and np.ptp(since, axis=0).max() < 0.02:
-                    break
-                assert time.monotonic() - pressed < TURN_WITHIN_S + 0.5, f"no stop: {stopping}"
-
-            # The numbers: each fighter's damage summed and its falls as the server counts
-            # them, and the opponent's row flashed for its fall (and any damage).
-            numbers = page.evaluate(NUMBERS)  # at once: a state may come in between calls
-            for role, seen in numbers.items():
-                measured |= {f"{role}_damage_n": seen["total"], f"{role}_falls": seen["falls"]}
-                assert seen["shown"] == [f"{seen['total']:.0f}", str(seen["falls"])], seen
-            flashed = numbers["opponent"]["flashed"]
-            assert "fell" in flashed, flashed
-            assert ("hit" in flashed) == (numbers["opponent"]["total"] > 0), flashed
-
-            # A quarter turn to the right: the partner's own heading gets there, turning at the
-            # welcome's `max_turn_rate` on the server's clock.
-            heading = page.evaluate(PARTNER)["heading"]
-            target = _wrap(commanded - TURN)
-            pressed = time.monotonic()
-            page.keyboard.press("ArrowRight")
-            assert page.evaluate("() => window.spar.heading") == pytest.approx(target, abs=1e-9)
-            drawn = [page.evaluate(TIMED_HEADING)]  # (server time, heading) as the page polls
-            while abs(_wrap(drawn[-1][1] - target)) >= HEADING_TOLERANCE:
-                if time.monotonic() - pressed > TURN_WITHIN_S:
-                    raise AssertionError(
-                        f"the partner's heading was {drawn[-1][1]:.3f} rad {TURN_WITHIN_S} s "
-                        f"after the key press, not {target:.3f} (from {heading:.3f})"
-                    )
-                page.wait_for_timeout(5)
-                drawn.append(page.evaluate(TIMED_HEADING))
-            measured["turn_s"] = time.monotonic() - pressed
-            # From the last state drawn on the old heading to the first on the new one: the
-            # quarter turn's 0.5 s, give or take a gap between the states the page drew (0.1 s
-            # apart here: it draws in software).
-            turning = [t for t, h in drawn if abs(_wrap(h - heading)) < 1e-3]
-            rate = page.evaluate("() => window.spar.welcome.max_turn_rate")
-            gap = max(np.diff([t for t, _ in drawn]), default=0.0)
-            measured["turn_server_s"] = drawn[-1][0] - (turning[-1] if turning else drawn[0][0])
-            least = (TURN - HEADING_TOLERANCE) / rate if turning else 0.0  # not a jump
-            assert least <= measured["turn_server_s"] <= TURN / rate + 2 * gap + 1e-6, drawn
-            page.wait_for_timeout(300)
-            settled = page.evaluate(PARTNER)["heading"]
-            assert abs(_wrap(settled - target)) < HEADING_TOLERANCE, f"overshot to {settled}"
-            assert abs(_wrap(settled - heading + TURN)) < HEADING_TOLERANCE, "turned by 90 deg"
-
-            screenshot.parent.mkdir(parents=True, exist_ok=True)
-            # The picture is of a state the page drew while the screenshot was taken, not
-            # necessarily the one read before it: taken when both fighters stood (pelvises over
-            # 0.6 m) and moved under 10 cm from before the screenshot to after it, so that the
-            # pelvises read are where they were drawn (a fallen opponent may lie with its trunks
-            # hidden, and a restart after a fall moves it a metre between two states).
-            for _ in range(50):
-                before = page.evaluate("() => window.spar.last")
-                png = page.screenshot(path=str(screenshot))
-                shown = page.evaluate("() => window.spar.last")
-                pelvises = [
-                    [np.array(f["bodies"]["pelvis"][:3]) for f in state["fighters"]]
-                    for state in (before, shown)
-                ]
-                upright = min(p[2] for state in pelvises for p in state) > 0.6
-                moved = max(np.linalg.norm(a - b) for a, b in zip(*pelvises, strict=True))
-                if upright and moved < 0.1:
-                    break
-                page.wait_for_timeout(100)
-            else:
-                raise AssertionError(f"no moment with both fighters standing still: {pelvises}")
-            picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
-            # Each fighter's colour (its trunks', its pelvis's geoms') round where its pelvis
-            # projects, and none of the other's: in the 15 x 15 pixels there, measured 32 % for
-            # the opponent, its forearm across its trunks, and 100 % for the partner.
-            welcome = page.evaluate("() => window.spar.welcome")
-            pelvis = welcome["bodies"].index("pelvis")
-            colours = {
-                f["role"]: {tuple(g["rgba"][:3]) for g in f["geoms"] if g["body"] == pelvis}.pop()
-                for f in welcome["fighters"]
-            }
-            assert len({int(np.argmax(c)) for c in colours.values()}) == 2, colours
-            at = {f["role"]: np.array(f["bodies"]["pelvis"][:3]) for f in shown["fighters"]}
-            for role, point in at.items():
-                column, row = _pixel(point, np.stack(list(at.values())), picture.shape[1::-1])
-                patch = picture[row - 7 : row + 8, column - 7 : column + 8].reshape(-1, 3)
-                share = {who: _share(patch, colour) for who, colour in colours.items()}
-                measured[f"{role}_colour_share"] = share[role]
-                others = [s for who, s in share.items() if who != role]
-                assert share[role] > 0.2 and max(others) == 0, (role, column, row, share)
-
-            status = page.inner_text("#status")
-            assert status.startswith("connected"), status
-            assert page.evaluate("() => window.spar.errors") == []
-            assert problems == [] and elsewhere == [], (problems, elsewhere)
-        finally:
-            browser.close()
+        status = page.inner_text("#status")
+        assert status.startswith("connected"), status
+        assert page.evaluate("() => window.spar.errors") == []
+        assert problems == [] and elsewhere == [], (problems, elsewhere)
     return measured
 
 
@@ -331,40 +347,24 @@ def test_the_viewer_serves_the_matched_opponent(assets: Path, tmp_path: Path):
     """The same page on the matched opponent (a tiny tracker playing DeepMimic's walk and punch
     as the matcher picks them, tests/opponents.py): it draws the opponent's simulated bodies at
     about 30 states a second, the partner turns a quarter on a key press, and nothing errs."""
-    from playwright.sync_api import sync_playwright
-
     footage = walk_punch_footage(assets)
     folder = matched_opponent(tmp_path / "matched", footage, walk_tracker(footage[0][1]))
-    data = tmp_path / "data"
-    (data / "assets").mkdir(parents=True)
-    (data / "assets" / "three").symlink_to(assets / "three", target_is_directory=True)
-    env = {k: v for k, v in os.environ.items() if k != "RINGSIDE_ASSETS"}
-    with spar_server(folder, data, env=env) as served, sync_playwright() as playwright:
-        browser = playwright.chromium.launch(
-            executable_path=str(CHROMIUM), args=["--no-sandbox", "--enable-unsafe-swiftshader"]
-        )
-        try:
-            page = browser.new_page(viewport={"width": 960, "height": 600})
-            problems: list[str] = []
-            page.on("console", lambda m: m.type == "error" and problems.append(m.text))
-            page.on("pageerror", lambda error: problems.append(str(error)))
-            page.goto(served.viewer)
-            page.wait_for_function("() => window.spar && window.spar.states >= 5", timeout=60_000)
-            first = page.evaluate("() => window.spar.last")
-            page.wait_for_timeout(1000)
-            later = page.evaluate("() => window.spar.last")
-            assert later["step"] - first["step"] >= 20, "about 30 states a second"
-            shift = np.linalg.norm(_bodies(later, "opponent") - _bodies(first, "opponent"), axis=1)
-            assert shift.max() > 0.01, f"the matched opponent's bodies stood still: {shift}"
-            target = _wrap(page.evaluate("() => window.spar.heading") - TURN)
-            pressed = time.monotonic()
-            page.keyboard.press("ArrowRight")
-            while abs(_wrap(page.evaluate(PARTNER)["heading"] - target)) >= HEADING_TOLERANCE:
-                assert time.monotonic() - pressed < TURN_WITHIN_S, "the partner did not turn"
-                page.wait_for_timeout(5)
-            MATCHED_SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
-            page.screenshot(path=str(MATCHED_SCREENSHOT))
-            assert page.inner_text("#status").startswith("connected")
-            assert page.evaluate("() => window.spar.errors") == [] and problems == [], problems
-        finally:
-            browser.close()
+    with served_viewer(folder, assets, tmp_path) as served, viewer_page() as (page, problems):
+        page.goto(served.viewer)
+        page.wait_for_function("() => window.spar && window.spar.states >= 5", timeout=60_000)
+        first = page.evaluate("() => window.spar.last")
+        page.wait_for_timeout(1000)
+        later = page.evaluate("() => window.spar.last")
+        assert later["step"] - first["step"] >= 20, "about 30 states a second"
+        shift = np.linalg.norm(_bodies(later, "opponent") - _bodies(first, "opponent"), axis=1)
+        assert shift.max() > 0.01, f"the matched opponent's bodies stood still: {shift}"
+        target = _wrap(page.evaluate("() => window.spar.heading") - TURN)
+        pressed = time.monotonic()
+        page.keyboard.press("ArrowRight")
+        while abs(_wrap(page.evaluate(PARTNER)["heading"] - target)) >= HEADING_TOLERANCE:
+            assert time.monotonic() - pressed < TURN_WITHIN_S, "the partner did not turn"
+            page.wait_for_timeout(5)
+        MATCHED_SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(MATCHED_SCREENSHOT))
+        assert page.inner_text("#status").startswith("connected")
+        assert page.evaluate("() => window.spar.errors") == [] and problems == [], problems

@@ -24,6 +24,21 @@ def run_pipeline(
     notes,
     rerun: list[str] | None = None,
 ) -> int:
+    ran = pipeline_summaries(args, paths, videos, adversary, colour, notes, rerun)
+    return EXIT_BAD_INPUT if ran is None else 0
+
+
+def pipeline_summaries(
+    args,
+    paths: DataPaths,
+    videos: list[str],
+    adversary: str,
+    colour,
+    notes,
+    rerun: list[str] | None = None,
+) -> list | None:
+    """The pipeline on ``videos`` as the command's ``args`` set it, its table and opponent
+    printed; its stages' summaries, or None when it failed (what failed printed)."""
     from flows.config import load_config
     from flows.launch import run_parameters
     from flows.pipeline import PipelineFailed, video_to_opponent
@@ -54,12 +69,12 @@ def run_pipeline(
             print_summary(failed.summaries, paths, args.json)
         for line in failed.failures:
             print(f"ringside: error: {line}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return None
     print_summary(summaries, paths, args.json)
     evaluated = [s for s in summaries if s.stage == "evaluate"]
     if evaluated and not args.json:
         print_opponent(paths, evaluated[-1])
-    return 0
+    return summaries
 
 
 def process_command(args, paths: DataPaths) -> int:
@@ -200,23 +215,30 @@ def verdict(unusable: str | None) -> str:
 
 
 def demo_command(args, paths: DataPaths) -> int:
-    from flows.config import DEMO_SETTINGS
+    from flows.config import DEMO_SETTINGS, DEMO_TRACKER_SETTINGS, load_config
+    from flows.stage import run_stage_flow
     from storage.assets import BOXING_CLIPS, SAMPLE_VIDEO
 
     pull_assets(paths)
     assets = paths.assets
-    sample = assets / SAMPLE_VIDEO
-    args.config, args.until = None, None
+    sample = [str(assets / SAMPLE_VIDEO)]
+    adversary, notes = "demo adversary", "bundled two-person sample (Pose2Sim demo, camera 1)"
+    args.config = None
     # The sample is two people walking: DeepMimic's punch, retargeted onto both fighters, joins
     # the motion prior's data so that the demo opponent has punches to learn.
     args.cfg__dataset__extra_clips = str(assets / BOXING_CLIPS)
     for name, value in DEMO_SETTINGS.items():
         setattr(args, "cfg__" + name.replace(".", "__"), value)
-    return run_pipeline(
-        args,
-        paths,
-        [str(sample)],
-        "demo adversary",
-        None,
-        "bundled two-person sample (Pose2Sim demo, camera 1)",
-    )
+    # The footage to its dataset, then a tracker on it, so that the evaluation also plays the
+    # matched opponent (the adversary's own motion through the tracker) beside MAAIP's.
+    args.until = "dataset"
+    ran = pipeline_summaries(args, paths, sample, adversary, None, notes)
+    if ran is None:
+        return EXIT_BAD_INPUT
+    (dataset,) = [s.key for s in ran if s.stage == "dataset-assemble"]
+    tracker = load_config(None, [*overrides(args), *DEMO_TRACKER_SETTINGS])
+    with flow_server(paths):
+        trained = run_stage_flow("train", paths, dataset, config=tracker.as_dict())
+    print_summary([trained], paths, args.json)
+    args.until = None
+    return run_pipeline(args, paths, sample, adversary, None, notes)

@@ -114,7 +114,9 @@ def print_opponent(paths: DataPaths, evaluated) -> None:
     with connect(paths.db, read_only=True) as con:
         metrics = output_metrics(con, "evaluate", run_key, evaluated.key)
         media = evaluation_artifacts(con, evaluated.key, run_key)
-        classifier = evaluation_tables(con, evaluated.key, run_key)["classifier"]
+        tables = evaluation_tables(con, evaluated.key, run_key)
+    classifier = tables["classifier"]
+    steps = {r["policy"]: r["value"] for r in tables["boxing"] if r["metric"] == "steps_per_min"}
     out = paths.root / "opponents" / f"{run_key[:12]}-adversary"
     folder = stored_opponent(paths.artifacts, media, out)
     iteration = json.loads((folder / MANIFEST).read_text())["iteration"]
@@ -132,6 +134,16 @@ def print_opponent(paths: DataPaths, evaluated) -> None:
         f"(untrained {number('falls_per_min_untrained')}, "
         f"standing still in its guard {number('falls_per_min_still')}, matched opponent "
         f"{number('falls_per_min_matched')})"
+    )
+
+    def rate(policy: str) -> str:
+        value = steps.get(policy)
+        return "n/a" if value is None else f"{value:.3g}"
+
+    print(
+        f"  steps per simulated minute: {rate('adversary')} (standing still in its guard "
+        f"{rate('still')}, matched opponent {rate('matched')}; the held-out footage "
+        f"{number('footage_steps_per_min')})"
     )
     print(
         f"  style score, 0 = the footage's statistics, lower is closer: {number('style_score')} "

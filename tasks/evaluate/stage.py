@@ -605,6 +605,8 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
         references, levels, simulated, seed=config.seed
     )
     notes = []
+    if isinstance(inputs.matched, str) and tracker is not None:
+        notes.append(f"matched opponent: not evaluated, {inputs.matched}")
     if "two_sample_auc" not in two_sample_metrics:
         notes.append(f"two-sample test: not measured, {two_sample[0].reason}")
     damage = _damage_rows(run, bouts["trained"], config.episode_frames)
