@@ -157,6 +157,19 @@ def _share(pixels: np.ndarray, colour: tuple[float, ...]) -> float:
     return float(np.mean(pixels[:, strongest] > 1.5 * others))
 
 
+def _opponent_moved_m(page) -> float:
+    """Once the page has drawn 5 states: how far the opponent's bodies moved, at most, over the
+    next second of states, which must be about 30."""
+    page.wait_for_function("() => window.spar && window.spar.states >= 5", timeout=60_000)
+    first = page.evaluate("() => window.spar.last")
+    page.wait_for_timeout(1000)
+    later = page.evaluate("() => window.spar.last")
+    assert later["step"] - first["step"] >= 20, "about 30 states a second"
+    return float(
+        np.linalg.norm(_bodies(later, "opponent") - _bodies(first, "opponent"), axis=1).max()
+    )
+
+
 def drive_viewer(url: str, screenshot: Path) -> dict[str, float]:
     """Open the viewer at ``url`` (its ``?token=`` included), check it draws and steers;
     what it measured."""
@@ -179,16 +192,9 @@ def drive_viewer(url: str, screenshot: Path) -> dict[str, float]:
         assert page.evaluate("() => window.spar.errors")[0].startswith("unauthorized: ")
         assert "1008" in page.inner_text("#status")
         page.goto(url)
-        page.wait_for_function("() => window.spar && window.spar.states >= 5", timeout=60_000)
-
         # The opponent is simulated: its bodies move from step to step, if only a little.
-        first = page.evaluate("() => window.spar.last")
-        page.wait_for_timeout(1000)
-        later = page.evaluate("() => window.spar.last")
-        assert later["step"] - first["step"] >= 20, "about 30 states a second"
-        shift = np.linalg.norm(_bodies(later, "opponent") - _bodies(first, "opponent"), axis=1)
-        measured["opponent_moved_m"] = float(shift.max())
-        assert shift.max() > 1e-3, f"the opponent's bodies stood still: {shift}"
+        measured["opponent_moved_m"] = _opponent_moved_m(page)
+        assert measured["opponent_moved_m"] > 1e-3, "the opponent's bodies stood still"
 
         # Two presses up: 0.5 m/s straight at the opponent, 1.2 m ahead, into it.
         heading = page.evaluate(PARTNER)["heading"]
@@ -351,13 +357,7 @@ def test_the_viewer_serves_the_matched_opponent(assets: Path, tmp_path: Path):
     folder = matched_opponent(tmp_path / "matched", footage, walk_tracker(footage[0][1]))
     with served_viewer(folder, assets, tmp_path) as served, viewer_page() as (page, problems):
         page.goto(served.viewer)
-        page.wait_for_function("() => window.spar && window.spar.states >= 5", timeout=60_000)
-        first = page.evaluate("() => window.spar.last")
-        page.wait_for_timeout(1000)
-        later = page.evaluate("() => window.spar.last")
-        assert later["step"] - first["step"] >= 20, "about 30 states a second"
-        shift = np.linalg.norm(_bodies(later, "opponent") - _bodies(first, "opponent"), axis=1)
-        assert shift.max() > 0.01, f"the matched opponent's bodies stood still: {shift}"
+        assert _opponent_moved_m(page) > 0.01, "the matched opponent's bodies stood still"
         target = _wrap(page.evaluate("() => window.spar.heading") - TURN)
         pressed = time.monotonic()
         page.keyboard.press("ArrowRight")

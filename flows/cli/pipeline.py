@@ -15,17 +15,9 @@ from flows.cli.upkeep import pull_assets
 from storage.paths import DataPaths
 
 
-def run_pipeline(
-    args,
-    paths: DataPaths,
-    videos: list[str],
-    adversary: str,
-    colour,
-    notes,
-    rerun: list[str] | None = None,
-) -> int:
-    ran = pipeline_summaries(args, paths, videos, adversary, colour, notes, rerun)
-    return EXIT_BAD_INPUT if ran is None else 0
+def run_pipeline(*args, **kwargs) -> int:
+    """`pipeline_summaries` as a command's exit code."""
+    return EXIT_BAD_INPUT if pipeline_summaries(*args, **kwargs) is None else 0
 
 
 def pipeline_summaries(
