@@ -3,6 +3,7 @@
     .venv/bin/python examples/spar_client.py MOTION.bvh [--url ws://127.0.0.1:8765/spar]
         [--token T] [--loop N] [--offset X Y] [--yaw DEG] [--answer ANSWER.bvh]
         [--summary SUMMARY.json] [--bones BONES.json] [--opponent-folder FOLDER]
+        [--orbit DEG_PER_S] [--approach NEAR FAR SPEED]
 
 It opens a session in "poses" mode (docs/spar-protocol.md) and plays a Ringside BVH file
 (`ringside export-motion`: a video's lifted motion of either fighter, or a bout's) as the
@@ -29,8 +30,12 @@ The bones: the partner has the server's default bones unless `--bones` gives a J
 bones: the welcome's fighter entry's `bones` if the server sends them, else the opponent
 folder's manifest (`--opponent-folder`), else the default bones (with a warning on stderr).
 
-The pure parts (`place_motion`, `facing_errors`, `facing_summary`, `round_trips`,
-`percentiles_ms`) take no network and are what the tests import.
+`--orbit` carries the placed motion round the opponent's start as it plays, and `--approach`
+then steps it in to NEAR and out to FAR metres from there (`orbit_motion`, `approach_motion`).
+
+The pure parts (`place_motion`, `orbit_motion`, `approach_motion`, `facing_errors`,
+`facing_summary`, `round_trips`, `percentiles_ms`) take no network and are what the tests
+import.
 """
 
 from __future__ import annotations
@@ -104,6 +109,36 @@ def orbit_motion(qpos: np.ndarray, centre: Sequence[float], rate: float, fps: fl
     q[:, :2] = spin.apply(offsets)[:, :2] + np.asarray(centre, dtype=np.float64)
     root = Rotation.from_quat(q[:, ROOT_QUAT], scalar_first=True)
     q[:, ROOT_QUAT] = (spin * root).as_quat(canonical=True, scalar_first=True)
+    return q
+
+
+def approach_motion(
+    qpos: np.ndarray,
+    centre: Sequence[float],
+    near_m: float,
+    far_m: float,
+    speed_m_s: float,
+    fps: float,
+) -> np.ndarray:
+    """The motion stepping in towards ``centre`` (x, y) and out again: each frame's pelvis put on
+    its own bearing from the centre at a distance that goes from the first frame's, in to
+    ``near_m`` and out to ``far_m`` and back, at ``speed_m_s`` (a partner that steps into reach
+    and out of it, so that an opponent that keeps its distance must step). Its orientation and
+    everything else as it was."""
+    if not 0 < near_m < far_m or not speed_m_s > 0 or not fps > 0:
+        raise ValueError(
+            f"need 0 < near < far, speed > 0 and fps > 0, got {near_m}, {far_m}, {speed_m_s}, {fps}"
+        )
+    q = np.array(qpos, dtype=np.float64)
+    centre = np.asarray(centre, dtype=np.float64)
+    away = q[:, :2] - centre
+    bearing = np.arctan2(away[:, 1], away[:, 0])
+    # A triangle wave between near and far over the path walked, starting at the first frame's
+    # distance on its way in.
+    span, walked = far_m - near_m, speed_m_s * np.arange(len(q)) / fps
+    phase = (far_m - np.clip(np.linalg.norm(away[0]), near_m, far_m) + walked) % (2 * span)
+    distance = far_m - np.where(phase < span, phase, 2 * span - phase)
+    q[:, :2] = centre + distance[:, None] * np.c_[np.cos(bearing), np.sin(bearing)]
     return q
 
 
@@ -246,8 +281,11 @@ async def spar_session(
     yaw_deg: float | None = None,
     bones: BoneLengths | None = None,
     orbit_deg_s: float = 0.0,
+    approach: tuple[float, float, float] | None = None,
 ) -> Recording:
-    """Stream ``motion`` (T, 35) as the partner at ``fps``, ``loops`` times; record the session."""
+    """Stream ``motion`` (T, 35) as the partner at ``fps``, ``loops`` times; record the session.
+    ``approach`` (near, far, speed): stepping in to near and out to far metres from the
+    opponent's start at speed m/s (`approach_motion`), after the orbit."""
     recording = Recording()
     hello = {"type": "hello", "protocol": PROTOCOL, "mode": "poses"}
     if token:
@@ -279,6 +317,8 @@ async def spar_session(
         placed = place_motion(np.tile(motion, (loops, 1)), start, yaw)
         if orbit_deg_s:
             placed = orbit_motion(placed, opponent_xy, math.radians(orbit_deg_s), fps)
+        if approach is not None:
+            placed = approach_motion(placed, opponent_xy, *approach, fps)
         recording.placement = {
             "offset": start.round(4).tolist(),
             "yaw_deg": round(math.degrees(yaw), 3),
@@ -474,6 +514,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         metavar="DEG_PER_S",
         help="carry the motion round the opponent's start at this rate (default 0: in place)",
     )
+    parser.add_argument(
+        "--approach",
+        type=float,
+        nargs=3,
+        metavar=("NEAR", "FAR", "SPEED"),
+        help="step the motion in to NEAR and out to FAR metres from the opponent's start at "
+        "SPEED m/s (after --orbit; default: its own distance)",
+    )
     args = parser.parse_args(argv)
     if args.loop < 1:
         parser.error("--loop must be at least 1")
@@ -500,6 +548,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 yaw_deg=args.yaw,
                 bones=bones,
                 orbit_deg_s=args.orbit,
+                approach=args.approach,
             )
         )
     except (SparError, OSError, ConnectionClosed, TimeoutError) as error:

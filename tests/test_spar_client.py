@@ -83,6 +83,23 @@ def test_an_orbit_carries_the_motion_round_the_centre_and_turns_it_with_it(punch
     assert np.array_equal(carried[:, 7:], placed[:, 7:]) and carried[0] == pytest.approx(placed[0])
 
 
+def test_an_approach_steps_the_motion_in_and_out_on_its_bearing(punch):
+    """From 1.2 m, in to 0.6 m at 1 m/s (0.6 s), out to 3 m (2.4 s more) and in again; each
+    frame on its own bearing from the centre, facing and pose as they were."""
+    placed = client.place_motion(punch, (1.2, 0.0), math.pi)
+    carried = client.orbit_motion(placed, (0.0, 0.0), math.radians(30.0), 30.0)
+    stepped = client.approach_motion(carried, (0.0, 0.0), 0.6, 3.0, 1.0, 30.0)
+    distance = np.linalg.norm(stepped[:, :2], axis=1)
+    t = np.arange(len(stepped)) / 30.0
+    expected = np.interp(t % 4.8, [0.0, 0.6, 3.0, 4.8], [1.2, 0.6, 3.0, 1.2])
+    np.testing.assert_allclose(distance, expected, atol=1e-9)
+    bearing = np.arctan2(stepped[:, 1], stepped[:, 0]) - np.arctan2(carried[:, 1], carried[:, 0])
+    np.testing.assert_allclose(client.wrap_angle(bearing), 0.0, atol=1e-9)
+    assert np.array_equal(stepped[:, 2:], carried[:, 2:])
+    with pytest.raises(ValueError, match="near < far"):
+        client.approach_motion(carried, (0.0, 0.0), 3.0, 0.6, 1.0, 30.0)
+
+
 def test_round_trips_time_each_seq_to_the_first_state_that_acknowledged_it():
     sent = {0: 0.0, 1: 1.0, 2: 2.0, 3: 3.0}
     # seq 1 is overtaken by seq 2 before a state acknowledged it; seq 3 is never acknowledged.
