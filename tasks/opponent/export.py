@@ -28,6 +28,7 @@ from models.arena.mjcf import arena_mjcf
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
 from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT, NQ, action_to_joint_targets
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
+from models.humanoid.stance import guard_pose
 from models.maaip.networks import Policy
 from models.maaip.trainer import checkpoint_policy
 from models.matching import MatchConfig
@@ -386,7 +387,10 @@ def export_matched(
             at ``env.policy_hz``.
         matcher: the matcher's settings.
 
-    A bout starts the fighter in the first clip's first pose, its partner at rest.
+    A bout starts the fighter at rest in its guard (`guard_pose` over the footage it plays), as
+    the evaluation's matched bouts start in the dataset's stance: a pose from mid-stride, held
+    at rest, is one it cannot stand in (the demo's matched opponent fell 85 times a minute
+    against the still partner from the footage's first frame, 52 from its guard).
     """
     _check_tracker(policy, agent)
     if not clips:
@@ -398,7 +402,7 @@ def export_matched(
     motion = io.BytesIO()
     np.savez(motion, **arrays)
     guard = np.zeros((2, len(HINGE_NAMES)))
-    guard[agent] = np.asarray(clips[0][1])[0, 7:]
+    guard[agent] = guard_pose(bones[agent], np.concatenate([np.asarray(c[1]) for c in clips]))
     return _write_folder(
         Path(out),
         matched.KIND,
