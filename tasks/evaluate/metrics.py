@@ -111,6 +111,8 @@ class FighterBouts:
         opponent_keypoints: per episode, (T, 33, 3) the other fighter's.
         punches: per episode, its punches (`label_punches`).
         steps: per episode, its steps (`label_steps`).
+        landings: per episode, the frames its feet landed (`touch_downs`: a step whose lift-off
+            came before the episode too, as in short footage clips).
         statistics: `fighter_statistics` of every episode, `combine`d.
     """
 
@@ -119,6 +121,7 @@ class FighterBouts:
     opponent_keypoints: list[np.ndarray]
     punches: list[list[Punch]]
     steps: list[list[Step]]
+    landings: list[np.ndarray]
     statistics: FighterStatistics
 
 
@@ -148,14 +151,16 @@ def label_fighter(
     mine, theirs = index.agents[agent].qpos, index.agents[1 - agent].qpos
     arm = bones.upper_arm + bones.forearm
     rate = bouts.policy_hz
-    keypoints, others, punches, steps, stats = [], [], [], [], []
+    keypoints, others, punches, steps, landings, stats = [], [], [], [], [], []
+    min_off = LiftConfig().contact_min_frames
     for episode in range(bouts.episodes):
         qpos = bouts.episode_qpos(episode)
         own = arena_keypoints(model, qpos, agent)
         other = arena_keypoints(model, qpos, 1 - agent)
         quat = qpos[:, mine][:, 3:7]
         found = label_punches(own, quat, rate, punch, arm_m=arm)
-        walked = label_steps(detect_contacts(own, fps=rate), own[:, _ANKLES])
+        contacts = detect_contacts(own, fps=rate)
+        walked = label_steps(contacts, own[:, _ANKLES])
         stats.append(
             fighter_statistics(
                 punches=found,
@@ -171,7 +176,8 @@ def label_fighter(
         others.append(other)
         punches.append(found)
         steps.append(walked)
-    return FighterBouts(agent, keypoints, others, punches, steps, combine(stats))
+        landings.append(touch_downs(contacts, min_off))
+    return FighterBouts(agent, keypoints, others, punches, steps, landings, combine(stats))
 
 
 # --------------------------------------------------------------------------
@@ -445,19 +451,17 @@ def footage_bouts(
 
 
 def window_rates(fighter: FighterBouts, bouts: Bouts, window_s: float) -> dict[str, np.ndarray]:
-    """(W,) punches (by their peak) and steps (by their touch-down, `touch_downs`: also a step
-    whose lift-off came before the episode, as in short footage clips) per minute in each window
-    of ``window_s`` of the bouts' episodes, cut every ``window_s`` from each episode's start,
-    whole windows only (as the two-sample test cuts them): "punches_per_min", "steps_per_min"."""
+    """(W,) punches (by their peak) and steps (by their landing, `FighterBouts.landings`) per
+    minute in each window of ``window_s`` of the bouts' episodes, cut every ``window_s`` from
+    each episode's start, whole windows only (as the two-sample test cuts them):
+    "punches_per_min", "steps_per_min"."""
     frames = round(window_s * bouts.policy_hz)
-    min_off = LiftConfig().contact_min_frames
     out: dict[str, list[np.ndarray]] = {"punches_per_min": [], "steps_per_min": []}
     for e in range(bouts.episodes):
         count = int(bouts.frames[e]) // frames
-        contacts = detect_contacts(fighter.keypoints[e], fps=bouts.policy_hz)
         events = {
             "punches_per_min": [p.peak for p in fighter.punches[e]],
-            "steps_per_min": touch_downs(contacts, min_off),
+            "steps_per_min": fighter.landings[e],
         }
         for name, at in events.items():
             found = np.bincount(np.asarray(at, dtype=int) // frames, minlength=count)[:count]

@@ -390,7 +390,7 @@ def export_matched(
     A bout starts the fighter at rest in its guard (`guard_pose` over the footage it plays), as
     the evaluation's matched bouts start in the dataset's stance: a pose from mid-stride, held
     at rest, is one it cannot stand in (the demo's matched opponent fell 85 times a minute
-    against the still partner from the footage's first frame, 52 from its guard).
+    against the still partner from the footage's first frame, 48 from its guard).
     """
     _check_tracker(policy, agent)
     if not clips:
