@@ -62,7 +62,7 @@ from tasks.dataset.config import DatasetConfig, PunchConfig  # noqa: E402
 from tasks.dataset.demonstrations import load_demonstrations  # noqa: E402
 from tasks.dataset.store import ROLES, dataset_info, footage_clips  # noqa: E402
 from tasks.evaluate.metrics import footage_bouts, label_fighter, wasserstein1  # noqa: E402
-from tasks.opponent.folder import load_opponent  # noqa: E402
+from tasks.opponent.folder import Opponent, load_opponent  # noqa: E402
 
 SECONDS = 16.0
 ORBIT_DEG_S = 10.0
@@ -95,16 +95,15 @@ def newest_adversary(data: Path) -> Path:
     return folders[-1]
 
 
-def still_guard_like(folder: Path, data: Path, root: Path) -> Path:
+def still_guard_like(opponent: Opponent, data: Path, root: Path) -> Path:
     """An untrained policy whose mean is the stance of the opponent's dataset (the evaluation's
     still guard, `ReferenceMotions.stance`), on the folder's bones and physics, in its slot.
     Not the folder's own guard: a matched opponent's is its footage's first frame, mid-stride,
     which a fighter cannot hold still (it fell every 0.8 s on the demo's)."""
-    opponent = load_opponent(folder)
     with connect(data_paths(data).db, read_only=True) as con:
         stance = load_demonstrations(con, opponent.manifest["dataset_key"]).reference.stance
     if stance is None:
-        raise SystemExit(f"the dataset of {folder} has no stance to stand in")
+        raise SystemExit(f"the dataset of {opponent.folder} has no stance to stand in")
     known = {f.name for f in fields(EnvConfig)}
     env = {k: v for k, v in opponent.manifest["env"].items() if k in known}
     env.update(num_envs=32, threads=1)
@@ -130,10 +129,10 @@ def sessions(folder: Path, qpos: np.ndarray, fps: float, data: Path, scripted: b
 
 def spacing(
     clips: list[tuple[np.ndarray, np.ndarray]], bones, punch: PunchConfig, fps: float
-) -> tuple[np.ndarray, dict[str, float]]:
-    """Of a fighter's ``clips`` (its qpos (T, 35), the other's): the pelvis-to-pelvis distance
-    of every frame, and its punches a minute (`label_fighter`, by their peak) with the other
-    within `REACH_M` and beyond it."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """Of a fighter's ``clips`` (its qpos (T, 35), the other's) on ``bones`` (its, the other's):
+    the pelvis-to-pelvis distance of every frame, and at the peak of each of its punches
+    (`label_fighter`)."""
     model = mujoco.MjModel.from_xml_string(arena_mjcf(bones))
     bouts = footage_bouts(model, clips, round(fps))
     labelled = label_fighter(bouts, 0, model=model, bones=bones[0], punch=punch)
@@ -141,37 +140,44 @@ def spacing(
     for (own, other), punches in zip(clips, labelled.punches, strict=True):
         apart = np.linalg.norm(own[:, :2] - other[:, :2], axis=1)
         distances.append(apart)
-        at_peaks += [apart[p.peak] for p in punches]
-    apart, at_peaks = np.concatenate(distances), np.array(at_peaks)
+        at_peaks.append(apart[[p.peak for p in punches]])
+    return np.concatenate(distances), np.concatenate(at_peaks)
+
+
+def reach_rates(apart: np.ndarray, at_peaks: np.ndarray, fps: float) -> dict[str, float]:
+    """Punches a minute with the other fighter within `REACH_M` and beyond it: the punches whose
+    peak was there over the time spent there (NaN where no time was)."""
     rates = {}
     for name, near in (("in_reach", True), ("out_of_reach", False)):
         minutes = np.sum((apart <= REACH_M) == near) / fps / 60.0
         count = np.sum((at_peaks <= REACH_M) == near)
         rates[name] = count / minutes if minutes else float("nan")
-    return apart, rates
+    return rates
 
 
-def footage_spacing(data: Path, folder: Path, fps: float) -> tuple[np.ndarray, dict, PunchConfig]:
-    """`spacing` of the opponent's fighter in its dataset's train footage, and the dataset's
-    punch settings."""
-    opponent = load_opponent(folder)
-    key = opponent.manifest["dataset_key"]
+def footage_spacing(
+    data: Path, opponent: Opponent, fps: float
+) -> tuple[np.ndarray, np.ndarray, PunchConfig]:
+    """`spacing` of the opponent's fighter in its dataset's train footage (each clip on its
+    fighter's own bones, as the evaluation lays footage), and the dataset's punch settings."""
+    key, role = opponent.manifest["dataset_key"], ROLES[opponent.agent]
     with connect(data_paths(data).db, read_only=True) as con:
-        clips = footage_clips(con, key, ROLES[opponent.agent])
+        clips = footage_clips(con, key, role)
         punch = build(DatasetConfig, dataset_info(con, key).config, section="dataset").punch
     if not clips:
-        raise SystemExit(
-            f"dataset {key[:12]} holds no train footage of its {ROLES[opponent.agent]}"
+        raise SystemExit(f"dataset {key[:12]} holds no train footage of its {role}")
+    parts = [
+        spacing(
+            [(c.qpos, c.other_qpos) for c in clips if c.bones == bones], (bones, bones), punch, fps
         )
-    bones = (clips[0].bones, clips[0].bones)
-    own = [(c.qpos, c.other_qpos) for c in clips if c.bones == clips[0].bones]
-    apart, rates = spacing(own, bones, punch, fps)
-    return apart, rates, punch
+        for bones in dict.fromkeys(c.bones for c in clips)
+    ]
+    apart, at_peaks = (np.concatenate(p) for p in zip(*parts, strict=True))
+    return apart, at_peaks, punch
 
 
-def session_spacing(folder: Path, runs: list, punch: PunchConfig, fps: float):
+def session_spacing(opponent: Opponent, runs: list, punch: PunchConfig, fps: float):
     """`spacing` of the served opponent over the sessions' states."""
-    opponent = load_opponent(folder)
     clips = []
     for _, recording in runs:
         states = recording.states
@@ -190,18 +196,18 @@ def main() -> None:
     args = parser.parse_args()
     data = data_paths(args.data).root
     trained = args.opponent or newest_adversary(data)
+    opponent = load_opponent(trained)
     scripted = args.partner == "scripted"
     with tempfile.TemporaryDirectory(prefix="ringside-spar-reaction-") as tmp:
         tmp = Path(tmp)
         fps, qpos = read_bvh(partner_motion(data, tmp / "motion").read_text())
-        folders = {"trained": trained, "guard": still_guard_like(trained, data, tmp / "guard")}
+        folders = {"trained": trained, "guard": still_guard_like(opponent, data, tmp / "guard")}
         results = {
             name: sessions(folder, qpos, fps, tmp / f"{name}-data", scripted)
             for name, folder in folders.items()
         }
-    footage, footage_rates, punch = footage_spacing(data, trained, fps)
-    kept = {name: session_spacing(trained, runs, punch, fps) for name, runs in results.items()}
-    kind = load_opponent(trained).kind
+    filmed, filmed_peaks, punch = footage_spacing(data, opponent, fps)
+    kept = {name: session_spacing(opponent, runs, punch, fps) for name, runs in results.items()}
     partner = (
         f"a scripted partner holding the lifted partner's first pose, stepping in to {NEAR_M} m "
         f"and out to {FAR_M} m at {APPROACH_M_S} m/s"
@@ -209,7 +215,7 @@ def main() -> None:
         else "the lifted partner, looped"
     )
     print(
-        f"opponent {trained.name} ({kind}) against {partner}, carried round it at "
+        f"opponent {trained.name} ({opponent.kind}) against {partner}, carried round it at "
         f"{ORBIT_DEG_S:.0f} deg/s, {SESSIONS} sessions of {SECONDS:.0f} s each way round"
     )
     print(
@@ -235,9 +241,9 @@ def main() -> None:
         "beyond, against the train footage of its fighter"
     )
     print("who         distance mean (p10-p90)   W1 to footage   punches/min in reach / beyond")
-    rows = {"footage": (footage, footage_rates), **kept}
-    for name, (apart, rates) in rows.items():
-        w1 = "" if name == "footage" else f"{wasserstein1(apart, footage):.2f} m"
+    for name, (apart, at_peaks) in {"footage": (filmed, filmed_peaks), **kept}.items():
+        rates = reach_rates(apart, at_peaks, fps)
+        w1 = "" if name == "footage" else f"{wasserstein1(apart, filmed):.2f} m"
         print(
             f"{name:10s}  {apart.mean():5.2f} ({np.percentile(apart, 10):.2f}-"
             f"{np.percentile(apart, 90):.2f})        {w1:>13s}   "
