@@ -148,8 +148,6 @@ def _open_lake(lake: Lake, *, read_only: bool, wait_s: float) -> duckdb.DuckDBPy
     """An in-memory DuckDB with the lake attached and in use. PostgreSQL not answering (a
     restart) is waited for up to ``wait_s``, then raised in one line; a first attach that
     another process's first attach beat to the catalog's tables is tried again."""
-    if not read_only:
-        lake.data_path.mkdir(parents=True, exist_ok=True)
     deadline = time.monotonic() + wait_s
     delay = 0.1
     while True:
@@ -174,6 +172,11 @@ def _open_lake(lake: Lake, *, read_only: bool, wait_s: float) -> duckdb.DuckDBPy
             options = f"DATA_PATH '{lake.data_path}/'" + (", READ_ONLY" if read_only else "")
             con.execute(f"ATTACH '{lake}' AS {LAKE_ALIAS} ({options})")
             con.execute(f"USE {LAKE_ALIAS}")
+            if not read_only:
+                # Made once the attach has made the catalog, not before: the folder is how a
+                # reader knows the lake exists (`Lake.exists`), and one that attached between
+                # the two found no catalog.
+                lake.data_path.mkdir(parents=True, exist_ok=True)
             return con
         except duckdb.Error as error:
             con.close()

@@ -26,7 +26,8 @@ class Lake:
         return self.shared / "lake"
 
     def exists(self) -> bool:
-        """Whether a writer has made the lake yet (its data folder is made with the catalog)."""
+        """Whether a writer has made the lake yet (its data folder is made once its first
+        attach has made the catalog)."""
         return self.data_path.is_dir()
 
     def __str__(self) -> str:

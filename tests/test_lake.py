@@ -454,6 +454,42 @@ def test_many_processes_opening_a_fresh_lake_at_once_all_get_it(spawn, lake: Lak
     assert applied == [(version,) for version in versions]  # each migration applied once
 
 
+# Waits for a line, then opens the lake to read as soon as it exists (a dashboard or a
+# scheduled run's first look) and prints the schema's versions.
+READER = (
+    CHILD
+    + """
+print("ready", flush=True)
+sys.stdin.readline()
+while not lake.exists():
+    time.sleep(0.001)
+with connect(lake, read_only=True) as con:
+    rows = con.execute("SELECT version FROM schema_migrations ORDER BY version").fetchall()
+    print(json.dumps([version for (version,) in rows]), flush=True)
+"""
+)
+
+
+def test_a_reader_that_sees_a_fresh_lake_exist_can_open_it(
+    spawn, postgres_port: int, tmp_path: Path
+):
+    # A lake exists for a reader once a writer's first attach has made its catalog: CI saw a
+    # scheduled run's reader attach in the moment between the writer making the data folder and
+    # its catalog committing ("Existing DuckLake ... does not exist").
+    for round in range(3):
+        lake = new_lake(postgres_port, tmp_path / f"shared-{round}")
+        readers = [spawn(READER, lake.catalog, lake.shared) for _ in range(4)]
+        writer = spawn(OPENER, lake.catalog, lake.shared)
+        for child in [*readers, writer]:
+            assert child.line(60) == "ready"
+        for child in [*readers, writer]:
+            child.send("go")
+        versions = [version for version, _, _ in migrations()]
+        for child in [writer, *readers]:
+            assert json.loads(child.line(120)) == versions, child.said()
+            assert child.process.wait(30) == 0, child.said()
+
+
 # -- 3. Claims across machines ---------------------------------------------------------------
 
 CLAIM = (
