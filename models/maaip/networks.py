@@ -96,6 +96,24 @@ def _linear(a: int, b: int, gain: float, generator: torch.Generator | None) -> n
     return layer
 
 
+@dataclass(frozen=True)
+class Moments:
+    """A batch's row count and per-feature mean and population variance, in float64."""
+
+    count: int
+    mean: Tensor
+    var: Tensor
+
+
+@torch.no_grad()
+def moments(x: Tensor) -> Moments:
+    """The `Moments` of the rows of ``x`` (..., F)."""
+    rows = x.detach().reshape(-1, x.shape[-1]).to(torch.float64)
+    if rows.shape[0] == 0:
+        return Moments(0, rows.sum(0), rows.sum(0))
+    return Moments(rows.shape[0], rows.mean(0), rows.var(0, unbiased=False))
+
+
 class RunningNorm(nn.Module):
     """Normalises features by their running mean and (population) variance, then clips.
 
@@ -118,12 +136,19 @@ class RunningNorm(nn.Module):
     def update(self, x: Tensor) -> None:
         """Add the rows of ``x`` (..., F) to the statistics."""
         check_features(x, "x", self.dim)
-        rows = x.detach().reshape(-1, self.dim).to(torch.float64)
-        n = rows.shape[0]
+        self.merge(moments(x))
+
+    @torch.no_grad()
+    def merge(self, batch: Moments) -> None:
+        """Add a batch's `moments` to the statistics (one batch's, computed once, can feed
+        several normalisers: the policy's and the value's read the same observations)."""
+        n, batch_mean, batch_var = batch.count, batch.mean, batch.var
+        if batch_mean.shape != (self.dim,):
+            raise ValueError(
+                f"moments of {tuple(batch_mean.shape)} features for a norm of {self.dim}"
+            )
         if n == 0:
             return
-        batch_mean = rows.mean(0)
-        batch_var = rows.var(0, unbiased=False)
         total = self.count + n
         delta = batch_mean - self.mean
         m2 = self.var * self.count + batch_var * n + delta.square() * self.count * n / total

@@ -44,7 +44,7 @@ from models.maaip.config import TrainerConfig
 from models.maaip.demonstrations import Demonstrations
 from models.maaip.distill import distill
 from models.maaip.losses import PPOBatch, gae, ppo_losses
-from models.maaip.networks import Networks, Policy, action_stds
+from models.maaip.networks import Networks, Policy, action_stds, moments
 from models.maaip.objectives import Objective, Rollout, objective_kind
 from models.tracking.clips import TrackingData
 
@@ -349,8 +349,9 @@ class Trainer:
                 kls.append(last.approx_kl)
         # The normalisers follow the data after the update, so the samples above were
         # scored with the statistics they were collected under.
-        self.nets.policy.norm.update(flat(r.obs))
-        self.nets.value.norm.update(flat(r.obs))
+        seen = moments(flat(r.obs))
+        self.nets.policy.norm.merge(seen)
+        self.nets.value.norm.merge(seen)
         assert last is not None
         return {
             "policy_loss": last.policy_loss,
