@@ -86,8 +86,8 @@ def tracking_config(args: argparse.Namespace, seed: int = 0) -> TrainConfig:
             learning_rate=args.learning_rate,
             action_std=args.action_std,
             gamma=args.gamma,
-            # As many minibatches per epoch as with the default 64 arenas.
-            minibatch_size=base.ppo.minibatch_size * args.envs // base.env.num_envs,
+            # ``--minibatches`` per epoch of both agents' samples, whatever the arenas.
+            minibatch_size=2 * base.ppo.horizon * args.envs // args.minibatches,
         ),
         env=dataclasses.replace(
             base.env, num_envs=args.envs, threads=args.threads, stepping=args.stepping
@@ -130,7 +130,20 @@ def parser() -> argparse.ArgumentParser:
         "--action-std", type=float, default=TRACKER.ppo.action_std, help="every action's std"
     )
     parser.add_argument("--gamma", type=float, default=TRACKER.ppo.gamma, help="DeepMimic's 0.95")
-    parser.add_argument("--epochs", type=int, default=TRACKER.ppo.epochs)
+    parser.add_argument(
+        "--epochs",
+        type=int,
+        default=3,
+        help="PPO epochs: 3 on these clips with hard starts (docs/train.md, 'Time to the gate'); "
+        f"the stage's default is {TRACKER.ppo.epochs}",
+    )
+    parser.add_argument(
+        "--minibatches",
+        type=int,
+        # 4: the default minibatch (1,024) of the default batch (64 arenas x 32 steps x 2 agents).
+        default=2 * TRACKER.ppo.horizon * TRACKER.env.num_envs // TRACKER.ppo.minibatch_size,
+        help="PPO minibatches per epoch",
+    )
     parser.add_argument(
         "--hard-start-share",
         type=float,

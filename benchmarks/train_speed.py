@@ -69,6 +69,10 @@ def main() -> None:
     parser.add_argument(
         "--objective", choices=OBJECTIVES, default="maaip", help="what the trainer learns"
     )
+    parser.add_argument("--epochs", type=int, help="PPO epochs instead of the default")
+    parser.add_argument(
+        "--minibatches", type=int, help="PPO minibatches per epoch instead of the default"
+    )
     args = parser.parse_args()
     assets = data_paths().assets
     pull(assets, dev=True, log=lambda _line: None)
@@ -87,6 +91,19 @@ def main() -> None:
             env=dataclasses.replace(config.env, num_envs=args.envs),
             ppo=dataclasses.replace(
                 config.ppo, minibatch_size=round(config.ppo.minibatch_size * scale)
+            ),
+        )
+    if args.epochs or args.minibatches:
+        ppo = config.ppo
+        batch = 2 * ppo.horizon * config.env.num_envs  # both agents' samples
+        config = dataclasses.replace(
+            config,
+            ppo=dataclasses.replace(
+                ppo,
+                epochs=args.epochs or ppo.epochs,
+                minibatch_size=batch // args.minibatches
+                if args.minibatches
+                else ppo.minibatch_size,
             ),
         )
     default = config.env
