@@ -39,10 +39,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import tracker_gate  # noqa: E402  (beside this file)
 
-from models.arena.mjcf import arena_mjcf  # noqa: E402
+from models.arena.mjcf import NUM_AGENTS, arena_mjcf  # noqa: E402
 from models.humanoid.boxer import BoneLengths  # noqa: E402
 from models.maaip.trainer import checkpoint_policy  # noqa: E402
-from models.tracking.gate import gate_of, play_clips  # noqa: E402
+from models.tracking.gate import Played, gate_of, play_clips  # noqa: E402
 from storage.artifacts import read_bytes  # noqa: E402
 from storage.db import connect  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
@@ -52,6 +52,23 @@ from tasks.train.store import finished_runs  # noqa: E402
 from tasks.train.tracker import footage_tracking  # noqa: E402
 
 ROOTS = [0, 1, 2, 35, 36, 37]
+
+
+def _within_runs(played: Played) -> np.ndarray:
+    """`Played.qpos` with each agent's coordinates NaN after its run ended: `play_clips` steps
+    every arena until the last run ends, and what a body does after its clip's end (it holds the
+    last frame's targets, often mid-stride, and falls) is not the tracking. An arena whose agent
+    has no clip of its own there (fewer clips) is NaN throughout for that agent."""
+    qpos = played.qpos.copy()
+    width = qpos.shape[-1] // NUM_AGENTS
+    ended = np.zeros(qpos.shape[1:2] + (NUM_AGENTS,), dtype=int)
+    counters = [0] * NUM_AGENTS
+    for row in played.rows:  # agent by agent, clip k in arena k
+        ended[counters[row.agent], row.agent] = row.frames
+        counters[row.agent] += 1
+    for k, a in np.ndindex(ended.shape):
+        qpos[ended[k, a] :, k, a * width : (a + 1) * width] = np.nan
+    return qpos
 
 
 def _stills(model, qpos: np.ndarray, label: str) -> np.ndarray:
@@ -125,11 +142,15 @@ def main() -> None:
             f"root {gate.root_error_cm:.2f} cm over {len(played[stepping].rows)} clip tracks "
             f"({time.perf_counter() - start:.0f} s)"
         )
-    apart = np.abs(played["rollout"].qpos - played["warp"].qpos)
+    mujoco_qpos, warp_qpos = (_within_runs(played[s]) for s in ("rollout", "warp"))
+    apart = np.abs(mujoco_qpos - warp_qpos)
     print(f"largest joint coordinate apart: {np.nanmax(apart):.4f}")
     if args.stills:
         model = mujoco.MjModel.from_xml_string(arena_mjcf(bones, timestep=config.env.timestep))
-        rows = [_stills(model, played[s].qpos[:, args.clip], s) for s in ("rollout", "warp")]
+        rows = [
+            _stills(model, qpos[:, args.clip], s)
+            for s, qpos in (("rollout", mujoco_qpos), ("warp", warp_qpos))
+        ]
         cv2.imwrite(str(args.stills), np.concatenate(rows, axis=0))
         print(f"stills of clip {args.clip}: {args.stills}")
     print(f"warp_replay_root_diff: {1000 * np.nanmax(apart[..., ROOTS]):.2f} mm")
