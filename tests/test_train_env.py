@@ -23,7 +23,7 @@ from models.humanoid.kinematics import (
     heading_frame,
     joint_targets_to_action,
 )
-from models.humanoid.observations import observation, self_observation
+from models.humanoid.observations import SELF_DIM, observation, self_observation
 
 SMALL = BoneLengths().scaled(0.9)
 
@@ -248,6 +248,10 @@ def test_observations_are_the_dataset_functions_on_the_simulated_state(punch, st
             assert observed[k, 1] == pytest.approx(observation(them, me), abs=tol)
             assert own[k, 1] == pytest.approx(self_observation(them), abs=tol)
         assert env.observe() == pytest.approx(observed, abs=tol)
+        # A step that does not observe the opponent (a tracker's) gives o^self alone.
+        alone = env.step(rng.normal(0.0, 0.3, (3, 2, 28)), opponent=False)
+        assert to_host(alone.observation).shape == (3, 2, SELF_DIM)
+        assert to_host(alone.observation) == pytest.approx(env.observe()[..., :SELF_DIM], abs=tol)
 
 
 # ---------------------------------------------------------------- falls and time-outs

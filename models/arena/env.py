@@ -71,6 +71,7 @@ from models.humanoid.observations import (
     BodyState,
     body_state_from_frames,
     observation,
+    self_observation,
 )
 
 if TYPE_CHECKING:  # torch only where Warp's observations are (annotations)
@@ -88,7 +89,8 @@ class StepResult:
     decides resets by, are NumPy arrays with every stepping.
 
     Attributes:
-        observation: (N, 2, 274) each agent's o_{t+1} = [o^self, o^opp] (MAAIP §4.2).
+        observation: (N, 2, 274) each agent's o_{t+1} = [o^self, o^opp] (MAAIP §4.2); a
+            step asked for no opponent observation (a tracker's) gives o^self alone, (N, 2, 223).
         self_observation: (N, 2, 223) o^self_{t+1}, the first 223 numbers of `observation`
             (the motion discriminator's half of a transition).
         terminated: (N,) a fighter fell: terminal, no bootstrapping.
@@ -361,6 +363,7 @@ class ArenaEnv:
         puppet: Puppet | None = None,
         *,
         pushes: np.ndarray | None = None,
+        opponent: bool = True,
     ) -> StepResult:
         """Advance every environment by one policy step.
 
@@ -371,6 +374,8 @@ class ArenaEnv:
             pushes: (N, nbody, 6) finite forces (N) and torques (N m) on each body's centre of
                 mass, in world axes (MuJoCo's xfrc_applied), held over the step's substeps
                 and gone after it: a push (`models.arena.pushes`). None: none.
+            opponent: whether to observe the other fighter too (o^opp); a tracker reads o^self
+                alone, and the opponent's part is most of the observation's cost.
 
         Returns:
             StepResult for every environment (module docstring: damage, falls, time-outs).
@@ -393,7 +398,7 @@ class ArenaEnv:
         frames, head_z, stable = self._stepping.measured()
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
             states = self._states(frames)
-            obs = _observations(states)
+            obs = _observations(states) if opponent else self_observation(states)
             fell = (floor | (head_z < self.config.fall_height_m)) & stable[:, None]
         unstable = ~stable
         # The flags the host decides resets by come down (with "warp").

@@ -319,7 +319,7 @@ class Tracker:
                 speed_mps=self.config.push_speed_mps,
                 step_s=step_s,
             )
-        result: StepResult = env.step(self.actions(corrections), pushes=pushes)
+        result: StepResult = env.step(self.actions(corrections), pushes=pushes, opponent=False)
         self.flat = self.next_frames()
         # The rewards are computed on the host (with "warp" the bodies come down from the device).
         body = result.body
