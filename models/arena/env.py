@@ -282,15 +282,16 @@ class ArenaEnv:
         """
         ids = _check_ids(env_ids, self.num_envs)
         qpos, qvel = choose_starts(reference, len(ids), self.config, self.rng, frames)
-        return self._start(ids, qpos, qvel, ground=True)
+        # With "warp" observed on the device, where the starts are made, as a torch tensor.
+        return _observations(self._states(self._start(ids, qpos, qvel, ground=True)))
 
     def set_states(
         self, env_ids: Sequence[int] | np.ndarray, qpos: np.ndarray, qvel: np.ndarray
-    ) -> np.ndarray:
+    ) -> None:
         """Start the given environments with both agents exactly at ``qpos`` (n, 2, 35) moving
         at ``qvel`` (n, 2, 34), as given: no centring, no grounding, no standing starts (a
-        tracking episode's start, `models.tracking`). Returns their observations
-        (n, 2, 274)."""
+        tracking episode's start, `models.tracking`, which observes them its own way from
+        `body_states`)."""
         ids = _check_ids(env_ids, self.num_envs)
         q = np.asarray(qpos, dtype=np.float64)
         v = np.asarray(qvel, dtype=np.float64)
@@ -298,18 +299,17 @@ class ArenaEnv:
             raise ValueError(f"qpos must be finite with shape ({len(ids)}, 2, {NQ}), got {q.shape}")
         if v.shape != (len(ids), NUM_AGENTS, NV) or not np.isfinite(v).all():
             raise ValueError(f"qvel must be finite with shape ({len(ids)}, 2, {NV}), got {v.shape}")
-        return self._start(ids, q, v, ground=False)
+        self._start(ids, q, v, ground=False)
 
     def _start(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, *, ground: bool):
         """Environments ``ids`` reset (`mj_resetData`) and started with both agents at ``qpos``
         (n, 2, 35) moving at ``qvel`` (n, 2, 34); with ``ground``, each fighter is moved up or
         down until its lowest point touches the floor (a lifted frame may float or sink, and a
-        start in the air is a drop the policy did not choose). Their observations (n, 2, 274):
-        with "warp" computed on the device, where the starts are made, as a torch tensor."""
+        start in the air is a drop the policy did not choose). Their `world_frames` (n, nbody,
+        21), on Warp's device with "warp"."""
         mine = [np.flatnonzero(self.index.agent_of_geom == a) for a in range(NUM_AGENTS)]
         self.elapsed[ids] = 0
-        frames = self._stepping.start(ids, qpos, qvel, mine if ground else None)
-        return _observations(self._states(frames))
+        return self._stepping.start(ids, qpos, qvel, mine if ground else None)
 
     def place(
         self, env_id: int, agent: int, qpos: np.ndarray, *, ground: bool = True
