@@ -405,7 +405,7 @@ class PPOBatch:
 
     def select(self, index: Tensor) -> PPOBatch:
         """The rows ``index`` (a minibatch)."""
-        # index_select: 3-4x faster than indexing with a tensor for these (1,024, 453) rows.
+        # index_select: faster than indexing with a tensor for these row gathers on the CPU.
         return PPOBatch(
             **{f.name: getattr(self, f.name).index_select(0, index) for f in fields(self)}
         )
