@@ -61,13 +61,10 @@ def _within_runs(played: Played) -> np.ndarray:
     has no clip of its own there (fewer clips) is NaN throughout for that agent."""
     qpos = played.qpos.copy()
     width = qpos.shape[-1] // NUM_AGENTS
-    ended = np.zeros(qpos.shape[1:2] + (NUM_AGENTS,), dtype=int)
-    counters = [0] * NUM_AGENTS
-    for row in played.rows:  # agent by agent, clip k in arena k
-        ended[counters[row.agent], row.agent] = row.frames
-        counters[row.agent] += 1
-    for k, a in np.ndindex(ended.shape):
-        qpos[ended[k, a] :, k, a * width : (a + 1) * width] = np.nan
+    for a in range(NUM_AGENTS):
+        runs = [row.frames for row in played.rows if row.agent == a]  # its clip k in arena k
+        for k, end in enumerate(runs + [0] * (qpos.shape[1] - len(runs))):
+            qpos[end:, k, a * width : (a + 1) * width] = np.nan
     return qpos
 
 

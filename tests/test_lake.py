@@ -476,8 +476,8 @@ def test_a_reader_that_sees_a_fresh_lake_exist_can_open_it(
     # A lake exists for a reader once a writer's first attach has made its catalog: CI saw a
     # scheduled run's reader attach in the moment between the writer making the data folder and
     # its catalog committing ("Existing DuckLake ... does not exist").
-    for round in range(3):
-        lake = new_lake(postgres_port, tmp_path / f"shared-{round}")
+    for attempt in range(3):
+        lake = new_lake(postgres_port, tmp_path / f"shared-{attempt}")
         readers = [spawn(READER, lake.catalog, lake.shared) for _ in range(4)]
         writer = spawn(OPENER, lake.catalog, lake.shared)
         for child in [*readers, writer]:

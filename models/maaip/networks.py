@@ -110,7 +110,8 @@ def moments(x: Tensor) -> Moments:
     """The `Moments` of the rows of ``x`` (..., F)."""
     rows = x.detach().reshape(-1, x.shape[-1]).to(torch.float64)
     if rows.shape[0] == 0:
-        return Moments(0, rows.sum(0), rows.sum(0))
+        zeros = rows.new_zeros(rows.shape[1])
+        return Moments(0, zeros, zeros)
     return Moments(rows.shape[0], rows.mean(0), rows.var(0, unbiased=False))
 
 
