@@ -304,7 +304,7 @@ def test_the_evaluation_replays_the_held_out_clips_with_the_datasets_tracker(mad
 
     from flows.cli import main
     from storage.paths import data_paths
-    from tasks.evaluate.stage import NO_TRACKER, _replay, load_inputs
+    from tasks.evaluate.stage import NO_TRACKER, load_inputs, tracker_replay
 
     data = copy_data(made[0], tmp_path / "data")
     key = made[1][-1]["key"]
@@ -331,7 +331,7 @@ def test_the_evaluation_replays_the_held_out_clips_with_the_datasets_tracker(mad
     assert after["state"] == "done" and after["key"] != before["key"]
     paths = data_paths(data)
     inputs = load_inputs(paths.db, paths.artifacts, run, (), tracker)
-    windows = _replay(inputs.tracker, inputs.heldout, "held-out")
+    windows = tracker_replay(inputs.tracker, inputs.heldout, "held-out")
     auc, real, simulated, reason = query(
         data,
         "SELECT auc, real_windows, simulated_windows, reason FROM evaluate_classifier "

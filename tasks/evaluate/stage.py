@@ -321,7 +321,9 @@ def _windows(count: int) -> str:
     return f"{count} window" + ("" if count == 1 else "s")
 
 
-def _replay(tracker: TrainedPolicy, clips: tuple[FootageClip, ...], split: str) -> np.ndarray:
+def tracker_replay(
+    tracker: TrainedPolicy, clips: tuple[FootageClip, ...], split: str
+) -> np.ndarray:
     """(W, D) windows of the adversary in ``tracker``'s replay of footage ``clips`` (of the
     dataset's ``split``): agent 0 tracking the adversary's clip, agent 1 the opponent's, both
     where the footage has them, from each clip's first frame (`play_clips`)."""
@@ -593,13 +595,15 @@ def evaluate(inputs: EvaluateInputs, config: EvaluateConfig) -> StageOutput:
     tracker = inputs.tracker
     references = {
         "footage": held_out,
-        "replay": NO_TRACKER if tracker is None else _replay(tracker, inputs.heldout, "held-out"),
+        "replay": NO_TRACKER
+        if tracker is None
+        else tracker_replay(tracker, inputs.heldout, "held-out"),
     }
     levels = {
         "footage": train,
         "replay": NO_TRACKER
         if tracker is None
-        else _replay(tracker, inputs.train_footage, "train"),
+        else tracker_replay(tracker, inputs.train_footage, "train"),
     }
     two_sample, two_sample_metrics = two_sample_rows(
         references, levels, simulated, seed=config.seed
