@@ -26,8 +26,8 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from models.tracking.clips import reference_clip  # noqa: E402
+from models.tracking.matched import MatchedTracker  # noqa: E402
 from tasks.opponent.folder import load_opponent  # noqa: E402
-from tasks.opponent.matched import MatchedTracker  # noqa: E402
 from tasks.opponent.spar import spar  # noqa: E402
 from tasks.opponent.tracker import ClipTracker  # noqa: E402
 

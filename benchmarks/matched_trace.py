@@ -20,8 +20,8 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from models.arena.env import ArenaEnv  # noqa: E402
+from models.tracking.matched import MatchedTracker  # noqa: E402
 from tasks.opponent.folder import load_opponent  # noqa: E402
-from tasks.opponent.matched import MatchedTracker  # noqa: E402
 from tasks.opponent.spar import env_config, fighters, seen, standing_start  # noqa: E402
 
 

@@ -31,8 +31,8 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from models.humanoid.boxer import BoneLengths  # noqa: E402
-from models.matching import motion_database  # noqa: E402
 from models.tracking.clips import reference_clip  # noqa: E402
+from models.tracking.matching import motion_database  # noqa: E402
 from storage.assets import pull  # noqa: E402
 from storage.paths import data_paths  # noqa: E402
 from tasks.deepmimic import CLIPS, WALKER_CLIPS, clip_path, load_deepmimic, retarget  # noqa: E402

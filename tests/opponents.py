@@ -37,8 +37,8 @@ from models.humanoid.stance import guard_pose
 from models.maaip.config import NetworkConfig, PPOConfig
 from models.maaip.networks import Policy, make_networks
 from models.maaip.trainer import Trainer
-from models.matching import MatchConfig
 from models.tracking.clips import tracking_data
+from models.tracking.matching import MatchConfig
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.errors import BadInput
 from tasks.opponent.export import export_matched, export_opponent

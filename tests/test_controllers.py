@@ -29,6 +29,7 @@ from opponents import (
 )
 from scipy.spatial.transform import Rotation
 
+from models.arena.controller import Seen
 from models.arena.mjcf import arena_mjcf
 from models.arena.starts import ReferenceMotions
 from models.humanoid.boxer import BoneLengths
@@ -40,7 +41,6 @@ from storage.files import sha256_file
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.errors import BadInput
 from tasks.evaluate.bouts import simulate
-from tasks.opponent.controller import Seen
 from tasks.opponent.export import TrainedPolicy, deepmimic_clip, export_tracker, policy_onnx
 from tasks.opponent.folder import load_opponent
 from tasks.opponent.still import StillGuard

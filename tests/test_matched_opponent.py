@@ -28,20 +28,20 @@ from opponents import (
 )
 from test_matching import turned
 
+from models.arena.controller import Seen
 from models.arena.starts import ReferenceMotions
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ, NV
 from models.humanoid.observations import OBSERVATION_DIM, BodyState
 from models.humanoid.stance import guard_pose
 from models.maaip.networks import Policy
-from models.matching import MatchConfig, motion_database
 from models.tracking.clips import reference_clip
+from models.tracking.matched import MatchedTracker, matched_streams
+from models.tracking.matching import MatchConfig, motion_database
 from storage.files import sha256_file
 from tasks.evaluate.bouts import simulate
-from tasks.opponent.controller import Seen
 from tasks.opponent.export import TrainedPolicy, policy_onnx
 from tasks.opponent.folder import load_opponent
-from tasks.opponent.matched import MatchedTracker, matched_streams
 from tasks.opponent.still import StillGuard
 from tasks.train.config import TrainConfig
 

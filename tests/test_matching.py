@@ -1,5 +1,5 @@
-"""The partner-aware motion matcher (models.matching) on DeepMimic's walk and punch, each given a
-partner: the walk's far away, the punch's within reach."""
+"""The partner-aware motion matcher (models.tracking.matching) on DeepMimic's walk and punch,
+each given a partner: the walk's far away, the punch's within reach."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import BodyState
-from models.matching import (
+from models.tracking.clips import reference_clip
+from models.tracking.matching import (
     FEATURE_GROUPS,
     MatchConfig,
     MatchWeights,
@@ -19,7 +20,6 @@ from models.matching import (
     motion_database,
     partner_features,
 )
-from models.tracking.clips import reference_clip
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
 
 BONES = BoneLengths()

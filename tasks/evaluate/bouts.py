@@ -9,7 +9,7 @@ blown-up simulation) ends it; an ended arena is left out of everything after. Tr
 starts from mid-motion frames with their velocities (reference state initialisation); an
 evaluation from those counted a frame the physics cannot hold (a lifted foot in the air, a
 lean) as the policy's fall, even for a fighter standing still in its guard. Each fighter is any
-controller (`tasks.opponent.controller`: a trained policy acting on its mean, with no exploration
+controller (`models.arena.controller`: a trained policy acting on its mean, with no exploration
 noise, `tasks.opponent.maaip.TorchPolicy`; the still guard; a tracker playing a clip), reset at
 its arena's start, so a seed gives the same bouts every time.
 
@@ -25,13 +25,13 @@ import numpy as np
 import torch
 
 from models.arena.config import EnvConfig
+from models.arena.controller import Controller, Seen
 from models.arena.env import ArenaEnv
 from models.arena.starts import ReferenceMotions
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NUM_ACTUATED
 from models.humanoid.observations import OBSERVATION_DIM, SELF_BLOCKS, BodyState, block_slices
 from models.maaip.losses import heading_reward
-from tasks.opponent.controller import Controller, Seen
 
 _LINEAR = block_slices(SELF_BLOCKS)["body_linear_velocities"]
 _ROOT_VELOCITY = slice(_LINEAR.start, _LINEAR.start + 2)  # the pelvis's, on the floor

@@ -50,12 +50,14 @@ import mujoco
 import numpy as np
 import torch
 
+from models.arena.controller import Controller
 from models.arena.mjcf import arena_mjcf
 from models.arena.starts import ReferenceMotions
 from models.humanoid.kinematics import NUM_ACTUATED
 from models.maaip.networks import Policy, make_networks
-from models.matching import MatchConfig
 from models.tracking.gate import play_clips
+from models.tracking.matched import MatchedTracker
+from models.tracking.matching import MatchConfig
 from storage.artifacts import artifact_name
 from storage.db import connect
 from storage.files import scratch_dir
@@ -103,7 +105,6 @@ from tasks.evaluate.two_sample import (
     telltales,
 )
 from tasks.media import render_bout
-from tasks.opponent.controller import Controller
 from tasks.opponent.export import (
     MatchedFootage,
     TrainedPolicy,
@@ -113,7 +114,7 @@ from tasks.opponent.export import (
 )
 from tasks.opponent.folder import KINDS, MANIFEST, load_opponent
 from tasks.opponent.maaip import KIND, OnnxPolicy, TorchPolicy
-from tasks.opponent.matched import MatchedTracker, motion_file, motion_of
+from tasks.opponent.matched import motion_file, motion_of
 from tasks.opponent.still import StillGuard
 from tasks.runner import StageOutput
 from tasks.train.config import TrainConfig

@@ -31,7 +31,7 @@ from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_
 from models.humanoid.stance import guard_pose
 from models.maaip.networks import Policy
 from models.maaip.trainer import checkpoint_policy
-from models.matching import MatchConfig
+from models.tracking.matching import MatchConfig
 from models.tracking.task import TRACK_OBSERVATION_DIM
 from storage.artifacts import read_bytes
 from storage.db import connect

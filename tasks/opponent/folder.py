@@ -39,12 +39,12 @@ from types import MappingProxyType
 
 import numpy as np
 
+from models.arena.controller import Controller
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NUM_ACTUATED
 from storage.files import sha256_file
 from tasks.errors import BadInput
 from tasks.opponent import maaip, matched, tracker
-from tasks.opponent.controller import Controller
 
 FORMAT = 2
 READS = (1, 2)  # format 1: before the kinds, always MAAIP's policy
@@ -82,7 +82,7 @@ class Opponent:
         folder: where it was loaded from.
         manifest: the parsed manifest.json.
         kind: its controller's kind (a key of `KINDS`).
-        controller: what picks its actions (`tasks.opponent.controller`).
+        controller: what picks its actions (`models.arena.controller`).
         agent: which of the training run's agents it is (0: the adversary), its arena slot.
         bones: both fighters' bones as trained (agent 0's, then agent 1's).
         guard: (2, 28) both fighters' guards, the hinge angles they start a bout in (the rest

@@ -1,7 +1,7 @@
 """A live bout: an exported opponent against a partner the client moves, one policy step at a time.
 
 `LiveBout` is one arena of the opponent's training environment (as `tasks.opponent.spar`), with
-the opponent driven by its controller (`tasks.opponent.controller`: any kind of opponent folder,
+the opponent driven by its controller (`models.arena.controller`: any kind of opponent folder,
 given the bodies and observations each step and reset at each of its starts) and the partner a
 puppet (`models.arena.puppet.Puppet`) moved by the client, two ways (docs/spar-protocol.md):
 - "commands": the partner's pelvis follows a heading and a speed: it turns towards the heading
@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from models.arena.controller import Seen
 from models.arena.env import ArenaEnv
 from models.arena.puppet import Puppet
 from models.humanoid.boxer import JOINT_RANGES_DEG, BoneLengths
@@ -46,7 +47,6 @@ from models.humanoid.kinematics import (
     wrap_angle,
 )
 from models.humanoid.observations import BodyState
-from tasks.opponent.controller import Seen
 from tasks.opponent.folder import Opponent
 from tasks.opponent.spar import env_config, standing_start
 

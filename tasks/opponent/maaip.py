@@ -20,9 +20,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from models.arena.controller import Seen
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.observations import OBSERVATION_DIM
-from tasks.opponent.controller import Seen
 from tasks.opponent.policy_file import PolicyFile, load_policy
 
 if TYPE_CHECKING:

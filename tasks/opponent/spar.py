@@ -3,7 +3,7 @@
 `spar` steps one arena of the training environment (`models.arena.env.ArenaEnv`, the same
 physics, observations and fall rule the policy was trained with, read from the opponent's
 manifest) with the opponent in its own slot and the partner in the other, each driven by its
-controller (`tasks.opponent.controller`: any kind of opponent folder), which is reset at every
+controller (`models.arena.controller`: any kind of opponent folder), which is reset at every
 start. Both start standing
 in their guard (the manifest's `guard`, the pose the policy was trained to start from), 1.2 m
 apart and facing each other; a fall (or a blown-up simulation) restarts the bout from there and
@@ -29,13 +29,13 @@ from pathlib import Path
 import numpy as np
 
 from models.arena.config import EnvConfig
+from models.arena.controller import Controller, Seen
 from models.arena.env import ArenaEnv
 from models.arena.starts import ReferenceMotions, standing_like
 from models.humanoid.boxer import BoneLengths
 from models.humanoid.kinematics import NQ, NUM_ACTUATED, NV
 from models.humanoid.observations import BodyState
 from tasks.media import open_video, render_frame
-from tasks.opponent.controller import Controller, Seen
 from tasks.opponent.folder import Opponent
 from tasks.opponent.still import StillGuard
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.arena.controller import Seen
 from models.humanoid.kinematics import NUM_ACTUATED, joint_targets_to_action
-from tasks.opponent.controller import Seen
 
 
 class StillGuard:

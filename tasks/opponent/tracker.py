@@ -29,39 +29,19 @@ from pathlib import Path
 
 import numpy as np
 
+from models.arena.controller import Seen
 from models.humanoid.boxer import BoneLengths
-from models.humanoid.kinematics import NQ, heading_frame_of_matrix
+from models.humanoid.kinematics import NQ
 from models.humanoid.observations import BodyState, self_observation
 from models.tracking.clips import ReferenceClip, reference_clip
+from models.tracking.matched import laid, laying
 from models.tracking.task import TRACK_OBSERVATION_DIM, tracking_input
 from tasks.errors import BadInput
-from tasks.opponent.controller import Seen
 from tasks.opponent.policy_file import PolicyFile, load_policy
 
 KIND = "tracker"
 CLIP = "clip.npz"
 FILES = ("policy.onnx", CLIP, "humanoid.xml", "arena.xml")
-
-
-def laid(states: BodyState, turn: np.ndarray, shift: np.ndarray) -> BodyState:
-    """States (B,) turned by ``turn`` (B, 3, 3) about the vertical and moved by ``shift`` (B, 3)."""
-    return BodyState(
-        np.einsum("nij,nbj->nbi", turn, states.pos) + shift[:, None],
-        turn[:, None] @ states.rot,
-        np.einsum("nij,nbj->nbi", turn, states.lin_vel),
-        np.einsum("nij,nbj->nbi", turn, states.ang_vel),
-    )
-
-
-def laying(body: BodyState, frame: BodyState) -> tuple[np.ndarray, np.ndarray]:
-    """The turn (B, 3, 3) and move (B, 3) that lay motion frames ``frame`` (B,) on simulated
-    bodies ``body`` (B,): the frame's pelvis on the body's on the floor, facing its way."""
-    turn = heading_frame_of_matrix(body.rot[:, 0]) @ heading_frame_of_matrix(
-        frame.rot[:, 0]
-    ).swapaxes(-1, -2)
-    shift = body.pos[:, 0] - np.einsum("nij,nj->ni", turn, frame.pos[:, 0])
-    shift[:, 2] = 0.0
-    return turn, shift
 
 
 class ClipTracker:

@@ -21,12 +21,12 @@ import numpy as np
 
 from models.humanoid.boxer import BoneLengths
 from models.maaip.networks import Policy
-from models.matching import motion_database
 from models.tracking.clips import TrackingData, reference_clip, tracking_data
 from models.tracking.gate import GateRow, gate_of, play_clips
+from models.tracking.matched import matched_streams
+from models.tracking.matching import motion_database
 from tasks.dataset.store import FootageClip, dataset_info, footage_clips, training_bones
 from tasks.errors import BadInput
-from tasks.opponent.matched import matched_streams
 from tasks.roles import ROLES
 from tasks.train.config import TrainConfig
 

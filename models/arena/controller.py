@@ -6,8 +6,10 @@ and takes back the fighter's actions: MAAIP's actions (§4.2), the PD targets of
 as exponential maps for the 3-DoF joints and angles for elbows and knees. At every episode
 start (a reset of the arena, or of the fighter alone) it calls `reset` first, with what the
 fighter sees of its start. A bout of its own (a live session) takes its controller's `fresh`
-copy. The kinds (`tasks.opponent.maaip`, `.still`, `.tracker`) differ only
-in what they read of `Seen` and in what they keep between steps.
+copy. The kinds (`tasks.opponent.maaip`, `.still`, `.tracker`, `.matched`) differ only
+in what they read of `Seen` and in what they keep between steps. The interface lives with the
+arena, not with the opponent folders, because training plays a controller too (a tracker in
+bouts, `models.tracking.bouts`).
 
 Shape letters: B arenas given (the rows), 2 fighters.
 """

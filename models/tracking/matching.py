@@ -98,6 +98,9 @@ class MatchConfig:
         blend_steps: policy steps over which a new match's frames are cross-faded in.
         anchor_m: the played motion is moved back onto the simulated pelvis when it strays
             further than this on the floor (DReCon keeps its kinematic root within 0.5 m).
+        ease_steps: policy steps over which an episode's first match is faded in from the
+            body as it stands (held still), so that a fighter at rest is not asked for the
+            footage's full speed at once; 0: none.
     """
 
     weights: MatchWeights = field(default_factory=MatchWeights)
@@ -106,14 +109,15 @@ class MatchConfig:
     search_every: int = 3
     blend_steps: int = 6
     anchor_m: float = 0.5
+    ease_steps: int = 30
 
     def __post_init__(self) -> None:
         if not self.future_s or any(not t > 0 for t in self.future_s):
             raise ValueError(f"future_s must be times > 0, got {self.future_s}")
-        if self.skip_frames < 0 or self.blend_steps < 0:
+        if self.skip_frames < 0 or self.blend_steps < 0 or self.ease_steps < 0:
             raise ValueError(
-                f"skip_frames and blend_steps must be >= 0, got {self.skip_frames}, "
-                f"{self.blend_steps}"
+                f"skip_frames, blend_steps and ease_steps must be >= 0, got {self.skip_frames}, "
+                f"{self.blend_steps}, {self.ease_steps}"
             )
         if self.search_every < 1 or not self.anchor_m > 0:
             raise ValueError(
@@ -130,6 +134,7 @@ class MatchConfig:
             "search_every": self.search_every,
             "blend_steps": self.blend_steps,
             "anchor_m": self.anchor_m,
+            "ease_steps": self.ease_steps,
         }
 
     @classmethod
