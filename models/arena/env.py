@@ -286,11 +286,17 @@ class ArenaEnv:
         return _observations(self._states(self._start(ids, qpos, qvel, ground=True)))
 
     def set_states(
-        self, env_ids: Sequence[int] | np.ndarray, qpos: np.ndarray, qvel: np.ndarray
+        self,
+        env_ids: Sequence[int] | np.ndarray,
+        qpos: np.ndarray,
+        qvel: np.ndarray,
+        *,
+        ground: bool = False,
     ) -> None:
         """Start the given environments with both agents exactly at ``qpos`` (n, 2, 35) moving
-        at ``qvel`` (n, 2, 34), as given: no centring, no grounding, no standing starts (a
-        tracking episode's start, `models.tracking`, which observes them its own way from
+        at ``qvel`` (n, 2, 34), as given: no centring, no standing starts, and with ``ground``
+        each fighter moved up or down until its lowest point touches the floor (a tracking
+        episode's start, `models.tracking`, which observes them its own way from
         `body_states`)."""
         ids = _check_ids(env_ids, self.num_envs)
         q = np.asarray(qpos, dtype=np.float64)
@@ -299,7 +305,7 @@ class ArenaEnv:
             raise ValueError(f"qpos must be finite with shape ({len(ids)}, 2, {NQ}), got {q.shape}")
         if v.shape != (len(ids), NUM_AGENTS, NV) or not np.isfinite(v).all():
             raise ValueError(f"qvel must be finite with shape ({len(ids)}, 2, {NV}), got {v.shape}")
-        self._start(ids, q, v, ground=False)
+        self._start(ids, q, v, ground=ground)
 
     def _start(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray, *, ground: bool):
         """Environments ``ids`` reset (`mj_resetData`) and started with both agents at ``qpos``

@@ -49,6 +49,7 @@ from models.maaip.networks import (
     action_stds,
     make_networks,
 )
+from models.tracking.bouts import BoutTracker
 from models.tracking.clips import TrackingData
 from models.tracking.reward import REWARD_TERMS
 from models.tracking.task import TRACK_OBSERVATION_DIM, Tracker
@@ -425,7 +426,11 @@ class Tracking:
         # The pushes' own generator (checkpointed with the tracker), so that turning them on
         # leaves every other draw of a run as it was.
         pushes = np.random.default_rng([config.seed, 3])
-        self.tracker = Tracker(data, config.track, config.env, pushes=pushes, anchored=True)
+        self.tracker: Tracker | BoutTracker = (
+            BoutTracker(data, config.track, config.env, pushes=pushes)
+            if config.track.bouts
+            else Tracker(data, config.track, config.env, pushes=pushes, anchored=True)
+        )
 
     def reset(
         self, env: ArenaEnv, ids: np.ndarray, rng: np.random.Generator

@@ -111,6 +111,14 @@ class TrackConfig:
         "opponent plays it (DReCon trains its tracker on such streams). 0: none.",
     )
     matched_stream_s: float = setting(10.0, "Each matched stream's length (s).")
+    bouts: bool = setting(
+        False,
+        "Train in bouts (`models.tracking.bouts`): both fighters start standing in their guards "
+        "and each tracks what its motion matcher picks from its own footage against the other, "
+        "as a matched opponent plays (DReCon trains its tracker on its matcher's output). The "
+        "starts, clips and streams settings above then do not apply; the pushes do. Off: the "
+        "footage's clips from their own states.",
+    )
     gate_every: int = setting(
         20,
         "Every this many iterations the train stage gates the tracker (`track_gate` on the train "
