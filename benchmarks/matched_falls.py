@@ -9,8 +9,8 @@ no anchoring; no ease-in at the start) spars ``--seconds`` against the still par
 (`tasks.opponent.spar`, standing starts, a fall restarts the bout and is counted), and the
 number of searches that changed the frame played is counted. Beside them, the baseline without
 transitions: the same tracker playing each clip of the folder's footage once (`ClipTracker`,
-started at rest in its first pose), its falls over the clip. Against the still partner every restart is the same standing start, so
-the bout is one trajectory played again after each fall.
+started at rest in its first pose), its falls over the clip. Against the still partner every
+restart is the same standing start, so the bout is one trajectory played again after each fall.
 
 With ``--partner FOLDER`` (the run's other fighter, `ringside export --run KEY --matched --agent
 opponent`), both fighters matched: ``--bouts`` bouts of ``--seconds`` each from standing starts,
