@@ -107,7 +107,7 @@ class TrackConfig:
         0,
         "How many streams of matched motion are added to the train stage's clips: both "
         "fighters' train footage played by their motion matchers against each other "
-        "(`tasks.opponent.matched.matched_streams`), transitions and all, as the matched "
+        "(`models.tracking.matched.matched_streams`), transitions and all, as the matched "
         "opponent plays it (DReCon trains its tracker on such streams). 0: none.",
     )
     matched_stream_s: float = setting(10.0, "Each matched stream's length (s).")
