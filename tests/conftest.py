@@ -81,6 +81,18 @@ def _uses_sample_run(path: str) -> bool:
     return "sample_run" in (REPO / path).read_text()
 
 
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """One torch thread for a module that trains: on a shared 2-core machine more threads run
+    many times slower (torch imported here, not at the top: most tests never load it)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 @pytest.fixture(scope="session")
 def assets() -> Path:
     """The pulled assets (weights, sample videos), fetched once if missing."""

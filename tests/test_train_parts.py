@@ -50,14 +50,7 @@ from models.maaip.trainer import training_device
 from tasks.config import build
 from tasks.train.config import TrainConfig
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One torch thread: on a shared 2-core machine more threads run many times slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _generator(seed: int) -> torch.Generator:

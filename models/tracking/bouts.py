@@ -33,7 +33,6 @@ from models.arena.config import EnvConfig
 from models.arena.controller import Seen
 from models.arena.env import ArenaEnv, StepResult, to_host
 from models.arena.mjcf import NUM_AGENTS
-from models.arena.pushes import random_pushes
 from models.arena.starts import standing_like
 from models.humanoid.kinematics import NUM_ACTUATED, NV
 from models.humanoid.observations import BodyState, self_observation, stacked
@@ -49,7 +48,12 @@ from models.tracking.reward import (
     deepmimic_reward,
     root_error,
 )
-from models.tracking.task import TRACK_OBSERVATION_DIM, TrackStep
+from models.tracking.task import (
+    TRACK_OBSERVATION_DIM,
+    TrackStep,
+    pushed_agents,
+    training_pushes,
+)
 
 
 class BoutTracker:
@@ -156,19 +160,7 @@ class BoutTracker:
                 f"got {corrections.shape}"
             )
         everyone = np.arange(env.num_envs)
-        pushes = None
-        if self.pushes is not None:
-            step_s = 1.0 / env.config.policy_hz
-            pushes = random_pushes(
-                self.pushes,
-                np.stack([agent.body_ids for agent in env.index.agents]),
-                num_envs=env.num_envs,
-                nbody=env.model.nbody,
-                chance=min(1.0, step_s / self.config.push_every_s),
-                mass_kg=(self.config.push_mass_min_kg, self.config.push_mass_max_kg),
-                speed_mps=self.config.push_speed_mps,
-                step_s=step_s,
-            )
+        pushes = training_pushes(env, self.config, self.pushes)
         result: StepResult = env.step(self.held + corrections, pushes=pushes, opponent=False)
         for player in self.players:
             player.advance(everyone)
@@ -209,9 +201,5 @@ class BoutTracker:
             terms=stacked_terms,
             body_error=np.where(stable[:, None], body_err, np.nan),
             root_error=np.where(stable[:, None], root, np.nan),
-            pushed=np.zeros((env.num_envs, NUM_AGENTS), dtype=bool)
-            if pushes is None
-            else np.stack(
-                [pushes[:, agent.body_ids].any(axis=(1, 2)) for agent in env.index.agents], 1
-            ),
+            pushed=pushed_agents(env, pushes),
         )

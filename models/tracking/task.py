@@ -81,6 +81,33 @@ def tracking_input(sim: BodyState, ref: BodyState, ref_observation: np.ndarray) 
     return np.concatenate([ref_observation, offset, turn[..., 0, 0:1], turn[..., 1, 0:1]], axis=-1)
 
 
+def training_pushes(
+    env: ArenaEnv, config: TrackConfig, rng: np.random.Generator | None
+) -> np.ndarray | None:
+    """This step's random pushes on the fighters of every arena of ``env``
+    (`TrackConfig.push_every_s`, `models.arena.pushes`), or None without a generator."""
+    if rng is None:
+        return None
+    step_s = 1.0 / env.config.policy_hz
+    return random_pushes(
+        rng,
+        np.stack([agent.body_ids for agent in env.index.agents]),
+        num_envs=env.num_envs,
+        nbody=env.model.nbody,
+        chance=min(1.0, step_s / config.push_every_s),
+        mass_kg=(config.push_mass_min_kg, config.push_mass_max_kg),
+        speed_mps=config.push_speed_mps,
+        step_s=step_s,
+    )
+
+
+def pushed_agents(env: ArenaEnv, pushes: np.ndarray | None) -> np.ndarray:
+    """(N, 2) which agents of ``env``'s arenas ``pushes`` (`training_pushes`) hit."""
+    if pushes is None:
+        return np.zeros((env.num_envs, NUM_AGENTS), dtype=bool)
+    return np.stack([pushes[:, agent.body_ids].any(axis=(1, 2)) for agent in env.index.agents], 1)
+
+
 class FrameSource(Protocol):
     """Which reference frame each agent follows next. The tracker asks wherever it needs the
     next frame (the observation, the PD targets, the step), so the answer must follow from the
@@ -306,19 +333,7 @@ class Tracker:
                 f"corrections must have shape ({env.num_envs}, 2, {NUM_ACTUATED}), "
                 f"got {corrections.shape}"
             )
-        pushes = None
-        if self.pushes is not None:
-            step_s = 1.0 / env.config.policy_hz
-            pushes = random_pushes(
-                self.pushes,
-                np.stack([agent.body_ids for agent in env.index.agents]),
-                num_envs=env.num_envs,
-                nbody=env.model.nbody,
-                chance=min(1.0, step_s / self.config.push_every_s),
-                mass_kg=(self.config.push_mass_min_kg, self.config.push_mass_max_kg),
-                speed_mps=self.config.push_speed_mps,
-                step_s=step_s,
-            )
+        pushes = training_pushes(env, self.config, self.pushes)
         result: StepResult = env.step(self.actions(corrections), pushes=pushes, opponent=False)
         self.flat = self.next_frames()
         # The rewards are computed on the host (with "warp" the bodies come down from the device).
@@ -371,9 +386,5 @@ class Tracker:
             terms=stacked,
             body_error=np.where(stable[:, None], body, np.nan),
             root_error=np.where(stable[:, None], root, np.nan),
-            pushed=np.zeros((env.num_envs, NUM_AGENTS), dtype=bool)
-            if pushes is None
-            else np.stack(
-                [pushes[:, agent.body_ids].any(axis=(1, 2)) for agent in env.index.agents], 1
-            ),
+            pushed=pushed_agents(env, pushes),
         )
