@@ -151,6 +151,15 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
     }
     assert set(footage.left_out) == {r["clip"] for r in adversary_rows if not r["finished"]}
     assert all(len(own) == 10 for _, own, _ in footage.clips) and footage.left_out
+    # A tracker trained in bouts played all of it through its matchers: it plays all of it.
+    in_bouts = dataclasses.replace(
+        trained.config, track=dataclasses.replace(trained.config.track, bouts=True)
+    )
+    everything = matched_footage(
+        data_paths(data).db, dataclasses.replace(trained, config=in_bouts), 0
+    )
+    assert {name for name, _, _ in everything.clips} == {r["clip"] for r in adversary_rows}
+    assert everything.left_out == ()
     out_dir = tmp_path / "matched"
     argv = ["--data", str(data), "export", "--run", key[:12], "--matched", "--out", str(out_dir)]
     code, _, err = run_cli(capsys, *argv)

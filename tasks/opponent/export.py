@@ -133,7 +133,9 @@ class MatchedFootage:
 
 def matched_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFootage:
     """The dataset's train footage of ``agent``'s fighter that tracker run ``trained`` finished
-    once trained (`train_tracking`); BadInput when it finished none."""
+    once trained (`train_tracking`), or all of it for a run trained in bouts
+    (`train.track.bouts`: it trained on all of it through its matchers, and following a clip as
+    filmed is not what it learned); BadInput when it finished none."""
     with connect(db, read_only=True) as con:
         # Agent 0 tracked each clip's fighter and agent 1 the other (`paired_tracking`).
         runs = [c for c in footage_clips(con, trained.dataset_key, ROLES[0]) if len(c.qpos) >= 2]
@@ -141,7 +143,8 @@ def matched_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFoot
     kept, left = [], []
     for c in runs:
         own, other = (c.qpos, c.other_qpos) if agent == 0 else (c.other_qpos, c.qpos)
-        (kept if finished.get(c.name, False) else left).append((c.name, own, other))
+        playable = trained.config.track.bouts or finished.get(c.name, False)
+        (kept if playable else left).append((c.name, own, other))
     if not kept:
         raise BadInput(
             f"--run {trained.run_key[:12]}",
