@@ -40,7 +40,7 @@ from models.humanoid.stance import guard_pose
 from models.tracking.clips import TrackingData
 from models.tracking.config import TrackConfig
 from models.tracking.matched import MatchedTracker
-from models.tracking.matching import MatchConfig, motion_database
+from models.tracking.matching import motion_database
 from models.tracking.reward import (
     REWARD_TERMS,
     body_error,
@@ -68,7 +68,6 @@ class BoutTracker:
         env: EnvConfig,
         *,
         pushes: np.random.Generator | None = None,
-        match: MatchConfig | None = None,
     ):
         if data.fps != env.policy_hz:
             raise ValueError(
@@ -82,8 +81,9 @@ class BoutTracker:
                 "for clip (equal lengths), so their matchers have no partner to match"
             )
         self.config = config
+        # The matcher's default settings, which `ringside export --matched` writes too.
         databases = [
-            motion_database(data.clips[a], data.clips[1 - a], fps=data.fps, config=match)
+            motion_database(data.clips[a], data.clips[1 - a], fps=data.fps)
             for a in range(NUM_AGENTS)
         ]
         self.players = tuple(MatchedTracker(None, db) for db in databases)
