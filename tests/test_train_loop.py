@@ -8,6 +8,7 @@ import io
 import numpy as np
 import pytest
 import torch
+from training_runs import parameters, resumes_exactly
 
 from models.arena.env import ArenaEnv
 from models.humanoid.boxer import BoneLengths
@@ -49,15 +50,10 @@ def demos(assets) -> Demonstrations:
     return _demos(assets)
 
 
-def _parameters(trainer: Trainer) -> torch.Tensor:
-    nets = [trainer.nets.policy, trainer.nets.value, *trainer.discriminators]
-    return torch.cat([p.detach().reshape(-1) for n in nets for p in n.state_dict().values()])
-
-
 def test_one_iteration_reports_every_term(demos):
     trainer = Trainer(TINY, demos)
     try:
-        before = _parameters(trainer)
+        before = parameters(trainer)
         metrics = trainer.iterate()
     finally:
         trainer.close()
@@ -78,7 +74,7 @@ def test_one_iteration_reports_every_term(demos):
         assert np.isfinite(metrics[name]), name
     assert 0 <= metrics["reward_motion"] <= TINY.discriminator.max_reward
     assert trainer.iteration == 1
-    assert not torch.equal(before, _parameters(trainer)), "nothing was learned"
+    assert not torch.equal(before, parameters(trainer)), "nothing was learned"
 
 
 def test_episode_length_is_the_mean_length_of_the_episodes_that_ended(demos):
@@ -106,34 +102,7 @@ def test_resumed_run_matches_the_uninterrupted_one(demos, task, stepping):
     reward = RewardConfig(w_control=0.5 if task == "heading" else 0.0, control_task=task)
     env = dataclasses.replace(TINY.env, stepping=stepping)
     config = dataclasses.replace(TINY, reward=reward, env=env)
-    whole = Trainer(config, demos)
-    try:
-        expected = [whole.iterate() for _ in range(3)]
-        final = _parameters(whole)
-    finally:
-        whole.close()
-
-    first = Trainer(config, demos)
-    try:
-        first.iterate()
-        blob = first.checkpoint()
-    finally:
-        first.close()
-    resumed = Trainer(config, demos)  # a new process would start exactly like this
-    try:
-        resumed.restore(blob)
-        assert resumed.iteration == 1
-        got = [resumed.iterate() for _ in range(2)]
-        assert torch.equal(_parameters(resumed), final)
-    finally:
-        resumed.close()
-    episodes = {"episode_length_s", "episode_age_s"}
-    timing = {k for k in expected[0] if k.endswith("_s") and k not in episodes}
-    timing.add("env_steps_per_s")
-    for want, have in zip(expected[1:], got, strict=True):
-        assert {k: v for k, v in have.items() if k not in timing} == {
-            k: v for k, v in want.items() if k not in timing
-        }
+    resumes_exactly(config, demos)
 
 
 def test_a_checkpoint_of_another_humanoid_is_refused(demos, assets):
@@ -237,7 +206,7 @@ def test_discriminators_are_judged_on_held_out_demonstrations_and_fresh_samples(
     plain_run = Trainer(TINY, demos)
     try:
         judged, plain = judged_run.iterate(), plain_run.iterate()
-        after = _parameters(judged_run), _parameters(plain_run)
+        after = parameters(judged_run), parameters(plain_run)
     finally:
         judged_run.close()
         plain_run.close()

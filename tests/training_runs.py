@@ -10,8 +10,8 @@ from models.maaip.trainer import Trainer
 
 
 def parameters(trainer: Trainer) -> torch.Tensor:
-    """The policy's and value's weights, flattened."""
-    nets = [trainer.nets.policy, trainer.nets.value]
+    """The policy's, value's and discriminators' weights, flattened."""
+    nets = [trainer.nets.policy, trainer.nets.value, *trainer.discriminators]
     return torch.cat([p.detach().reshape(-1) for n in nets for p in n.state_dict().values()])
 
 
@@ -41,7 +41,8 @@ def resumes_exactly(
         first.close()
     resumed = Trainer(config, data)
     try:
-        resumed.restore(blob)
+        resumed.restore(blob)  # a new process would start exactly like this
+        assert resumed.iteration == 1
         got = [resumed.iterate() for _ in range(2)]
         assert torch.equal(parameters(resumed), final)
         resumed_done(resumed)
