@@ -125,12 +125,11 @@ def both_matched(base: Opponent, partner: Opponent, *, bouts: int, seconds: floa
         frames=steps,
         seed=0,
     )
-    minutes = played.steps.sum() / played.policy_hz / 60
     for who, agent in (("the opponent", slot), ("its matched partner", 1 - slot)):
         fell = played.fell[:, agent]
         print(
             f"both matched, {bouts} bouts of {seconds:g} s from standing starts: {who} fell "
-            f"{fell.sum() / minutes:.1f} times a minute; {(~played.fell.any(1)).sum()} of "
+            f"{fell.sum() / played.minutes:.1f} times a minute; {(~played.fell.any(1)).sum()} of "
             f"{bouts} bouts without a fall; "
             f"bouts of {played.steps.mean() / played.policy_hz:.1f} s on average"
         )

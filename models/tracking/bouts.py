@@ -41,16 +41,13 @@ from models.tracking.clips import TrackingData
 from models.tracking.config import TrackConfig
 from models.tracking.matched import MatchedTracker
 from models.tracking.matching import motion_database
-from models.tracking.reward import (
-    REWARD_TERMS,
-    body_error,
-    centre_of_mass,
-    deepmimic_reward,
-    root_error,
-)
+from models.tracking.reward import centre_of_mass
 from models.tracking.task import (
     TRACK_OBSERVATION_DIM,
     TrackStep,
+    check_corrections,
+    check_rate,
+    judged,
     pushed_agents,
     training_pushes,
 )
@@ -69,11 +66,7 @@ class BoutTracker:
         *,
         pushes: np.random.Generator | None = None,
     ):
-        if data.fps != env.policy_hz:
-            raise ValueError(
-                f"the clips of {data.key!r} are at {data.fps} fps, the policy steps at "
-                f"{env.policy_hz} Hz: retarget them at the policy's rate"
-            )
+        check_rate(data, env)
         lengths = [[c.num_frames for c in clips] for clips in data.clips]
         if lengths[0] != lengths[1]:
             raise ValueError(
@@ -154,11 +147,7 @@ class BoutTracker:
 
     def step(self, env: ArenaEnv, corrections: np.ndarray) -> TrackStep:
         """One policy step of every environment (module docstring)."""
-        if corrections.shape != (env.num_envs, NUM_AGENTS, NUM_ACTUATED):
-            raise ValueError(
-                f"corrections must have shape ({env.num_envs}, 2, {NUM_ACTUATED}), "
-                f"got {corrections.shape}"
-            )
+        check_corrections(env, corrections)
         everyone = np.arange(env.num_envs)
         pushes = training_pushes(env, self.config, self.pushes)
         result: StepResult = env.step(self.held + corrections, pushes=pushes, opponent=False)
@@ -166,40 +155,27 @@ class BoutTracker:
             player.advance(everyone)
         body = result.body
         sim = BodyState(*(to_host(x) for x in (body.pos, body.rot, body.lin_vel, body.ang_vel)))
-        ref = self.ref
         clips = [p.database.library.clip for p in self.players]
         sim_com, ref_com = (
             np.stack(
                 [centre_of_mass(s[:, a], c.body_mass, c.body_com) for a, c in enumerate(clips)], 1
             )
-            for s in (sim, ref)
+            for s in (sim, self.ref)
         )
-        with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
-            terms = deepmimic_reward(sim, ref, sim_com, ref_com, config=self.config)
-            body_err, root = body_error(sim, ref), root_error(sim, ref)
-            drift = root > self.config.root_limit_m
-        stable = ~result.unstable
-        observation = np.zeros((env.num_envs, NUM_AGENTS, TRACK_OBSERVATION_DIM))
-        own = to_host(result.self_observation)
-        live = np.flatnonzero(stable)
-        if len(live):
-            observation[live] = self._aim(sim[live], live, own[live])
-        terminal = result.fell | drift | result.unstable[:, None]
-        terminated = terminal.any(1)
-        reward = np.where(stable[:, None], terms["total"], 0.0)
-        stacked_terms = np.stack([terms[k] for k in REWARD_TERMS], -1)
-        stacked_terms[~stable] = 0.0
-        return TrackStep(
-            observation=observation,
-            terminated=terminated,
-            truncated=result.truncated & ~terminated,
-            terminal=terminal,
-            fell=result.fell,
-            damage=to_host(result.damage),
-            unstable=result.unstable,
-            reward=reward,
-            terms=stacked_terms,
-            body_error=np.where(stable[:, None], body_err, np.nan),
-            root_error=np.where(stable[:, None], root, np.nan),
+        # Judged against the frames just reached, before the searches lay the next ones in
+        # `self.ref`; the stable arenas' observations are then filled in.
+        scored = judged(
+            result,
+            sim,
+            self.ref,
+            sim_com,
+            ref_com,
+            np.zeros((env.num_envs, NUM_AGENTS, TRACK_OBSERVATION_DIM)),
+            config=self.config,
             pushed=pushed_agents(env, pushes),
         )
+        live = np.flatnonzero(~result.unstable)
+        if len(live):
+            own = to_host(result.self_observation)
+            scored.observation[live] = self._aim(sim[live], live, own[live])
+        return scored

@@ -145,7 +145,7 @@ class MatchedTracker:
         self.config = database.config
         self.counts = MatchCounts() if counts is None else counts
         self._s = {
-            name: np.zeros((0, *shape), dtype=int if fill in (-1, 0) and not shape else float)
+            name: np.zeros((0, *shape), dtype=int if isinstance(fill, int) else float)
             for name, (shape, fill) in _PER_ARENA.items()
         }
 

@@ -161,6 +161,69 @@ class TrackStep:
         return self.terminated | self.truncated
 
 
+def check_rate(data: TrackingData, env: EnvConfig) -> None:
+    """ValueError unless ``data``'s clips are at the policy's rate, a frame a step."""
+    if data.fps != env.policy_hz:
+        raise ValueError(
+            f"the clips of {data.key!r} are at {data.fps} fps, the policy steps at "
+            f"{env.policy_hz} Hz: retarget them at the policy's rate"
+        )
+
+
+def check_corrections(env: ArenaEnv, corrections: np.ndarray) -> None:
+    """ValueError unless ``corrections`` are (N, 2, 28), one per agent of each arena."""
+    if corrections.shape != (env.num_envs, NUM_AGENTS, NUM_ACTUATED):
+        raise ValueError(
+            f"corrections must have shape ({env.num_envs}, 2, {NUM_ACTUATED}), "
+            f"got {corrections.shape}"
+        )
+
+
+def judged(
+    result: StepResult,
+    sim: BodyState,
+    ref: BodyState,
+    sim_com: np.ndarray,
+    ref_com: np.ndarray,
+    observation: np.ndarray,
+    *,
+    config: TrackConfig,
+    pushed: np.ndarray,
+    ended: np.ndarray | None = None,
+) -> TrackStep:
+    """A tracking step as training reads it: DeepMimic's reward and the errors of bodies ``sim``
+    (N, 2) against the frames ``ref`` (N, 2) just reached (their centres of mass ``sim_com`` and
+    ``ref_com`` (N, 2, 3)); a fall, a drift past `TrackConfig.root_limit_m` or a blown-up
+    simulation ends an episode terminally, the arena's time limit or ``ended`` (N,) as a
+    time-out. An unstable environment's reward, terms and ``observation`` (N, 2, 451, zeroed
+    in place) are 0 and its errors NaN."""
+    with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
+        terms = deepmimic_reward(sim, ref, sim_com, ref_com, config=config)
+        body, root = body_error(sim, ref), root_error(sim, ref)
+        drift = root > config.root_limit_m
+    stable = ~result.unstable
+    terminal = result.fell | drift | result.unstable[:, None]
+    terminated = terminal.any(1)
+    over = result.truncated if ended is None else ended | result.truncated
+    columns = np.stack([terms[k] for k in REWARD_TERMS], -1)
+    columns[~stable] = 0.0
+    observation[~stable] = 0.0
+    return TrackStep(
+        observation=observation,
+        terminated=terminated,
+        truncated=over & ~terminated,
+        terminal=terminal,
+        fell=result.fell,
+        damage=to_host(result.damage),
+        unstable=result.unstable,
+        reward=np.where(stable[:, None], terms["total"], 0.0),
+        terms=columns,
+        body_error=np.where(stable[:, None], body, np.nan),
+        root_error=np.where(stable[:, None], root, np.nan),
+        pushed=pushed,
+    )
+
+
 class Tracker:
     """Tracking episodes of N arenas, both agents: which clip and frame each agent is at and
     where its clip was put (module docstring); ``source`` says which frame comes next
@@ -179,11 +242,7 @@ class Tracker:
         pushes: np.random.Generator | None = None,
         anchored: bool = False,
     ):
-        if data.fps != env.policy_hz:
-            raise ValueError(
-                f"the clips of {data.key!r} are at {data.fps} fps, the policy steps at "
-                f"{env.policy_hz} Hz: retarget them at the policy's rate"
-            )
+        check_rate(data, env)
         num_envs = env.num_envs
         self.data, self.config = data, config
         self.libraries = tuple(clip_library(clips, fps=data.fps) for clips in data.clips)
@@ -328,11 +387,7 @@ class Tracker:
     def step(self, env: ArenaEnv, corrections: np.ndarray) -> TrackStep:
         """One policy step of every environment: PD targets from `actions`, then every agent
         on its next frame, rewarded and checked against it."""
-        if corrections.shape != (env.num_envs, NUM_AGENTS, NUM_ACTUATED):
-            raise ValueError(
-                f"corrections must have shape ({env.num_envs}, 2, {NUM_ACTUATED}), "
-                f"got {corrections.shape}"
-            )
+        check_corrections(env, corrections)
         pushes = training_pushes(env, self.config, self.pushes)
         result: StepResult = env.step(self.actions(corrections), pushes=pushes, opponent=False)
         self.flat = self.next_frames()
@@ -356,35 +411,22 @@ class Tracker:
         )
         ref_com = np.stack([f.clip.com[self.flat[:, a]] for a, f in enumerate(self.libraries)], 1)
         with np.errstate(all="ignore"):  # an unstable environment's numbers are not finite
-            terms = deepmimic_reward(sim, ref, sim_com, ref_com + self.offset, config=self.config)
-            body, root = body_error(sim, ref), root_error(sim, ref)
-            drift = root > self.config.root_limit_m
             observation = self.observation(sim, own=to_host(result.self_observation))
-        stable = ~result.unstable
-        terminal = result.fell | drift | result.unstable[:, None]
         ended = np.stack([f.at_end(self.flat[:, a]) for a, f in enumerate(self.libraries)], 1)
-        terminated = terminal.any(1)
+        scored = judged(
+            result,
+            sim,
+            ref,
+            sim_com,
+            ref_com + self.offset,
+            observation,
+            config=self.config,
+            pushed=pushed_agents(env, pushes),
+            ended=ended.any(1),
+        )
         if self.config.hard_start_share > 0:
             keep = np.exp(-1.0 / self.config.hard_start_memory_steps)
             for a, failures in enumerate(self.failures):
                 failures *= keep
-                np.add.at(failures, self.flat[terminal[:, a], a], 1.0)
-        truncated = (ended.any(1) | result.truncated) & ~terminated
-        reward = np.where(stable[:, None], terms["total"], 0.0)
-        stacked = np.stack([terms[k] for k in REWARD_TERMS], -1)
-        stacked[~stable] = 0.0
-        observation[~stable] = 0.0
-        return TrackStep(
-            observation=observation,
-            terminated=terminated,
-            truncated=truncated,
-            terminal=terminal,
-            fell=result.fell,
-            damage=to_host(result.damage),
-            unstable=result.unstable,
-            reward=reward,
-            terms=stacked,
-            body_error=np.where(stable[:, None], body, np.nan),
-            root_error=np.where(stable[:, None], root, np.nan),
-            pushed=pushed_agents(env, pushes),
-        )
+                np.add.at(failures, self.flat[scored.terminal[:, a], a], 1.0)
+        return scored
