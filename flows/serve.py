@@ -144,8 +144,6 @@ def private_server(paths: DataPaths) -> str:
     handler stops it when the command exits, and `stop_private_servers` when a command run
     in-process returns. Its log joins ``ringside serve``'s.
     """
-    port = free_port()
-    api_url = f"http://127.0.0.1:{port}/api"
     timeout_s = float(os.environ.get("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", 120))
     # Servers on one data directory share Prefect's database, which a server migrates as it
     # starts: two commands started at once on a new data directory both migrated it, and one
@@ -154,18 +152,41 @@ def private_server(paths: DataPaths) -> str:
     home.mkdir(parents=True, exist_ok=True)
     with (home / "server-start.lock").open("a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        written = server_log_size(paths)
-        server = start_server(paths, port)
-        # Stopped on the way out from here on: a SIGTERM while it migrates its database once
-        # left it running after the command had gone.
-        atexit.register(stop_process, server, 5.0)
-        _private.append(server)
-        up = wait_until_up(api_url, server, timeout_s)
+        # The port is free when picked, but another process may bind it before the server
+        # does (seconds later): then the server stops at once and starts again on another.
+        for _ in range(PORT_TRIES):
+            port = free_port()
+            api_url = f"http://127.0.0.1:{port}/api"
+            written = server_log_size(paths)
+            server = start_server(paths, port)
+            # Stopped on the way out from here on: a SIGTERM while it migrates its database
+            # once left it running after the command had gone.
+            atexit.register(stop_process, server, 5.0)
+            _private.append(server)
+            up = wait_until_up(api_url, server, timeout_s)
+            if up or not port_taken(paths, written):
+                break
     if not up:
         exited = server.poll() is not None
         stop_private_servers()
         raise ServerError(startup_failure(paths, written, exited, timeout_s))
     return api_url
+
+
+PORT_TRIES = 3
+
+
+def port_taken(paths: DataPaths, written: int) -> bool:
+    """Whether the server started when its log held ``written`` bytes stopped because its
+    port was in use (Prefect's own words)."""
+    return any("is already in use" in line for line in logged_since(paths, written))
+
+
+def logged_since(paths: DataPaths, written: int) -> list[str]:
+    """The server log's lines after its first ``written`` bytes."""
+    with (paths.prefect_home / SERVER_LOG).open("rb") as lines:
+        lines.seek(written)
+        return lines.read().decode(errors="replace").splitlines()
 
 
 class ServerError(RuntimeError):
@@ -182,9 +203,7 @@ def startup_failure(paths: DataPaths, written: int, exited: bool, timeout_s: flo
     """Why a server started when its log held ``written`` bytes did not come up, in a line:
     its database damaged (from what it logged), it stopped, or it took too long."""
     log = paths.prefect_home / SERVER_LOG
-    with log.open("rb") as lines:
-        lines.seek(written)
-        said = lines.read().decode(errors="replace").splitlines()
+    said = logged_since(paths, written)
     damaged = next(
         (
             line.split("DatabaseError)", 1)[-1].strip()
@@ -368,13 +387,32 @@ def _wait_until_ended(run_ids: set[str], timeout_s: float) -> None:
 def wait_until_up(
     api_url: str, server: subprocess.Popen, timeout_s: float = SERVER_START_S
 ) -> bool:
-    """Whether the server answers before ``timeout_s`` (its first start migrates its database)."""
+    """Whether the server answers before ``timeout_s`` (its first start migrates its database),
+    from a socket it listens on itself: between `free_port` and the server's bind, another
+    process may take the port, and its answer is not this server's."""
+    port = int(api_url.rsplit(":", 1)[1].split("/", 1)[0])
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline and server.poll() is None:
-        if answers(api_url):
+        if answers(api_url) and listens(server, port):
             return True
         time.sleep(0.1)  # every command waits for its server: a coarser poll added 0.25 s
     return False
+
+
+def listens(process: subprocess.Popen, port: int) -> bool:
+    """Whether ``process`` (or a process it started) listens on TCP ``port``."""
+    import psutil
+
+    try:
+        parent = psutil.Process(process.pid)
+        family = [parent, *parent.children(recursive=True)]
+        return any(
+            c.status == psutil.CONN_LISTEN and c.laddr.port == port
+            for p in family
+            for c in p.net_connections(kind="tcp")
+        )
+    except psutil.Error:
+        return False
 
 
 def stop_process(process: subprocess.Popen, timeout_s: float = 30.0) -> None:

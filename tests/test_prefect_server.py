@@ -5,12 +5,18 @@ from __future__ import annotations
 
 import json
 import os
-import socket
+import threading
 import subprocess
 import sys
 import time
 import urllib.request
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+
+from flows import serve
+from flows.launch import answers
+from flows.serve import free_port, listens, private_server, stop_private_servers
+from storage.paths import data_paths
 
 FLOW = """
 from prefect import flow, task
@@ -25,12 +31,6 @@ def ask():
 
 print(ask())
 """
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_prefect_server_starts(tmp_path: Path):
@@ -85,3 +85,36 @@ def test_prefect_server_starts(tmp_path: Path):
         server.terminate()
         server.wait(timeout=30)
         log.close()
+
+
+class Healthy(BaseHTTPRequestHandler):
+    """Any process answering a health check on the port, as another Prefect server would."""
+
+    def do_GET(self):
+        self.send_response(200)
+        self.end_headers()
+
+    def log_message(self, *args):
+        pass
+
+
+def test_a_port_taken_before_the_server_binds_it_moves_the_server_to_another(
+    tmp_path, monkeypatch
+):
+    # Between `free_port` and the server's bind (seconds), another process took the port and
+    # answers there: the command's flows reported to a server that was not its own, and failed
+    # with "connection refused" once that one stopped.
+    other = ThreadingHTTPServer(("127.0.0.1", 0), Healthy)
+    threading.Thread(target=other.serve_forever, daemon=True).start()
+    taken = other.server_address[1]
+    ports = iter([taken])
+    monkeypatch.setattr(serve, "free_port", lambda: next(ports, None) or free_port())
+    try:
+        api = private_server(data_paths(tmp_path / "data"))
+        port = int(api.rsplit(":", 1)[1].removesuffix("/api"))
+        assert port != taken
+        assert answers(api) and listens(serve._private[-1], port)
+    finally:
+        stop_private_servers()
+        other.shutdown()
+    assert "is already in use" in (tmp_path / "data" / "prefect" / serve.SERVER_LOG).read_text()

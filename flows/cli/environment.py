@@ -9,6 +9,7 @@ import os
 import sys
 from pathlib import Path
 
+from flows.serve import private_server
 from storage.paths import DataPaths
 
 EXIT_FAILED = 1
@@ -63,8 +64,6 @@ def flow_server(paths: DataPaths):
     input (it takes seconds to start: a mistyped path waited for it). Then the runs a killed
     command left RUNNING are marked crashed."""
     if "PREFECT_API_URL" not in os.environ:
-        from flows.serve import private_server
-
         # Not Prefect's temporary server: a killed command would leave that one running.
         os.environ["PREFECT_API_URL"] = private_server(paths)
     with prefect_settings_of_this_command():
