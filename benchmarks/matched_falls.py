@@ -4,12 +4,14 @@ beside its tracker replaying each of its clips once.
     python benchmarks/matched_falls.py FOLDER [--seconds 60] [--partner FOLDER --bouts 10]
 
 FOLDER is a matched opponent (`ringside export --run KEY --matched`). Each variant of its matcher's
-settings (the folder's own; no cross-fade; a search every 0.5 s; a search only at a clip's end;
-no anchoring; no ease-in at the start) spars ``--seconds`` against the still partner
-(`tasks.opponent.spar`, standing starts, a fall restarts the bout and is counted), and the
-number of searches that changed the frame played is counted. Beside them, the baseline without
-transitions: the same tracker playing each clip of the folder's footage once (`ClipTracker`,
-started at rest in its first pose), its falls over the clip. Against the still partner every
+settings (`VARIANTS`: the folder's own; no cross-fade; a search every step, every 0.5 s, only at a
+clip's end; no anchoring; no ease-in at the start; a shorter future, which lets more of each clip's
+frames be found; the partner's bearing weighed more), its database rebuilt with them, spars
+``--seconds`` against the still partner (`tasks.opponent.spar`, standing starts, a fall restarts
+the bout and is counted), and the number of searches that changed the frame played is counted.
+Beside them, the baseline without transitions: the same tracker playing each clip of the
+folder's footage once (`ClipTracker`, started at rest in its first pose), its falls over the
+clip. Against the still partner every
 restart is the same standing start, so the bout is one trajectory played again after each fall.
 
 With ``--partner FOLDER`` (the run's other fighter, `ringside export --run KEY --matched --agent
@@ -37,19 +39,23 @@ from models.arena.starts import ReferenceMotions  # noqa: E402
 from models.humanoid.kinematics import NV  # noqa: E402
 from models.tracking.clips import reference_clip  # noqa: E402
 from models.tracking.matched import MatchedTracker  # noqa: E402
+from models.tracking.matching import FEATURE_GROUPS  # noqa: E402
 from tasks.evaluate.bouts import simulate  # noqa: E402
 from tasks.opponent.folder import Opponent, load_opponent  # noqa: E402
-from tasks.opponent.matched import MOTION  # noqa: E402
+from tasks.opponent.matched import MOTION, motion_of  # noqa: E402
 from tasks.opponent.spar import env_config, fighters, spar  # noqa: E402
 from tasks.opponent.tracker import ClipTracker  # noqa: E402
 
 VARIANTS = {
     "the folder's settings": {},
     "no cross-fade": {"blend_steps": 0},
+    "a search every step": {"search_every": 1},
     "a search every 0.5 s": {"search_every": 15},
     "a search only at a clip's end": {"search_every": 1_000_000},
     "no anchoring": {"anchor_m": 1e6},
     "no ease-in at the start": {"ease_steps": 0},
+    "a future of 0.6 s (more candidates)": {"future_s": (0.2, 0.4, 0.6)},
+    "the partner's bearing weighed 3": {"partner_bearing": 3.0},
 }
 
 
@@ -66,9 +72,17 @@ def main() -> None:
     db = base.controller.database
     minutes = args.seconds / 60
     own = None
-    for name, change in VARIANTS.items():
-        config = dataclasses.replace(db.config, **change)
-        matched = MatchedTracker(base.controller.policy, dataclasses.replace(db, config=config))
+    with np.load(args.folder / MOTION) as stored:
+        arrays = {name: stored[name] for name in stored.files}
+    for name, given in VARIANTS.items():
+        change = dict(given)
+        weights = {g: change.pop(g) for g in FEATURE_GROUPS if g in change}
+        config = dataclasses.replace(
+            db.config, weights=dataclasses.replace(db.config.weights, **weights), **change
+        )
+        # Rebuilt: a future or a weight changes the features, the candidates and the tree.
+        motion = motion_of(arrays, base.bones[base.agent], base.bones[1 - base.agent], config)
+        matched = MatchedTracker(base.controller.policy, motion)
         result = spar(dataclasses.replace(base, controller=matched), None, seconds=args.seconds)
         rate = result.falls[0] / minutes
         own = rate if own is None else own
