@@ -278,7 +278,17 @@ def commit(con: duckdb.DuckDBPyConnection, video: str, worker: int, i: int, n: i
 
 def output_contents(con: duckdb.DuckDBPyConnection, at: str = "") -> dict[str, dict]:
     """Per ingest output (by video): its stage_outputs rows' configs, its shots' thumbnails
-    and its metrics, as of snapshot ``at`` (`AT (VERSION => n)`) or now."""
+    and its metrics, as of snapshot ``at`` (`AT (VERSION => n)`) or now, all three read in one
+    transaction: a writer committing between two reads made one output look mixed (a config
+    and shots of one commit beside the metrics of the next) in what was read, not in the lake."""
+    con.begin()
+    try:
+        return _contents(con, at)
+    finally:
+        con.rollback()
+
+
+def _contents(con: duckdb.DuckDBPyConnection, at: str) -> dict[str, dict]:
     found: dict[str, dict] = {}
 
     def entry(video: str) -> dict:
