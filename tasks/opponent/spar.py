@@ -128,6 +128,7 @@ def spar(
     size: tuple[int, int] = (640, 360),
     pace: bool = False,
     progress: Callable[[float], None] | None = None,
+    forces: Callable[[ArenaEnv, BodyState], np.ndarray] | None = None,
 ) -> SparResult:
     """Run a bout of `seconds` simulated seconds; see the module docstring.
 
@@ -140,6 +141,10 @@ def spar(
         size: the video's width and height in pixels.
         pace: sleep so that the bout runs no faster than real time (for watching live).
         progress: called with the simulated seconds after each policy step.
+        forces: called with the arena and both fighters' bodies (1, 2) before each policy
+            step; the forces and torques (1, nbody, 6) it returns act over the step
+            (`ArenaEnv.step`'s ``pushes``): an outside hand, as `benchmarks/matched_assist.py`
+            measures one.
     """
     if not seconds > 0:
         raise ValueError(f"seconds must be positive, got {seconds!r}")
@@ -173,7 +178,7 @@ def spar(
             actions[0, 1 - slot] = theirs.act(seen(obs, bodies, 1 - slot))[0]
             spent["policy"] += time.perf_counter() - tick
             tick = time.perf_counter()
-            result = env.step(actions)
+            result = env.step(actions, pushes=None if forces is None else forces(env, bodies))
             spent["physics"] += time.perf_counter() - tick
             damage += result.damage[0, [slot, 1 - slot]]
             if renderer is not None:
