@@ -231,3 +231,18 @@ def test_an_opponent_starts_in_its_guard_and_stands_against_a_still_partner(tmp_
     assert np.allclose(opponent.guard, stance, atol=1e-6)
     result = spar(opponent, None, seconds=60)
     assert result.falls == (0, 0), result.falls
+
+    # An outside hand (`spar`'s forces): half its weight sideways on its pelvis, every step,
+    # pushes over the fighter that stood the minute; its partner, untouched, stays up.
+    calls = []
+
+    def shove(env, bodies):
+        calls.append(bodies.pos.shape)
+        agent = env.index.agents[opponent.agent]
+        forces = np.zeros((1, env.model.nbody, 6))
+        forces[0, agent.body_ids[0], 1] = 0.5 * 9.81 * env.model.body_mass[agent.body_ids].sum()
+        return forces
+
+    shoved = spar(opponent, None, seconds=10, forces=shove)
+    assert len(calls) == shoved.policy_steps and calls[0][:2] == (1, 2)
+    assert shoved.falls[0] > 0 and shoved.falls[1] == 0, shoved.falls
