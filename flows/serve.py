@@ -237,16 +237,21 @@ def stop_private_servers() -> None:
     """Stop the servers `private_server` started. A command run in-process (the tests, a
     notebook) ends here, not at the interpreter's exit: the test suite had kept one idle server
     per command alive until it ended, dozens at once (about 220 MB and a few % of a core each)."""
-    if _private and "prefect" in sys.modules:
+    if _private:
+        send_logs_and_events()
+    while _private:
+        stop_process(_private.pop(), 5.0)
+
+
+def send_logs_and_events() -> None:
+    """This process's Prefect logs and events sent now, before their server stops (at the
+    interpreter's exit Prefect would send them to a stopped server, and say so)."""
+    if "prefect" in sys.modules:
         from prefect.events.worker import EventsWorker
         from prefect.logging.handlers import APILogWorker
 
-        # Their last logs and events go to the server before it stops (at the interpreter's
-        # exit Prefect would send them to a stopped server).
         for worker in (APILogWorker, EventsWorker):
             worker.drain_all(timeout=5.0, at_exit=False)
-    while _private:
-        stop_process(_private.pop(), 5.0)
 
 
 def stop_workers(workers: list[subprocess.Popen], timeout_s: float = 10.0) -> None:

@@ -56,8 +56,9 @@ for _orphan in orphaned_scratch():  # a killed session's Prefect home, a killed 
 def pytest_sessionfinish(session, exitstatus) -> None:
     """The suite's Prefect home goes with the session (one was left in /tmp per run)."""
     if _suite_server.cache_info().currsize:
-        from flows.serve import stop_process
+        from flows.serve import send_logs_and_events, stop_process
 
+        send_logs_and_events()
         stop_process(_suite_server()[0], 10.0)
     shutil.rmtree(_PREFECT_HOME, ignore_errors=True)
 
