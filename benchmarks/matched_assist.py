@@ -94,9 +94,7 @@ def main() -> None:
     parser.add_argument("folder", type=Path)
     parser.add_argument("--seconds", type=float, default=60.0)
     args = parser.parse_args()
-    opponent = load_opponent(args.folder)
-    if not isinstance(opponent.controller, MatchedTracker):
-        raise SystemExit(f"{args.folder}: a folder of kind {opponent.kind!r}, not 'matched'")
+    opponent = load_opponent(args.folder, kind="matched")
     falls = None
     for turning, holding in HANDS:
         # The hand reads the controller the bout plays (spar plays a fresh copy of a folder's).

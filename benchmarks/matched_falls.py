@@ -66,9 +66,7 @@ def main() -> None:
     parser.add_argument("--partner", type=Path, help="the other fighter's matched folder")
     parser.add_argument("--bouts", type=int, default=10)
     args = parser.parse_args()
-    base = load_opponent(args.folder)
-    if not isinstance(base.controller, MatchedTracker):
-        raise SystemExit(f"{args.folder}: a folder of kind {base.kind!r}, not 'matched'")
+    base = load_opponent(args.folder, kind="matched")
     db = base.controller.database
     minutes = args.seconds / 60
     own = None

@@ -20,7 +20,6 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from models.arena.env import ArenaEnv  # noqa: E402
-from models.tracking.matched import MatchedTracker  # noqa: E402
 from tasks.opponent.folder import load_opponent  # noqa: E402
 from tasks.opponent.spar import env_config, fighters, seen, standing_start  # noqa: E402
 
@@ -30,9 +29,7 @@ def main() -> None:
     parser.add_argument("folder", type=Path)
     parser.add_argument("--seconds", type=float, default=4.0)
     args = parser.parse_args()
-    opponent = load_opponent(args.folder)
-    if not isinstance(opponent.controller, MatchedTracker):
-        raise SystemExit(f"{args.folder}: a folder of kind {opponent.kind!r}, not 'matched'")
+    opponent = load_opponent(args.folder, kind="matched")
     (mine, theirs), bones, guards = fighters(opponent, None)
     config, slot = env_config(opponent), opponent.agent
     library = mine.database.library

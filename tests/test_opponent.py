@@ -216,6 +216,10 @@ def test_spar_refuses_bad_folders(capsys, tmp_path, pair):
     assert code == 2 and "no such opponent folder" in err
     code, _, err = run_cli(capsys, "spar", str(pair[0]), "--partner", str(tmp_path))
     assert code == 2 and "manifest.json: missing" in err
+    # A caller that needs one kind (the matched opponent's benchmarks) is told the folder's.
+    with pytest.raises(BadInput, match="of kind 'maaip', not 'matched'") as refused:
+        load_opponent(pair[0], kind="matched")
+    assert str(pair[0] / "manifest.json") in str(refused.value)
 
 
 def test_an_opponent_starts_in_its_guard_and_stands_against_a_still_partner(tmp_path, sample_run):

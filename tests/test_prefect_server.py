@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import json
 import os
-import threading
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -98,9 +98,7 @@ class Healthy(BaseHTTPRequestHandler):
         pass
 
 
-def test_a_port_taken_before_the_server_binds_it_moves_the_server_to_another(
-    tmp_path, monkeypatch
-):
+def test_a_port_taken_before_the_server_binds_it_moves_the_server_to_another(tmp_path, monkeypatch):
     # Between `free_port` and the server's bind (seconds), another process took the port and
     # answers there: the command's flows reported to a server that was not its own, and failed
     # with "connection refused" once that one stopped.

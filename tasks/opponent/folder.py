@@ -153,12 +153,16 @@ def check_files(folder: Path, manifest: dict, files: tuple[str, ...]) -> None:
             )
 
 
-def load_opponent(folder: Path) -> Opponent:
-    """Load and check an opponent folder; BadInput naming the file and the problem otherwise."""
+def load_opponent(folder: Path, kind: str | None = None) -> Opponent:
+    """Load and check an opponent folder, of ``kind`` where one is given; BadInput naming the
+    file and the problem otherwise."""
     folder = Path(folder)
     manifest = read_manifest(folder)
     manifest_path = folder / MANIFEST
-    kind = folder_kind(folder, manifest)
+    found = folder_kind(folder, manifest)
+    if kind is not None and found != kind:
+        raise BadInput(str(manifest_path), f"an opponent of kind {found!r}, not {kind!r}")
+    kind = found
     check_files(folder, manifest, KINDS[kind].files)
     try:
         bones = tuple(BoneLengths(**b) for b in manifest["bones"])
