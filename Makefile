@@ -63,7 +63,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 # These measure what the user names (an opponent folder, a training run): their docstrings say how.
-BENCH_INPUTS := benchmarks/matched_falls.py benchmarks/matched_trace.py benchmarks/replay_telltales.py
+BENCH_INPUTS := benchmarks/matched_assist.py benchmarks/matched_falls.py benchmarks/matched_trace.py benchmarks/replay_telltales.py
 
 bench: assets
 	@for script in benchmarks/[!_]*.py; do \
