@@ -89,6 +89,8 @@ def suite_prefect_server(monkeypatch):
     def suite_or_own(paths):
         if os.environ.get("PREFECT_HOME") != _PREFECT_HOME:
             return own(paths)
+        if _suite_server()[0].poll() is not None:  # stopped under us: a later test starts anew
+            _suite_server.cache_clear()
         return _suite_server()[1]
 
     monkeypatch.setattr(environment, "private_server", suite_or_own)
