@@ -25,6 +25,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.parse
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -144,6 +145,14 @@ def private_server(paths: DataPaths) -> str:
     handler stops it when the command exits, and `stop_private_servers` when a command run
     in-process returns. Its log joins ``ringside serve``'s.
     """
+    return started_server(paths, _private)
+
+
+def started_server(paths: DataPaths, started: list[subprocess.Popen]) -> str:
+    """Start a Prefect server on ``paths``' Prefect home and return its API URL once it is up.
+    Each process started is added to ``started`` at once, for the caller to stop however it
+    ends, and is stopped at the interpreter's exit. ServerError saying why in a line when it
+    does not come up."""
     timeout_s = float(os.environ.get("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", 120))
     # Servers on one data directory share Prefect's database, which a server migrates as it
     # starts: two commands started at once on a new data directory both migrated it, and one
@@ -162,13 +171,13 @@ def private_server(paths: DataPaths) -> str:
             # Stopped on the way out from here on: a SIGTERM while it migrates its database
             # once left it running after the command had gone.
             atexit.register(stop_process, server, 5.0)
-            _private.append(server)
+            started.append(server)
             up = wait_until_up(api_url, server, timeout_s)
             if up or not port_taken(paths, written):
                 break
     if not up:
         exited = server.poll() is not None
-        stop_private_servers()
+        stop_process(server, 5.0)
         raise ServerError(startup_failure(paths, written, exited, timeout_s))
     return api_url
 
@@ -395,7 +404,7 @@ def wait_until_up(
     """Whether the server answers before ``timeout_s`` (its first start migrates its database),
     from a socket it listens on itself: between `free_port` and the server's bind, another
     process may take the port, and its answer is not this server's."""
-    port = int(api_url.rsplit(":", 1)[1].split("/", 1)[0])
+    port = urllib.parse.urlsplit(api_url).port
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline and server.poll() is None:
         if answers(api_url) and listens(server, port):

@@ -55,25 +55,25 @@ for _orphan in orphaned_scratch():  # a killed session's Prefect home, a killed 
 
 def pytest_sessionfinish(session, exitstatus) -> None:
     """The suite's Prefect home goes with the session (one was left in /tmp per run)."""
-    if _suite_server.cache_info().currsize:
+    if _suite_servers:
         from flows.serve import send_logs_and_events, stop_process
 
         send_logs_and_events()
-        stop_process(_suite_server()[0], 10.0)
+        for server in _suite_servers:
+            stop_process(server, 10.0)
     shutil.rmtree(_PREFECT_HOME, ignore_errors=True)
 
 
-@functools.cache
-def _suite_server() -> tuple[subprocess.Popen, str]:
-    """One Prefect server on the suite's Prefect home, for the commands this process runs."""
-    from flows.serve import free_port, start_server, wait_until_up
+# The Prefect servers `_suite_api` started (the last one serves).
+_suite_servers: list[subprocess.Popen] = []
 
-    port = free_port()
-    server = start_server(data_paths(Path(_PREFECT_HOME) / "server"), port)
-    api = f"http://127.0.0.1:{port}/api"
-    if not wait_until_up(api, server, 120.0):
-        raise RuntimeError(f"the suite's Prefect server did not start (port {port})")
-    return server, api
+
+@functools.cache
+def _suite_api() -> str:
+    """One Prefect server on the suite's Prefect home, for the commands this process runs."""
+    from flows.serve import started_server
+
+    return started_server(data_paths(Path(_PREFECT_HOME) / "server"), _suite_servers)
 
 
 @pytest.fixture(autouse=True)
@@ -89,9 +89,9 @@ def suite_prefect_server(monkeypatch):
     def suite_or_own(paths):
         if os.environ.get("PREFECT_HOME") != _PREFECT_HOME:
             return own(paths)
-        if _suite_server()[0].poll() is not None:  # stopped under us: a later test starts anew
-            _suite_server.cache_clear()
-        return _suite_server()[1]
+        if _suite_servers and _suite_servers[-1].poll() is not None:
+            _suite_api.cache_clear()  # stopped under us: a later test starts anew
+        return _suite_api()
 
     monkeypatch.setattr(environment, "private_server", suite_or_own)
 
