@@ -39,7 +39,6 @@ from models.arena.starts import ReferenceMotions  # noqa: E402
 from models.humanoid.kinematics import NV  # noqa: E402
 from models.tracking.clips import reference_clip  # noqa: E402
 from models.tracking.matched import MatchedTracker  # noqa: E402
-from models.tracking.matching import FEATURE_GROUPS  # noqa: E402
 from tasks.evaluate.bouts import simulate  # noqa: E402
 from tasks.opponent.folder import Opponent, load_opponent  # noqa: E402
 from tasks.opponent.matched import MOTION, motion_of  # noqa: E402
@@ -55,7 +54,7 @@ VARIANTS = {
     "no anchoring": {"anchor_m": 1e6},
     "no ease-in at the start": {"ease_steps": 0},
     "a future of 0.6 s (more candidates)": {"future_s": (0.2, 0.4, 0.6)},
-    "the partner's bearing weighed 3": {"partner_bearing": 3.0},
+    "the partner's bearing weighed 3": {"weights": {"partner_bearing": 3.0}},
 }
 
 
@@ -74,10 +73,8 @@ def main() -> None:
         arrays = {name: stored[name] for name in stored.files}
     for name, given in VARIANTS.items():
         change = dict(given)
-        weights = {g: change.pop(g) for g in FEATURE_GROUPS if g in change}
-        config = dataclasses.replace(
-            db.config, weights=dataclasses.replace(db.config.weights, **weights), **change
-        )
+        weights = dataclasses.replace(db.config.weights, **change.pop("weights", {}))
+        config = dataclasses.replace(db.config, weights=weights, **change)
         # Rebuilt: a future or a weight changes the features, the candidates and the tree.
         motion = motion_of(arrays, base.bones[base.agent], base.bones[1 - base.agent], config)
         matched = MatchedTracker(base.controller.policy, motion)
@@ -109,18 +106,20 @@ def main() -> None:
         f"{seconds.sum():.0f} s"
     )
     if args.partner is not None:
-        both_matched(base, load_opponent(args.partner), bouts=args.bouts, seconds=args.seconds)
+        partner = load_opponent(args.partner)
+        both_matched(base, partner, arrays, bouts=args.bouts, seconds=args.seconds)
     print(f"matched_falls_per_min: {own:.1f} /min")
 
 
-def both_matched(base: Opponent, partner: Opponent, *, bouts: int, seconds: float) -> None:
+def both_matched(
+    base: Opponent, partner: Opponent, arrays: dict, *, bouts: int, seconds: float
+) -> None:
     """Both fighters matched, ``bouts`` bouts from standing starts where the footage has them
-    (module docstring)."""
+    (module docstring; ``arrays``: the folder's motion.npz)."""
     (mine, theirs), bones, guards = fighters(base, partner)
     motion = base.controller.database
     frames = motion.candidates
-    with np.load(base.folder / MOTION) as stored:
-        qpos, other = stored["qpos"][frames], stored["partner_qpos"][frames]
+    qpos, other = arrays["qpos"][frames], arrays["partner_qpos"][frames]
     slot = base.agent
     by_slot = (qpos, other) if slot == 0 else (other, qpos)
     zero = np.zeros((len(frames), NV))
