@@ -66,6 +66,8 @@ def flow_server(paths: DataPaths):
     if "PREFECT_API_URL" not in os.environ:
         # Not Prefect's temporary server: a killed command would leave that one running.
         os.environ["PREFECT_API_URL"] = private_server(paths)
+    import prefect.context  # noqa: F401  (so that the settings below are this command's)
+
     with prefect_settings_of_this_command():
         _crash_stale_flow_runs(paths.db)
         yield
@@ -75,14 +77,18 @@ def flow_server(paths: DataPaths):
 def prefect_settings_of_this_command():
     """Prefect reads its settings from the environment when first imported; a later command in
     the same process (the tests, a notebook) must use its own (its data directory, its server),
-    not the first command's."""
+    not the first command's. No flow run sends heartbeats: Prefect finds crashed runs by them,
+    which Ringside marks itself (`flows.runs.crash_stale_flow_runs`), and each flow run's end
+    waited for the heartbeat thread's next second (0.3 s a run: 3.5 s of a cached `process`'s
+    23 s)."""
     if "prefect" not in sys.modules:
         yield
         return
     from prefect.context import SettingsContext
     from prefect.settings import Settings
 
-    with SettingsContext(profile=SettingsContext.get().profile, settings=Settings()):
+    settings = Settings().copy_with_update(updates={"flows.heartbeat_frequency": None})
+    with SettingsContext(profile=SettingsContext.get().profile, settings=settings):
         yield
 
 
