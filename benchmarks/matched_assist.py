@@ -15,8 +15,10 @@ For each hand (`HANDS`), the bout against the still partner (`tasks.opponent.spa
 a fall restarts it and is counted): falls a minute, the torque's mean and 95th percentile as a
 share of the fighter's weight moment m g h (its mass, its pelvis's standing height: the torque
 that would hold it leaning flat), the force's as a share of its weight m g, and the pelvis's
-mean speed on the floor (a fighter held up
-but standing still is not the answer). Stiffness 0 is the opponent as it is.
+mean speed on the floor (a fighter held up but standing still is not the answer). Stiffness 0
+is the opponent as it is. A hand may be capped, its force at that share of m g and its torque
+at that share of m g h, as a residual force's action is bounded (how much would a learned one
+need to be allowed?), and its force may be the vertical part alone (holding up, not pulling).
 Last line: ``matched_assist_falls_per_min: <falls> /min`` with the last hand of `HANDS`.
 """
 
@@ -26,6 +28,7 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -38,8 +41,27 @@ from models.tracking.matched import MatchedTracker  # noqa: E402
 from tasks.opponent.folder import load_opponent  # noqa: E402
 from tasks.opponent.spar import spar  # noqa: E402
 
-# (N m per radian of tilt, N per metre of the pelvis from the motion's)
-HANDS = ((0.0, 0.0), (300.0, 0.0), (1000.0, 0.0), (0.0, 1000.0), (300.0, 1000.0), (300.0, 3000.0))
+
+class HandSetting(NamedTuple):
+    turning: float  # N m per radian of tilt
+    holding: float  # N per metre of the pelvis from the motion's
+    cap: float | None = None  # the force's cap as a share of m g, the torque's of m g h
+    vertical: bool = False  # the force's vertical part alone: holds it up, pulls it nowhere
+
+
+HANDS = (
+    HandSetting(0.0, 0.0),
+    HandSetting(300.0, 0.0),
+    HandSetting(1000.0, 0.0),
+    HandSetting(0.0, 1000.0),
+    HandSetting(300.0, 1000.0),
+    HandSetting(300.0, 3000.0, cap=0.1),
+    HandSetting(300.0, 3000.0, cap=0.2),
+    HandSetting(300.0, 3000.0, cap=0.3),
+    HandSetting(300.0, 3000.0, vertical=True),
+    HandSetting(300.0, 3000.0, cap=0.3, vertical=True),
+    HandSetting(300.0, 3000.0),
+)
 GRAVITY = 9.81
 
 
@@ -48,8 +70,8 @@ class Hand:
     frame its ``matched`` controller tracks and move it towards that frame's pelvis (module
     docstring), and what they gave step by step."""
 
-    def __init__(self, matched: MatchedTracker, slot: int, turning: float, holding: float):
-        self.matched, self.slot, self.turning, self.holding = matched, slot, turning, holding
+    def __init__(self, matched: MatchedTracker, slot: int, setting: HandSetting):
+        self.matched, self.slot, self.setting = matched, slot, setting
         self.torques: list[float] = []
         self.forces: list[float] = []
         self.pelvis: list[np.ndarray] = []
@@ -73,10 +95,17 @@ class Hand:
         back = axis / max(np.linalg.norm(axis), 1e-9) * tilt
         spin = bodies.ang_vel[0, self.slot, 0].copy()
         spin[2] = 0.0
-        torque = self.turning * back - 0.1 * self.turning * spin
+        turning, holding, cap, vertical = self.setting
+        torque = turning * back - 0.1 * turning * spin
         torque[2] = 0.0
         velocity = bodies.lin_vel[0, self.slot, 0]
-        force = self.holding * (motion.pos[0, 0] - at) - 0.1 * self.holding * velocity
+        force = holding * (motion.pos[0, 0] - at) - 0.1 * holding * velocity
+        if vertical:
+            force[:2] = 0.0
+        if cap is not None:
+            weight = self.mass * GRAVITY
+            force *= min(1.0, cap * weight / max(np.linalg.norm(force), 1e-9))
+            torque *= min(1.0, cap * weight * self.height / max(np.linalg.norm(torque), 1e-9))
         self.torques.append(float(np.linalg.norm(torque)))
         self.forces.append(float(np.linalg.norm(force)))
         out = np.zeros((1, env.model.nbody, 6))
@@ -96,19 +125,23 @@ def main() -> None:
     args = parser.parse_args()
     opponent = load_opponent(args.folder, kind="matched")
     falls = None
-    for turning, holding in HANDS:
+    for setting in HANDS:
         # The hand reads the controller the bout plays (spar plays a fresh copy of a folder's).
         matched = opponent.controller.fresh()
         matched.fresh = lambda matched=matched: matched
-        hand = Hand(matched, opponent.agent, turning, holding)
+        hand = Hand(matched, opponent.agent, setting)
         played = dataclasses.replace(opponent, controller=matched)
         result = spar(played, None, seconds=args.seconds, forces=hand)
         falls = result.falls[0] / (args.seconds / 60)
         torque = np.array(hand.torques) / (hand.mass * GRAVITY * hand.height)
         force = np.array(hand.forces) / (hand.mass * GRAVITY)
+        turning, holding, cap, vertical = setting
+        which = (" upwards only" if vertical else "") + (
+            "" if cap is None else f", capped at {100 * cap:g} % of m g (h)"
+        )
         print(
-            f"a hand of {turning:g} N m/rad and {holding:g} N/m: {falls:.1f} falls/min; its "
-            f"torque {100 * torque.mean():.1f} % of m g h on average "
+            f"a hand of {turning:g} N m/rad and {holding:g} N/m{which}: {falls:.1f} falls/min; "
+            f"its torque {100 * torque.mean():.1f} % of m g h on average "
             f"({100 * np.percentile(torque, 95):.1f} % at the 95th percentile), its force "
             f"{100 * force.mean():.1f} % of m g ({100 * np.percentile(force, 95):.1f} %); "
             f"the pelvis moved at {hand.speed(result.policy_steps / result.simulated_s):.2f} m/s "
