@@ -282,7 +282,7 @@ def _stop(process: subprocess.Popen, what: str) -> str:
 @pytest.mark.skipif(
     not CHROMIUM.exists(), reason=f"Debian's chromium is not installed ({CHROMIUM}): `make setup`"
 )
-def test_every_page_in_a_browser(capsys, trained, tmp_path):
+def test_every_page_in_a_browser(capsys, trained, tmp_path, request):
     from playwright.sync_api import sync_playwright
 
     # A copy: the rerun and the pick below must not change the shared sample's outputs.
@@ -290,6 +290,8 @@ def test_every_page_in_a_browser(capsys, trained, tmp_path):
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     home = tmp_path / "prefect"
     serving = _start_serving(data, home)  # it takes a while to come up: meanwhile, the pages
+    # Stopped however the test ends: a failure before the dashboard's `try` left it running.
+    request.addfinalizer(lambda: serving.poll() is None and _stop(serving, "`ringside serve`"))
     metrics = {
         stage: _cli_json(capsys, data, "metrics", "--stage", stage)
         for stage in queries.metric_stages()
