@@ -290,8 +290,9 @@ def test_every_page_in_a_browser(capsys, trained, tmp_path, request):
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     home = tmp_path / "prefect"
     serving = _start_serving(data, home)  # it takes a while to come up: meanwhile, the pages
-    # Stopped however the test ends: a failure before the dashboard's `try` left it running.
-    request.addfinalizer(lambda: serving.poll() is None and _stop(serving, "`ringside serve`"))
+    # Stopped however the test ends: a failure before the dashboard's `try` left it running
+    # (stopping it again after the `finally` below does nothing).
+    request.addfinalizer(lambda: _stop(serving, "`ringside serve`"))
     metrics = {
         stage: _cli_json(capsys, data, "metrics", "--stage", stage)
         for stage in queries.metric_stages()

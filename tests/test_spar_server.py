@@ -157,10 +157,11 @@ def test_poses_move_the_partner_into_contact_with_the_opponent(server):
                 over = head[:2] - foot[:2]  # the pelvis that puts the foot over the head
                 above = head[2] - foot[2] + 0.6  # ... 25 cm over its top (its origin is the neck)
                 gap = over - qpos[:2]
-                if np.linalg.norm(gap) > 0.05 and qpos[2] < above:
+                distance = np.linalg.norm(gap)
+                if distance > 0.05 and qpos[2] < above:
                     qpos[2] = min(above, qpos[2] + 0.1)
-                elif np.linalg.norm(gap) > 0.05:
-                    qpos[:2] += gap / np.linalg.norm(gap) * min(0.1, np.linalg.norm(gap))
+                elif distance > 0.05:
+                    qpos[:2] += gap / distance * min(0.1, distance)
                 else:
                     qpos[:2] = over
                     qpos[2] -= 0.03

@@ -66,7 +66,8 @@ def flow_server(paths: DataPaths):
     if "PREFECT_API_URL" not in os.environ:
         # Not Prefect's temporary server: a killed command would leave that one running.
         os.environ["PREFECT_API_URL"] = private_server(paths)
-    import prefect.context  # noqa: F401  (so that the settings below are this command's)
+    # Imported here so that the settings below (no heartbeats) hold in a fresh process too.
+    import prefect.context  # noqa: F401
 
     with prefect_settings_of_this_command():
         _crash_stale_flow_runs(paths.db)
