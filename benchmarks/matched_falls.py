@@ -2,6 +2,7 @@
 beside its tracker replaying each of its clips once.
 
     python benchmarks/matched_falls.py FOLDER [--seconds 60] [--partner FOLDER --bouts 10]
+        [--variants NAME ...]
 
 FOLDER is a matched opponent (`ringside export --run KEY --matched`). Each variant of its matcher's
 settings (`VARIANTS`: the folder's own; no cross-fade; a search every step, every 0.5 s, only at a
@@ -20,7 +21,7 @@ each bout's two fighters placed where the footage has them at a frame drawn from
 motion (their distance and bearings as filmed), both in their guards at rest, run side by side
 by the evaluation's `simulate` (a bout ends at its first fall). Each fighter's falls per minute
 and the share of bouts without a fall. Last line: ``matched_falls_per_min: <falls> /min``, the
-folder's own settings against the still partner.
+first variant sparred (by default the folder's own settings) against the still partner.
 """
 
 from __future__ import annotations
@@ -64,6 +65,14 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--partner", type=Path, help="the other fighter's matched folder")
     parser.add_argument("--bouts", type=int, default=10)
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        choices=list(VARIANTS),
+        default=list(VARIANTS),
+        metavar="NAME",
+        help="the matcher's variants to spar (default: all; the first is the headline)",
+    )
     args = parser.parse_args()
     base = load_opponent(args.folder, kind="matched")
     db = base.controller.database
@@ -71,8 +80,8 @@ def main() -> None:
     own = None
     with np.load(args.folder / MOTION) as stored:
         arrays = {name: stored[name] for name in stored.files}
-    for name, given in VARIANTS.items():
-        change = dict(given)
+    for name in args.variants:
+        change = dict(VARIANTS[name])
         weights = dataclasses.replace(db.config.weights, **change.pop("weights", {}))
         config = dataclasses.replace(db.config, weights=weights, **change)
         # Rebuilt: a future or a weight changes the features, the candidates and the tree.

@@ -41,7 +41,7 @@ from models.tracking.clips import tracking_data
 from models.tracking.matching import MatchConfig
 from tasks.deepmimic import clip_path, load_deepmimic, retarget
 from tasks.errors import BadInput
-from tasks.opponent.export import export_matched, export_opponent
+from tasks.opponent.export import MatchedFootage, export_matched, export_opponent
 from tasks.opponent.folder import load_opponent
 from tasks.train.config import TrainConfig
 from tasks.train.data import clip_demonstrations
@@ -112,7 +112,7 @@ def matched_opponent(
         agent=0,
         bones=(BoneLengths(), BoneLengths()),
         env=TRACK.env,
-        clips=footage,
+        footage=MatchedFootage(tuple(footage), ()),
         matcher=matcher,
         facts=facts,
     )

@@ -137,7 +137,13 @@ def test_the_matched_opponent_exports_as_a_folder_of_its_kind(folder, footage):
         "policy.onnx",
     ]
     assert manifest["kind"] == "matched" and manifest["observation"]["size"] == 451
-    assert manifest["motion"] == {"clips": 2, "frames": 39 + 65, "fps": 30, "file": "motion.npz"}
+    assert manifest["motion"] == {
+        "source": "footage",
+        "clips": 2,
+        "frames": 39 + 65,
+        "fps": 30,
+        "file": "motion.npz",
+    }
     assert manifest["matcher"]["search_every"] == 3 and manifest["matcher"]["blend_steps"] == 4
     opponent = load_opponent(folder)
     controller = opponent.controller

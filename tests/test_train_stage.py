@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from conftest import TINY_TRAIN_FLAGS, copy_data, query, render_page, run_cli
@@ -31,7 +32,7 @@ from tasks.config import build
 from tasks.dataset.config import DatasetConfig
 from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.store import dataset_info, footage_clips, record_dataset
-from tasks.opponent.export import matched_footage, trained_policy
+from tasks.opponent.export import matched_footage, replayed_footage, trained_policy
 from tasks.opponent.folder import load_opponent
 from tasks.roles import ROLES
 from tasks.train.config import TrainConfig
@@ -160,12 +161,36 @@ def test_a_tracker_run_tracks_every_clip_of_its_dataset_and_the_dataset_page_sho
     )
     assert {name for name, _, _ in everything.clips} == {r["clip"] for r in adversary_rows}
     assert everything.left_out == ()
-    out_dir = tmp_path / "matched"
-    argv = ["--data", str(data), "export", "--run", key[:12], "--matched", "--out", str(out_dir)]
-    code, _, err = run_cli(capsys, *argv)
-    lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1 and "no clip is longer than the matcher's future" in err
-    assert not out_dir.exists()
+    # Or its tracker's own replay of that footage, as filmed in MuJoCo: each clip from its
+    # first frame, the frame each step reached with the footage's other fighter at that frame,
+    # and each step's body error; a replay that fell keeps what came half a second before.
+    replayed = replayed_footage(data_paths(data).db, trained, 0)
+    assert replayed.source == "replay" and replayed.body_error is not None
+    assert {n for n, _, _ in replayed.clips} | set(replayed.left_out) == {
+        r["clip"] for r in adversary_rows
+    }
+    filmed = {name: (own, other) for name, own, other in everything.clips}
+    for (name, own, other), error in zip(replayed.clips, replayed.body_error, strict=True):
+        assert len(own) == len(other) == len(error) <= len(filmed[name][0]) - 1
+        np.testing.assert_array_equal(other, filmed[name][1][1 : len(own) + 1])
+        # Simulated, not copied: off the footage's frames, within the drift that ends a run.
+        gap = np.linalg.norm(own[:, :3] - filmed[name][0][1 : len(own) + 1, :3], axis=-1)
+        assert 0 < gap.max() < trained.config.track.root_limit_m, (name, gap)
+        assert gap[0] < 0.02 and np.nanmax(error) < 0.5
+    # The short clips it finished are whole (9 steps from the first frame).
+    lengths = {n: len(own) for n, own, _ in replayed.clips}
+    assert {lengths.get(n) for n, own, _ in everything.clips if len(own) == 10} == {9}
+    for motion in ("footage", "replay"):
+        out_dir = tmp_path / "matched"
+        argv = [
+            *["--data", str(data), "export", "--run", key[:12], "--matched", "--out"],
+            *[str(out_dir), "--matched-motion", motion],
+        ]
+        code, _, err = run_cli(capsys, *argv)
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1, err
+        assert "no clip is longer than the matcher's future" in err
+        assert not out_dir.exists()
     # Nor does a MAAIP run start from a tracker's networks (other observations).
     (stored,) = query(
         data, "SELECT config FROM stage_outputs WHERE stage = 'train' AND key = ?", [key]

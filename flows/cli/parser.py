@@ -148,6 +148,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="a tracker run as the matched opponent: it plays the fighter's own train footage "
         "(the clips the tracker finished), picked by the partner-aware motion matcher",
     )
+    export.add_argument(
+        "--matched-motion",
+        choices=("footage", "replay"),
+        default="footage",
+        help="with --matched, what the matcher picks from: the footage as filmed, or the "
+        "tracker's own replay of it (each train clip played from its first frame, up to half a "
+        "second before a fall; physically valid motion, with its body error per frame)",
+    )
     export.add_argument("--json", action="store_true")
 
     motion = commands.add_parser(

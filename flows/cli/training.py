@@ -53,7 +53,12 @@ def curves_command(args, paths: DataPaths) -> int:
 
 def export_command(args, paths: DataPaths) -> int:
     from tasks.errors import BadInput
-    from tasks.opponent.export import deepmimic_clip, matched_footage, trained_policy
+    from tasks.opponent.export import (
+        deepmimic_clip,
+        matched_footage,
+        replayed_footage,
+        trained_policy,
+    )
     from tasks.opponent.tracker import KIND as TRACKER
 
     trained = trained_policy(paths.db, paths.artifacts, args.run)
@@ -62,7 +67,8 @@ def export_command(args, paths: DataPaths) -> int:
     if args.matched:
         if trained.kind != TRACKER or args.clip is not None:
             raise BadInput("--matched", "takes a tracker run ('track') and no --clip")
-        footage = matched_footage(paths.db, trained, agent)
+        motion = replayed_footage if args.matched_motion == "replay" else matched_footage
+        footage = motion(paths.db, trained, agent)
     elif trained.kind == TRACKER:
         if args.clip is None:
             raise BadInput(

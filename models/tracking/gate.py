@@ -81,11 +81,14 @@ class Played:
         rows: one per agent and clip, agent by agent.
         qpos: (S, n, nq) the arena's qpos after each step, environment k playing each agent's
             clip k; an agent's run is its first ``frames`` steps (`GateRow.frames`).
+        body_error: (S, n, 2) each agent's body error after each step (m; NaN where the
+            step's judgement had none), meaningful over its run as ``qpos`` is.
         model: the arena's model (the humanoids' prefixes `models.arena.mjcf.DEFAULT_PREFIXES`).
     """
 
     rows: tuple[GateRow, ...]
     qpos: np.ndarray
+    body_error: np.ndarray
     model: mujoco.MjModel
 
 
@@ -106,6 +109,7 @@ def play_clips(
     device = next(policy.parameters()).device
     rows: list[GateRow] = []
     played: list[np.ndarray] = []
+    errors: list[np.ndarray] = []
     with ArenaEnv(env_config, np.random.default_rng(0), data.bones, str(device)) as env:
         tracker = Tracker(data, config.track, env_config)
         clips = np.stack([np.minimum(np.arange(n), c - 1) for c in counts], 1)
@@ -125,6 +129,7 @@ def play_clips(
             mean, _ = policy.act(x, agent_ids, deterministic=True)
             step = tracker.step(env, mean.reshape(n, NUM_AGENTS, -1).cpu().double().numpy())
             played.append(np.stack([d.qpos.copy() for d in env.datas]))
+            errors.append(np.asarray(step.body_error, dtype=float).copy())
             steps += alive
             body += np.where(alive, np.nan_to_num(step.body_error, nan=1.0), 0.0)
             root += np.where(alive, np.nan_to_num(step.root_error, nan=1.0), 0.0)
@@ -147,7 +152,7 @@ def play_clips(
                     root_error_cm=float(100 * root[k, a] / steps[k, a]),
                 )
             )
-    return Played(tuple(rows), np.stack(played), model)
+    return Played(tuple(rows), np.stack(played), np.stack(errors), model)
 
 
 def gate_of(rows: Sequence[GateRow]) -> Gate:

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -55,7 +55,6 @@ from models.arena.mjcf import arena_mjcf
 from models.arena.starts import ReferenceMotions
 from models.humanoid.kinematics import NUM_ACTUATED
 from models.maaip.networks import Policy, make_networks
-from models.tracking.gate import play_clips
 from models.tracking.matched import MatchedTracker
 from models.tracking.matching import MatchConfig
 from storage.artifacts import artifact_name
@@ -68,7 +67,7 @@ from tasks.dataset.demonstrations import load_demonstrations
 from tasks.dataset.statistics import FighterStatistics
 from tasks.dataset.store import FootageClip, dataset_info, footage_clips
 from tasks.errors import BadInput
-from tasks.evaluate.bouts import Bouts, HeadingTask, mujoco_stepping, simulate
+from tasks.evaluate.bouts import Bouts, HeadingTask, simulate
 from tasks.evaluate.config import EvaluateConfig
 from tasks.evaluate.metrics import (
     boxing_metrics,
@@ -108,6 +107,7 @@ from tasks.media import render_bout
 from tasks.opponent.export import (
     MatchedFootage,
     TrainedPolicy,
+    footage_replay,
     load_trained,
     matched_footage,
     onnx_max_abs_diff,
@@ -119,7 +119,6 @@ from tasks.opponent.still import StillGuard
 from tasks.runner import StageOutput
 from tasks.train.config import TrainConfig
 from tasks.train.store import tracker_run
-from tasks.train.tracker import paired_tracking
 
 __all__ = ["STAGE", "EvaluateInputs", "evaluate", "load_inputs"]
 
@@ -327,15 +326,11 @@ def tracker_replay(
 ) -> np.ndarray:
     """(W, D) windows of the adversary in ``tracker``'s replay of footage ``clips`` (of the
     dataset's ``split``): agent 0 tracking the adversary's clip, agent 1 the opponent's, both
-    where the footage has them, from each clip's first frame (`play_clips`)."""
-    hz = float(tracker.config.env.policy_hz)
-    data = paired_tracking(clips, tracker.bones, fps=hz, key=split)
-    if data is None:
+    where the footage has them, from each clip's first frame (`footage_replay`)."""
+    replay = footage_replay(tracker, clips, split)
+    if replay is None:
         return np.zeros((0, len(WINDOW_FEATURES)))
-    # In the physics the adversary's bouts are judged in (`mujoco_stepping`).
-    config = replace(tracker.config, env=mujoco_stepping(tracker.config.env))
-    played = play_clips(tracker.policy, data, config, as_filmed=True)
-    return replay_windows(played, hz)
+    return replay_windows(replay[1], float(tracker.config.env.policy_hz))
 
 
 Windows = np.ndarray | str  # (W, D) window vectors, or why there are none

@@ -16,7 +16,7 @@ import json
 import shutil
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,28 +24,33 @@ import torch
 from torch import nn
 
 from models.arena.config import EnvConfig
-from models.arena.mjcf import arena_mjcf
+from models.arena.mjcf import DEFAULT_PREFIXES, arena_mjcf
 from models.humanoid.boxer import BoneLengths, boxer_mjcf
+from models.humanoid.compiled import humanoid_index
 from models.humanoid.kinematics import HINGE_NAMES, JOINT_LAYOUT, NQ, action_to_joint_targets
 from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_BLOCKS
 from models.humanoid.stance import guard_pose
 from models.maaip.networks import Policy
 from models.maaip.trainer import checkpoint_policy
+from models.tracking.clips import TrackingData
+from models.tracking.gate import Played, play_clips
 from models.tracking.matching import MatchConfig
 from models.tracking.task import TRACK_OBSERVATION_DIM
 from storage.artifacts import read_bytes
 from storage.db import connect
 from storage.records import output_metrics
 from tasks.config import build
-from tasks.dataset.store import footage_clips
+from tasks.dataset.store import FootageClip, footage_clips
 from tasks.deepmimic import CLIPS, WALKER_CLIPS, clip_path, load_deepmimic, retarget
 from tasks.errors import BadInput
+from tasks.evaluate.bouts import mujoco_stepping
 from tasks.opponent import maaip, matched, tracker
 from tasks.opponent.folder import FORMAT, KINDS, MANIFEST
 from tasks.opponent.maaip import OnnxPolicy
 from tasks.roles import ROLES
 from tasks.train.config import TrainConfig
 from tasks.train.store import RunInfo, clips_finished, finished_run
+from tasks.train.tracker import paired_tracking
 
 ONNX_OPSET = 17
 
@@ -93,7 +98,7 @@ class TrainedPolicy:
                 agent=agent,
                 bones=self.bones,
                 env=self.config.env,
-                clips=footage.clips,
+                footage=footage,
                 matcher=MatchConfig(),
                 facts={**facts, "left_out": list(footage.left_out)},
             )
@@ -123,12 +128,24 @@ class TrainedPolicy:
 
 @dataclass(frozen=True)
 class MatchedFootage:
-    """What a matched opponent plays: the clips of its fighter's train footage that its tracker
-    finished (name, the fighter's qpos (T, 35), the other fighter's at the same frames), and
-    the names of those it did not, left out."""
+    """What a matched opponent plays: clips of its fighter's train footage (name, the
+    fighter's qpos (T, 35), the other fighter's at the same frames), the names of those left
+    out, where the fighter's motion comes from (`MOTIONS`) and, for the tracker's replay, each
+    clip's body error frame by frame (T,) in metres."""
 
     clips: tuple[tuple[str, np.ndarray, np.ndarray], ...]
     left_out: tuple[str, ...]
+    source: str = "footage"
+    body_error: tuple[np.ndarray, ...] | None = None
+
+
+# What a matched opponent's motion can be: the footage as filmed, or the tracker's own replay
+# of it (`replayed_footage`).
+MOTIONS = ("replay", "footage")
+
+# The last steps of a replay that fell or drifted are the body going down, not the footage
+# played: such a replay is kept up to this long before it ended.
+_FALLING_S = 0.5
 
 
 def matched_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFootage:
@@ -152,6 +169,59 @@ def matched_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFoot
             f"{ROLES[agent]}: no footage it can play",
         )
     return MatchedFootage(tuple(kept), tuple(name for name, _, _ in left))
+
+
+def footage_replay(
+    trained: TrainedPolicy, clips: Sequence[FootageClip], key: str
+) -> tuple[TrackingData, Played] | None:
+    """``trained``'s tracker replaying footage ``clips`` (`paired_tracking`: agent 0 tracking
+    each clip's fighter, agent 1 the other) from each clip's first frame, both where the
+    footage has them (`play_clips`), in the physics its opponent spars in
+    (`mujoco_stepping`); None when no clip has two frames."""
+    hz = float(trained.config.env.policy_hz)
+    data = paired_tracking(clips, trained.bones, fps=hz, key=key)
+    if data is None:
+        return None
+    config = replace(trained.config, env=mujoco_stepping(trained.config.env))
+    return data, play_clips(trained.policy, data, config, as_filmed=True)
+
+
+def replayed_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFootage:
+    """``agent``'s fighter's train footage as tracker run ``trained`` plays it (issue 48's
+    physically valid footage; Vid2Player3D cleans a player's video motion by physics imitation
+    before matching from it): each clip replayed from its first frame as filmed
+    (`footage_replay`), the fighter's simulated qpos after each step with the footage's other
+    fighter at the frame it reached, and each step's body error. A replay that fell or drifted
+    keeps what came before its last `_FALLING_S`; one left with under 2 frames is left out.
+    BadInput when none is left."""
+    with connect(db, read_only=True) as con:
+        runs = [c for c in footage_clips(con, trained.dataset_key, ROLES[0]) if len(c.qpos) >= 2]
+    replay = footage_replay(trained, runs, "train")
+    if replay is None:
+        raise BadInput(f"--run {trained.run_key[:12]}", "its dataset has no train footage")
+    data, played = replay
+    footage = {
+        c.name: (c.qpos, c.other_qpos) if agent == 0 else (c.other_qpos, c.qpos) for c in runs
+    }
+    index = humanoid_index(played.model, prefix=DEFAULT_PREFIXES[agent]).qpos
+    falling = round(_FALLING_S * trained.config.env.policy_hz)
+    kept, errors, left = [], [], []
+    for k, row in enumerate(r for r in played.rows if r.agent == agent):
+        # Step t reached the clip's frame t + 1 (`Tracker.step`).
+        frames = row.frames if row.finished else row.frames - falling
+        if frames < 2:
+            left.append(row.clip)
+            continue
+        other = footage[row.clip][1][1 : frames + 1]
+        kept.append((row.clip, played.qpos[:frames, k][:, index], other))
+        errors.append(played.body_error[:frames, k, agent])
+    if not kept:
+        raise BadInput(
+            f"--run {trained.run_key[:12]}",
+            f"its tracker's replays of the {len(runs)} train clips of its {ROLES[agent]} all "
+            f"fell within {_FALLING_S:g} s: no motion it can play",
+        )
+    return MatchedFootage(tuple(kept), tuple(left), "replay", tuple(errors))
 
 
 def trained_policy(db: Path, artifacts: Path, run: str) -> TrainedPolicy:
@@ -376,7 +446,7 @@ def export_matched(
     agent: int,
     bones: tuple[BoneLengths, BoneLengths],
     env: EnvConfig,
-    clips: Sequence[tuple[str, np.ndarray, np.ndarray]],
+    footage: MatchedFootage,
     matcher: MatchConfig,
     facts: dict,
 ) -> Path:
@@ -385,9 +455,9 @@ def export_matched(
 
     Args:
         out, policy, agent, bones, env, facts: as for `export_tracker`.
-        clips: the fighter's footage: each clip's name, the fighter's qpos (T, 35) on
-            ``bones[agent]`` and the other fighter's at the same frames on ``bones[1 - agent]``,
-            at ``env.policy_hz``.
+        footage: the fighter's motion (`MatchedFootage`): each clip's name, the fighter's qpos
+            (T, 35) on ``bones[agent]`` and the other fighter's at the same frames on
+            ``bones[1 - agent]``, at ``env.policy_hz``.
         matcher: the matcher's settings.
 
     A bout starts the fighter at rest in its guard (`guard_pose` over the footage it plays), as
@@ -396,9 +466,10 @@ def export_matched(
     against the still partner from the footage's first frame, 48 from its guard).
     """
     _check_tracker(policy, agent)
+    clips = footage.clips
     if not clips:
         raise ValueError("clips: the matched opponent needs footage to play")
-    arrays = matched.motion_file(clips, env.policy_hz)
+    arrays = matched.motion_file(clips, env.policy_hz, footage.body_error)
     # The database the folder will load, made once here: footage it cannot match from (clips
     # too short for the matcher's future, another body's qpos) is refused now, not at load.
     matched.motion_of(arrays, bones[agent], bones[1 - agent], matcher)
@@ -419,6 +490,7 @@ def export_matched(
         extra_files={matched.MOTION: motion.getvalue()},
         extra={
             "motion": {
+                "source": footage.source,
                 "clips": len(clips),
                 "frames": int(arrays["lengths"].sum()),
                 "fps": env.policy_hz,

@@ -5,8 +5,10 @@ which documents how it plays; DReCon, Bergamin et al. 2019; Vid2Player3D, Zhang 
 The folder (`tasks.opponent.folder`): policy.onnx, the tracker's, input "observation" (B, 451)
 float32, output "action" (B, 28); motion.npz, the database's clips as played: "qpos" (F, 35) of
 the fighter on its bones, "partner_qpos" (F, 35) of the other fighter of the footage at the
-same frames, "lengths" (C,) the clips' frame counts, "names" (C,), "fps"; and the matcher's
-settings in the manifest ("matcher", `MatchConfig.as_dict`).
+same frames, "lengths" (C,) the clips' frame counts, "names" (C,), "fps", and where the motion
+is the tracker's replay of the footage (the manifest's "motion" "source": "replay",
+`tasks.opponent.export.replayed_footage`) "body_error_m" (F,), the body error of each frame as
+it was played; and the matcher's settings in the manifest ("matcher", `MatchConfig.as_dict`).
 
 Shape letters: F frames of the database, C clips.
 """
@@ -32,17 +34,25 @@ FILES = ("policy.onnx", MOTION, "humanoid.xml", "arena.xml")
 
 
 def motion_file(
-    clips: Sequence[tuple[str, np.ndarray, np.ndarray]], fps: float
+    clips: Sequence[tuple[str, np.ndarray, np.ndarray]],
+    fps: float,
+    body_error: Sequence[np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """The arrays of motion.npz (module docstring) of ``clips``, each its name, the fighter's
-    qpos (T, 35) and the other fighter's at the same frames (T, 35)."""
-    return {
+    qpos (T, 35) and the other fighter's at the same frames (T, 35); with the tracker's body
+    error of each frame (T,) where the motion is its replay."""
+    arrays = {
         "qpos": np.concatenate([np.asarray(q, dtype=np.float64) for _, q, _ in clips]),
         "partner_qpos": np.concatenate([np.asarray(p, dtype=np.float64) for _, _, p in clips]),
         "lengths": np.array([len(q) for _, q, _ in clips]),
         "names": np.array([name for name, _, _ in clips]),
         "fps": np.float64(fps),
     }
+    if body_error is not None:
+        arrays["body_error_m"] = np.concatenate(
+            [np.asarray(e, dtype=np.float64) for e in body_error]
+        )
+    return arrays
 
 
 def motion_of(
