@@ -140,11 +140,8 @@ class MatchedTracker:
         policy: Callable[[np.ndarray], np.ndarray] | None,
         database: MotionDatabase,
         counts: MatchCounts | None = None,
-        judge: Callable[[np.ndarray], np.ndarray] | None = None,
-        judged: int = 8,
     ):
         self.policy, self.database = policy, database
-        self.judge, self.judged = judge, judged
         self.config = database.config
         self.counts = MatchCounts() if counts is None else counts
         self._s = {
@@ -153,7 +150,7 @@ class MatchedTracker:
         }
 
     def fresh(self) -> MatchedTracker:
-        return MatchedTracker(self.policy, self.database, self.counts, self.judge, self.judged)
+        return MatchedTracker(self.policy, self.database, self.counts)
 
     def state(self) -> dict[str, np.ndarray]:
         """Every arena's episode as it stands (a training checkpoint keeps it)."""
@@ -222,8 +219,6 @@ class MatchedTracker:
         self.counts.searches += len(ids)
         if start:
             switch = np.ones(len(ids), dtype=bool)
-        elif self.judge is not None:
-            found, switch = self._judged(ids, seen, rows, query, playing)
         else:
             onward = db.library.next(playing)
             switch = self._ending(playing) | (
@@ -242,31 +237,6 @@ class MatchedTracker:
         # Laid where the simulated body is, at the frame before the one tracked next.
         s["turn"][ids], s["shift"][ids] = laying(seen.body[rows], db.library.clip.states[found])
         s["at"][ids] = found
-
-    def _judged(
-        self, ids: np.ndarray, seen: Seen, rows: np.ndarray, query: np.ndarray, playing: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The frame to play and whether it is a switch, by the tracker's value: of playing on
-        and the `judged` nearest candidates, each laid as it would be, the one whose next
-        frame the value rates highest (playing on not offered where the clip ends)."""
-        s, db = self._s, self.database
-        library, body = db.library, seen.body[rows]
-        few = db.nearest_few(query, playing, self.judged)
-        b, k = few.shape
-        options = np.concatenate([playing[:, None], few], 1)
-        turn = np.concatenate([s["turn"][ids][:, None], np.zeros((b, k, 3, 3))], 1)
-        shift = np.concatenate([s["shift"][ids][:, None], np.zeros((b, k, 3))], 1)
-        flat_body = body[np.repeat(np.arange(b), k)]
-        laid_turn, laid_shift = laying(flat_body, library.clip.states[few.reshape(-1)])
-        turn[:, 1:], shift[:, 1:] = laid_turn.reshape(b, k, 3, 3), laid_shift.reshape(b, k, 3)
-        nxt = library.next(options.reshape(-1))
-        every = body[np.repeat(np.arange(b), k + 1)]
-        ref = laid(library.clip.states[nxt], turn.reshape(-1, 3, 3), shift.reshape(-1, 3))
-        given = tracking_input(every, ref, library.clip.observation[nxt])
-        values = self.judge(np.concatenate([self_observation(every), given], -1)).reshape(b, k + 1)
-        values[:, 0] = np.where(self._ending(playing), -np.inf, values[:, 0])
-        best = np.argmax(values, axis=1)
-        return options[np.arange(b), best], best > 0
 
     def start_at(self, frames: np.ndarray) -> None:
         """Arenas 0 to len(``frames``) - 1 start at database ``frames``, where the footage has

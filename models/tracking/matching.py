@@ -289,20 +289,6 @@ class MotionDatabase:
         first = np.where(allowed.any(axis=1), np.argmax(allowed, axis=1), 0)
         return found[np.arange(len(points)), first]
 
-    def nearest_few(self, query: np.ndarray, playing: np.ndarray, count: int) -> np.ndarray:
-        """(B, count) the ``count`` allowed candidates nearest to each raw query (B, D), nearest
-        first (`nearest`'s rule; the nearest repeated where fewer are allowed)."""
-        points = self.weighted(query)
-        playing = np.asarray(playing, dtype=int)
-        k = min(2 * self.config.skip_frames + 1 + count, len(self.candidates))
-        _, found = self._tree.query(points, k=k)
-        found = self.candidates[np.asarray(found).reshape(len(points), k)]
-        allowed = self._allowed(found, playing)
-        order = np.argsort(~allowed, axis=1, kind="stable")[:, :count]
-        picked = np.take_along_axis(found, order, axis=1)
-        ok = np.take_along_axis(allowed, order, axis=1)
-        return np.where(ok, picked, picked[:, :1])
-
     def nearest_brute(self, query: np.ndarray, playing: np.ndarray) -> np.ndarray:
         """`nearest` by comparing each query with every candidate."""
         points = self.weighted(query)
