@@ -330,7 +330,7 @@ def tracker_replay(
     replay = footage_replay(tracker, clips, split)
     if replay is None:
         return np.zeros((0, len(WINDOW_FEATURES)))
-    return replay_windows(replay[1], float(tracker.config.env.policy_hz))
+    return replay_windows(replay, float(tracker.config.env.policy_hz))
 
 
 Windows = np.ndarray | str  # (W, D) window vectors, or why there are none

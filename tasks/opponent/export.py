@@ -32,7 +32,6 @@ from models.humanoid.observations import OBSERVATION_DIM, OPPONENT_BLOCKS, SELF_
 from models.humanoid.stance import guard_pose
 from models.maaip.networks import Policy
 from models.maaip.trainer import checkpoint_policy
-from models.tracking.clips import TrackingData
 from models.tracking.gate import Played, play_clips
 from models.tracking.matching import MatchConfig
 from models.tracking.task import TRACK_OBSERVATION_DIM
@@ -130,18 +129,15 @@ class TrainedPolicy:
 class MatchedFootage:
     """What a matched opponent plays: clips of its fighter's train footage (name, the
     fighter's qpos (T, 35), the other fighter's at the same frames), the names of those left
-    out, where the fighter's motion comes from (`MOTIONS`) and, for the tracker's replay, each
-    clip's body error frame by frame (T,) in metres."""
+    out, where the fighter's motion comes from ("footage" as filmed, or the tracker's "replay"
+    of it, `replayed_footage`) and, for the replay, each clip's body error frame by frame (T,)
+    in metres."""
 
     clips: tuple[tuple[str, np.ndarray, np.ndarray], ...]
     left_out: tuple[str, ...]
     source: str = "footage"
     body_error: tuple[np.ndarray, ...] | None = None
 
-
-# What a matched opponent's motion can be: the footage as filmed, or the tracker's own replay
-# of it (`replayed_footage`).
-MOTIONS = ("replay", "footage")
 
 # The last steps of a replay that fell or drifted are the body going down, not the footage
 # played: such a replay is kept up to this long before it ended.
@@ -171,9 +167,7 @@ def matched_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFoot
     return MatchedFootage(tuple(kept), tuple(name for name, _, _ in left))
 
 
-def footage_replay(
-    trained: TrainedPolicy, clips: Sequence[FootageClip], key: str
-) -> tuple[TrackingData, Played] | None:
+def footage_replay(trained: TrainedPolicy, clips: Sequence[FootageClip], key: str) -> Played | None:
     """``trained``'s tracker replaying footage ``clips`` (`paired_tracking`: agent 0 tracking
     each clip's fighter, agent 1 the other) from each clip's first frame, both where the
     footage has them (`play_clips`), in the physics its opponent spars in
@@ -183,7 +177,7 @@ def footage_replay(
     if data is None:
         return None
     config = replace(trained.config, env=mujoco_stepping(trained.config.env))
-    return data, play_clips(trained.policy, data, config, as_filmed=True)
+    return play_clips(trained.policy, data, config, as_filmed=True)
 
 
 def replayed_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFootage:
@@ -196,13 +190,10 @@ def replayed_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFoo
     BadInput when none is left."""
     with connect(db, read_only=True) as con:
         runs = [c for c in footage_clips(con, trained.dataset_key, ROLES[0]) if len(c.qpos) >= 2]
-    replay = footage_replay(trained, runs, "train")
-    if replay is None:
+    played = footage_replay(trained, runs, "train")
+    if played is None:
         raise BadInput(f"--run {trained.run_key[:12]}", "its dataset has no train footage")
-    data, played = replay
-    footage = {
-        c.name: (c.qpos, c.other_qpos) if agent == 0 else (c.other_qpos, c.qpos) for c in runs
-    }
+    partners = {c.name: c.other_qpos if agent == 0 else c.qpos for c in runs}
     index = humanoid_index(played.model, prefix=DEFAULT_PREFIXES[agent]).qpos
     falling = round(_FALLING_S * trained.config.env.policy_hz)
     kept, errors, left = [], [], []
@@ -212,7 +203,7 @@ def replayed_footage(db: Path, trained: TrainedPolicy, agent: int) -> MatchedFoo
         if frames < 2:
             left.append(row.clip)
             continue
-        other = footage[row.clip][1][1 : frames + 1]
+        other = partners[row.clip][1 : frames + 1]
         kept.append((row.clip, played.qpos[:frames, k][:, index], other))
         errors.append(played.body_error[:frames, k, agent])
     if not kept:
